@@ -1,0 +1,234 @@
+//! A coarse grid of upper bounds on a scalar volume's interpolated value, and the 3D DDA that
+//! walks it along a ray. Cells whose bound is zero are empty space a ray can step over; the
+//! bound is the majorant that delta and ratio tracking sample free paths against.
+
+use glam::{DVec3, IVec3};
+
+use crate::{Volume, BRICK_DIM};
+
+/// Upper bounds of `Volume<f32>::sample_index` over cubic cells of `1 << cell_log2` voxels.
+#[derive(Clone, Debug)]
+pub struct MajorantGrid {
+    cell_log2: u32,
+    /// Index coordinate of the lowest corner of cell (0,0,0).
+    origin: IVec3,
+    dims: IVec3,
+    values: Vec<f32>,
+    /// Bound outside the grid: the volume's background.
+    outside: f32,
+}
+
+/// One piece of a ray, `t_start..t_end` in the ray's parameter, with the bound over it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MajorantSegment {
+    pub t_start: f64,
+    pub t_end: f64,
+    pub majorant: f32,
+}
+
+/// Most cells a grid may hold before its cells grow (16 MiB of bounds).
+const MAX_CELLS: i64 = 1 << 22;
+
+impl MajorantGrid {
+    /// Cells of one brick (8 voxels), grown by powers of two if the bounding box would need
+    /// more than [`MAX_CELLS`] cells, so very sparse, very wide volumes stay cheap.
+    pub fn build(volume: &Volume<f32>) -> MajorantGrid {
+        Self::with_cell_log2(volume, crate::BRICK_LOG2)
+    }
+
+    pub fn with_cell_log2(volume: &Volume<f32>, min_cell_log2: u32) -> MajorantGrid {
+        let outside = volume.background();
+        let Some((lo, hi)) = volume
+            .bricks()
+            .map(|b| (b.origin, b.origin))
+            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+        else {
+            return MajorantGrid { cell_log2: min_cell_log2, origin: IVec3::ZERO, dims: IVec3::ZERO, values: vec![], outside };
+        };
+        // A brick at o affects interpolation at positions [o-1, o+8): its voxels are the upper
+        // corners of the cells just below it.
+        let (lo, hi) = (lo - 1, hi + (BRICK_DIM - 1));
+        let mut cell_log2 = min_cell_log2;
+        let (origin, dims) = loop {
+            let origin = (lo >> cell_log2 as i32) << cell_log2 as i32;
+            let dims = ((hi - origin) >> cell_log2 as i32) + 1;
+            let cells = dims.x as i64 * dims.y as i64 * dims.z as i64;
+            if cells <= MAX_CELLS {
+                break (origin, dims);
+            }
+            cell_log2 += 1;
+        };
+        let mut values = vec![outside; (dims.x * dims.y * dims.z) as usize];
+        for brick in volume.bricks() {
+            let m = brick.values.iter().copied().fold(outside, f32::max);
+            let c0 = (brick.origin - 1 - origin) >> cell_log2 as i32;
+            let c1 = (brick.origin + (BRICK_DIM - 1) - origin) >> cell_log2 as i32;
+            for x in c0.x..=c1.x {
+                for y in c0.y..=c1.y {
+                    for z in c0.z..=c1.z {
+                        let i = ((x * dims.y + y) * dims.z + z) as usize;
+                        values[i] = values[i].max(m);
+                    }
+                }
+            }
+        }
+        MajorantGrid { cell_log2, origin, dims, values, outside }
+    }
+
+    pub fn cell_size(&self) -> i32 {
+        1 << self.cell_log2
+    }
+
+    pub fn origin(&self) -> IVec3 {
+        self.origin
+    }
+
+    pub fn dims(&self) -> IVec3 {
+        self.dims
+    }
+
+    /// Bounds in x-major, z-fastest order (the order the GPU backends upload).
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
+    /// The largest bound anywhere: a global majorant.
+    pub fn max(&self) -> f32 {
+        self.values.iter().copied().fold(self.outside, f32::max)
+    }
+
+    /// The bound at index-space position `p`.
+    pub fn at(&self, p: DVec3) -> f32 {
+        let c = ((p - self.origin.as_dvec3()) / self.cell_size() as f64).floor();
+        if c.cmplt(DVec3::ZERO).any() || c.cmpge(self.dims.as_dvec3()).any() {
+            return self.outside;
+        }
+        let c = c.as_ivec3();
+        self.values[((c.x * self.dims.y + c.y) * self.dims.z + c.z) as usize]
+    }
+
+    /// Walks the ray `origin + t * dir` (both in index space; t is then the same parameter as
+    /// for the world-space ray, the map being affine) over `t_min..t_max`. The segments cover
+    /// the interval completely and in order; callers skip those whose majorant is zero.
+    pub fn walk(&self, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64) -> MajorantWalk<'_> {
+        let scale = 1.0 / self.cell_size() as f64;
+        let q0 = (origin - self.origin.as_dvec3()) * scale;
+        let dq = dir * scale;
+        // Slab clip against the grid box [0, dims] in cell units.
+        let inv = dq.recip();
+        let (mut ta, mut tb) = (t_min, t_max);
+        for a in 0..3 {
+            if dq[a] == 0.0 {
+                if q0[a] < 0.0 || q0[a] >= self.dims[a] as f64 {
+                    ta = f64::INFINITY;
+                }
+            } else {
+                let t0 = (0.0 - q0[a]) * inv[a];
+                let t1 = (self.dims[a] as f64 - q0[a]) * inv[a];
+                ta = ta.max(t0.min(t1));
+                tb = tb.min(t0.max(t1));
+            }
+        }
+        let mut walk = MajorantWalk {
+            grid: self,
+            t: t_min,
+            t_max,
+            inside_until: f64::NEG_INFINITY,
+            cell: IVec3::ZERO,
+            step: IVec3::ZERO,
+            t_next: DVec3::INFINITY,
+            t_delta: DVec3::INFINITY,
+            pending_inside_from: f64::INFINITY,
+        };
+        if ta < tb && self.dims.min_element() > 0 {
+            // At the entry point the ray sits on the grid's boundary: clamping puts it in the
+            // first cell inside whichever face it came through.
+            let cell = (q0 + dq * ta).floor().as_ivec3().clamp(IVec3::ZERO, self.dims - 1);
+            let step = IVec3::new(sign(dq.x), sign(dq.y), sign(dq.z));
+            let mut t_next = DVec3::INFINITY;
+            let mut t_delta = DVec3::INFINITY;
+            for a in 0..3 {
+                if dq[a] != 0.0 {
+                    let boundary = if dq[a] > 0.0 { cell[a] + 1 } else { cell[a] } as f64;
+                    t_next[a] = (boundary - q0[a]) * inv[a];
+                    t_delta[a] = inv[a].abs();
+                }
+            }
+            walk.cell = cell;
+            walk.step = step;
+            walk.t_next = t_next;
+            walk.t_delta = t_delta;
+            walk.pending_inside_from = ta;
+            walk.inside_until = tb;
+        }
+        walk
+    }
+}
+
+fn sign(x: f64) -> i32 {
+    if x > 0.0 {
+        1
+    } else if x < 0.0 {
+        -1
+    } else {
+        0
+    }
+}
+
+/// Iterator over the [`MajorantSegment`]s of a ray; see [`MajorantGrid::walk`].
+#[derive(Clone, Debug)]
+pub struct MajorantWalk<'a> {
+    grid: &'a MajorantGrid,
+    t: f64,
+    t_max: f64,
+    /// Where the ray enters the grid (infinite once entered or when it never does).
+    pending_inside_from: f64,
+    /// Where the ray leaves the grid.
+    inside_until: f64,
+    cell: IVec3,
+    step: IVec3,
+    t_next: DVec3,
+    t_delta: DVec3,
+}
+
+impl Iterator for MajorantWalk<'_> {
+    type Item = MajorantSegment;
+
+    fn next(&mut self) -> Option<MajorantSegment> {
+        while self.t < self.t_max {
+            let t = self.t;
+            // Before the grid: one segment of the outside bound up to the entry point.
+            if t < self.pending_inside_from {
+                let end = self.pending_inside_from.min(self.t_max);
+                self.t = end;
+                if end > t {
+                    return Some(MajorantSegment { t_start: t, t_end: end, majorant: self.grid.outside });
+                }
+                continue;
+            }
+            self.pending_inside_from = f64::NEG_INFINITY;
+            if t < self.inside_until {
+                let axis = self.t_next.min_position();
+                let end = self.t_next[axis].min(self.inside_until).min(self.t_max);
+                let c = self.cell;
+                let d = self.grid.dims;
+                let majorant = if c.cmpge(IVec3::ZERO).all() && c.cmplt(d).all() {
+                    self.grid.values[((c.x * d.y + c.y) * d.z + c.z) as usize]
+                } else {
+                    self.grid.outside
+                };
+                self.cell[axis] += self.step[axis];
+                self.t_next[axis] += self.t_delta[axis];
+                self.t = end.max(t);
+                if end > t {
+                    return Some(MajorantSegment { t_start: t, t_end: end, majorant });
+                }
+                continue;
+            }
+            // After the grid.
+            self.t = self.t_max;
+            return Some(MajorantSegment { t_start: t, t_end: self.t_max, majorant: self.grid.outside });
+        }
+        None
+    }
+}
