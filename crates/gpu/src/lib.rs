@@ -1,0 +1,79 @@
+//! The wgpu layer under every nimbus stage's GPU backend.
+//!
+//! # Choosing a device
+//!
+//! Each tool takes `--device auto|cpu|gpu` ([`DeviceChoice`], parsed with `FromStr`, or as a
+//! `clap::ValueEnum` with this crate's `clap` feature) and resolves it once:
+//!
+//! ```no_run
+//! use nimbus_gpu::{ComputeDevice, DeviceChoice};
+//! let device = "auto".parse::<DeviceChoice>()?.resolve()?;
+//! eprintln!("device: {device}"); // what -v prints
+//! match &device {
+//!     ComputeDevice::Cpu(_) => { /* rayon backend */ }
+//!     ComputeDevice::Gpu(ctx) => { /* wgpu backend, ctx: &GpuContext */ }
+//! }
+//! # Ok::<(), nimbus_gpu::GpuError>(())
+//! ```
+//!
+//! `auto` takes a hardware adapter (discrete, integrated or virtual GPU) and otherwise the CPU
+//! backend; `gpu` also accepts a software adapter (Mesa lavapipe, how CI runs the GPU code)
+//! and is an error, never a panic, when there is no adapter at all; `cpu` creates no wgpu
+//! object. The device is opened with every limit the adapter offers (large storage buffers
+//! and 3D textures) and with FLOAT32_FILTERABLE where available. Backends default to
+//! Vulkan/Metal/DX12, overridable with `WGPU_BACKEND`.
+//!
+//! # Helpers
+//!
+//! [`GpuContext`] wraps buffer creation ([`GpuContext::storage_buffer`],
+//! [`GpuContext::uniform_buffer`]), read-back ([`GpuContext::read_buffer`]), pipelines from
+//! WGSL ([`GpuContext::compute_pipeline`]) and dispatch of 1D workloads of any size
+//! ([`GpuContext::dispatch_1d`], split over a 3D grid of workgroups; the shader side is
+//! `dispatch_linear_index`). All of them run inside wgpu error scopes
+//! ([`GpuContext::scoped`]), so a WGSL compile error, a validation error or an out-of-memory
+//! becomes a [`GpuError`]; errors raised outside any scope are parked and reported by the next
+//! scoped call rather than panicking.
+//!
+//! # Shaders and volumes
+//!
+//! A stage shader is `shaders/<stage>.wgsl` composed after [`VOLUME_WGSL`]
+//! (`shaders/volume.wgsl`) with [`GpuContext::compose_shader`]. A [`GpuVolume`] uploads a
+//! `nimbus_volume::Volume<f32>` (R32Float) or `Volume<Vec3>` (Rgba32Float) as a brick atlas
+//! (9^3-texel slots: the brick plus a high-side apron of neighbour values) and a dense
+//! indirection table over the bricks' bounding box. Group 0 of every stage pipeline is the
+//! default volume ([`GpuVolume::bind_group_layout`]); stage bindings start at group 1. WGSL
+//! then calls `volume_sample_index(p)` (exact trilinear from 8 `textureLoad`s, agreeing with
+//! `Volume::sample_index` to a few ulps) or `volume_sample_index_filtered(p)` (one
+//! hardware-filtered fetch, weights quantised to the adapter's sub-texel precision, about
+//! 1/256 of the corner range), with `p` in index space; `volume_world_to_index` maps
+//! positions relative to a host-chosen origin ([`GpuVolume::set_world_origin`]) so large
+//! world offsets keep their precision in f32. `volume.wgsl`'s header documents the layout.
+//!
+//! [`PointSampler`] runs either sampler over a list of points; the tests and the `sampling`
+//! bench use it to compare against the CPU.
+
+mod context;
+mod device;
+mod error;
+mod sampler;
+mod volume;
+
+pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
+pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
+pub use error::GpuError;
+pub use sampler::{PointSampler, SampleMode};
+pub use volume::{AtlasStats, GpuVolume, GpuVolumeOptions, GpuVoxel, VolumeInfo, SLOT_DIM};
+pub use wgpu;
+
+/// Sparse-volume sampling shared by every stage shader (`shaders/volume.wgsl`).
+pub const VOLUME_WGSL: &str = include_str!("../../../shaders/volume.wgsl");
+
+/// The kernel behind [`PointSampler`] (`shaders/sample_points.wgsl`); compose before use.
+pub const SAMPLE_POINTS_WGSL: &str = include_str!("../../../shaders/sample_points.wgsl");
+
+/// A stage shader's full source: the `VOLUME_FILTERABLE` switch, [`VOLUME_WGSL`], then
+/// `stage`. `filterable` must be [`GpuContext::float32_filterable`] of the device the
+/// pipeline is built on (prefer [`GpuContext::compose_shader`]).
+pub fn compose_shader(filterable: bool, stage: &str) -> String {
+    format!("const VOLUME_FILTERABLE: bool = {filterable};\n{VOLUME_WGSL}\n{stage}")
+}
