@@ -1,0 +1,196 @@
+//! Accuracy and timing of the density methods against analytic densities.
+//!
+//!     cargo run --release -p nimbus-density --example accuracy [-- SCENE... | --timing]
+//!
+//! For each scene (knots, shell, plume, cloud1; default the first three) it samples particles
+//! from the analytic density, estimates the density on one fixed grid with each method, and
+//! prints the relative L2 error against the true density over every grid point
+//! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
+//! particles used (mean, std over occupied voxels) and the time. usl runs over an h0 sweep;
+//! asl3 over N* and h_min. `--timing` instead times each method on the Cloud1-class scene
+//! (500k particles, 339 x 42 x 361 voxels) and the plume (330k particles).
+
+use std::time::Instant;
+
+use glam::IVec3;
+use nimbus_density::analytic::Scene;
+use nimbus_density::*;
+use rayon::prelude::*;
+
+struct Truth {
+    grid: Grid,
+    values: Vec<f64>,
+    norm2: f64,
+}
+
+/// The true density at every grid point of the scene's default (asl3, h0 auto) grid.
+fn truth(scene: &Scene, particles: &ParticleSet) -> Truth {
+    let params = DensityParams { resolution: Resolution::VoxelSize(scene.voxel_size), bounds: scene.bounds, ..Default::default() };
+    let grid = plan_grid(particles, &params).unwrap();
+    let d = grid.dims;
+    let values: Vec<f64> = (0..grid.voxel_count() as usize)
+        .into_par_iter()
+        .map(|n| {
+            let ijk = IVec3::new((n % d.x as usize) as i32, ((n / d.x as usize) % d.y as usize) as i32, (n / (d.x * d.y) as usize) as i32);
+            scene.true_density(voxel_world(&grid, ijk))
+        })
+        .collect();
+    let norm2 = values.iter().map(|v| v * v).sum();
+    Truth { grid, values, norm2 }
+}
+
+struct Row {
+    label: String,
+    l2: f64,
+    mass: f64,
+    used: (f64, f64),
+    seconds: f64,
+}
+
+fn run(particles: &ParticleSet, truth: &Truth, label: String, params: DensityParams) -> Row {
+    let params = DensityParams {
+        resolution: Resolution::VoxelSize(truth.grid.voxel_size),
+        bounds: Some(truth.grid.bounds),
+        ..params
+    };
+    let t = Instant::now();
+    let out = estimate_cpu(particles, &params).unwrap();
+    let seconds = t.elapsed().as_secs_f64();
+    assert_eq!(out.grid.dims, truth.grid.dims);
+    let d = truth.grid.dims;
+    let err2: f64 = (0..truth.values.len())
+        .into_par_iter()
+        .map(|n| {
+            let ijk = IVec3::new((n % d.x as usize) as i32, ((n / d.x as usize) % d.y as usize) as i32, (n / (d.x * d.y) as usize) as i32);
+            let e = out.density.get(ijk) as f64 - truth.values[n];
+            e * e
+        })
+        .sum();
+    let total = particles.total_mass(1.0);
+    Row {
+        label,
+        l2: (err2 / truth.norm2).sqrt(),
+        mass: out.stats.grid_mass / total,
+        used: (out.stats.used_mean, out.stats.used_std),
+        seconds,
+    }
+}
+
+fn print(rows: &[Row]) {
+    println!("  {:<34} {:>8} {:>8} {:>16} {:>7}", "method", "rel L2", "mass", "used mean/std", "time s");
+    for r in rows {
+        println!(
+            "  {:<34} {:>8.4} {:>8.4} {:>8.1}/{:<7.1} {:>7.2}",
+            r.label, r.l2, r.mass, r.used.0, r.used.1, r.seconds
+        );
+    }
+}
+
+fn accuracy(scene: Scene) {
+    let particles = scene.particles(1);
+    let truth = truth(&scene, &particles);
+    let g = &truth.grid;
+    let voxel = g.voxel_size;
+    println!(
+        "\n{}: {} particles, grid {}x{}x{} voxel {voxel}, h0 auto = {:.3} ({:.2} voxels)",
+        scene.name, particles.len(), g.dims.x, g.dims.y, g.dims.z, g.h0, g.h0 / voxel
+    );
+    let base = DensityParams::default();
+    let mut rows = Vec::new();
+
+    // usl over an h0 sweep (in voxels), then at half and double the best.
+    let mut usl: Vec<(f64, Row)> = [0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0]
+        .into_iter()
+        .map(|hv| {
+            let h0 = hv * voxel;
+            (h0, run(&particles, &truth, format!("usl h0={h0:.3} ({hv} vox)"), DensityParams { method: Method::Usl, h0: H0::Fixed(h0), ..base.clone() }))
+        })
+        .collect();
+    let best = usl.iter().min_by(|a, b| a.1.l2.total_cmp(&b.1.l2)).unwrap().0;
+    for f in [0.5, 2.0] {
+        let h0 = best * f;
+        usl.push((h0, run(&particles, &truth, format!("usl h0={h0:.3} (best x{f})"), DensityParams { method: Method::Usl, h0: H0::Fixed(h0), ..base.clone() })));
+    }
+    let best_l2 = usl.iter().map(|r| r.1.l2).fold(f64::INFINITY, f64::min);
+    rows.extend(usl.into_iter().map(|r| r.1));
+
+    let mut asl3_default = f64::NAN;
+    for method in [Method::Asl2, Method::Asl3, Method::Knn] {
+        let row = run(&particles, &truth, format!("{} defaults", method.name()), DensityParams { method, ..base.clone() });
+        if method == Method::Asl3 {
+            asl3_default = row.l2;
+        }
+        rows.push(row);
+    }
+    for n_star in [16, 32, 64, 128] {
+        for h_min in [0.5, 1.0, 2.0] {
+            rows.push(run(
+                &particles,
+                &truth,
+                format!("asl3 N*={n_star} h_min={h_min} vox"),
+                DensityParams { method: Method::Asl3, neighbours: n_star, h_min: Some(h_min * voxel), ..base.clone() },
+            ));
+        }
+    }
+    for n_star in [16, 64] {
+        rows.push(run(&particles, &truth, format!("knn N*={n_star}"), DensityParams { method: Method::Knn, neighbours: n_star, ..base.clone() }));
+    }
+    print(&rows);
+    println!(
+        "  asl3 at defaults: rel L2 {:.4} vs best usl {:.4} ({:+.1}%)",
+        asl3_default,
+        best_l2,
+        (asl3_default / best_l2 - 1.0) * 100.0
+    );
+}
+
+fn timing(scene: Scene) {
+    let t = Instant::now();
+    let particles = scene.particles(1);
+    println!("\n{}: {} particles (sampled in {:.2} s), {} threads", scene.name, particles.len(), t.elapsed().as_secs_f64(), rayon::current_num_threads());
+    for method in Method::ALL {
+        let params = DensityParams { method, resolution: Resolution::VoxelSize(scene.voxel_size), bounds: scene.bounds, ..Default::default() };
+        // Best of three: the machine is shared.
+        let mut best: Option<DensityStats> = None;
+        for _ in 0..3 {
+            let out = estimate_cpu(&particles, &params).unwrap();
+            if best.as_ref().is_none_or(|b| out.stats.timings.total() < b.timings.total()) {
+                if best.is_none() {
+                    println!(
+                        "  grid {:?}, h0 {:.3}, bricks {} proposed / {} active, {} active voxels",
+                        out.grid.dims.to_array(), out.grid.h0, out.stats.bricks_proposed, out.stats.bricks_active, out.stats.active_voxels
+                    );
+                }
+                best = Some(out.stats);
+            }
+        }
+        let s = best.unwrap();
+        let t = &s.timings;
+        println!(
+            "  {:<5} total {:>6.3} s  (prepare {:.3}, estimate {:.3}, finish {:.3})  used {:.1}/{:.1}",
+            method.name(),
+            t.total().as_secs_f64(),
+            t.prepare.as_secs_f64(),
+            t.estimate.as_secs_f64(),
+            t.finish.as_secs_f64(),
+            s.used_mean,
+            s.used_std
+        );
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.iter().any(|a| a == "--timing") {
+        timing(Scene::cloud1());
+        timing(Scene::plume());
+        return;
+    }
+    let names: Vec<&str> = if args.is_empty() { vec!["knots", "shell", "plume"] } else { args.iter().map(String::as_str).collect() };
+    for name in names {
+        match Scene::by_name(name) {
+            Some(scene) => accuracy(scene),
+            None => eprintln!("unknown scene {name} (knots, shell, plume, cloud1)"),
+        }
+    }
+}

@@ -1,0 +1,316 @@
+//! Analytic test densities: particles sampled from a known density, and that density's exact
+//! value anywhere, for accuracy measurements and tests.
+//!
+//! A density is a weighted sum of components with closed-form (or 1D-integrated)
+//! normalisation: anisotropic Gaussians (knots, envelopes, cloud puffs, plume segments) and
+//! Gaussian-profile spherical shells. `true_density(x) = total_mass * pdf(x)`; each of the n
+//! sampled particles carries total_mass / n, so an estimator's output is directly comparable.
+//!
+//! Sampling is reproducible and parallel: particle i draws from a generator keyed by
+//! (seed, i) (counter-based, as design.md section 7 asks), so results do not depend on the
+//! thread count.
+
+use std::f64::consts::PI;
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use crate::ParticleSet;
+
+/// SplitMix64 (Steele et al.): a tiny generator, seeded per particle by hashing (seed, index).
+#[derive(Clone, Copy, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64, stream: u64) -> Rng {
+        let mut r = Rng(seed ^ 0x9E37_79B9_7F4A_7C15);
+        let k = r.next_u64();
+        Rng(k ^ stream.wrapping_mul(0xD1B5_4A32_D192_ED03))
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Standard normal (Box-Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u = 1.0 - self.uniform(); // (0, 1]
+        let v = self.uniform();
+        (-2.0 * u.ln()).sqrt() * (2.0 * PI * v).cos()
+    }
+
+    pub fn unit_vector(&mut self) -> DVec3 {
+        let z = 2.0 * self.uniform() - 1.0;
+        let phi = 2.0 * PI * self.uniform();
+        let s = (1.0 - z * z).max(0.0).sqrt();
+        DVec3::new(s * phi.cos(), s * phi.sin(), z)
+    }
+}
+
+/// Shells are truncated at this many widths from their radius (pdf and sampler agree).
+const SHELL_CUT: f64 = 6.0;
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Component {
+    /// Axis-aligned anisotropic Gaussian.
+    Gaussian { centre: DVec3, sigma: DVec3 },
+    /// Spherical shell with a Gaussian radial profile exp(-(r-radius)^2 / (2 width^2)),
+    /// truncated at |r - radius| = 6 width; empty (a cavity) inside.
+    Shell { centre: DVec3, radius: f64, width: f64 },
+}
+
+impl Component {
+    /// Normalised pdf.
+    pub fn pdf(&self, p: DVec3) -> f64 {
+        match *self {
+            Component::Gaussian { centre, sigma } => {
+                let d = (p - centre) / sigma;
+                (-0.5 * d.length_squared()).exp() / ((2.0 * PI).powf(1.5) * sigma.element_product())
+            }
+            Component::Shell { centre, radius, width } => {
+                let t = ((p - centre).length() - radius) / width;
+                if t.abs() > SHELL_CUT {
+                    0.0
+                } else {
+                    (-0.5 * t * t).exp() / shell_norm(radius, width)
+                }
+            }
+        }
+    }
+
+    pub fn sample(&self, rng: &mut Rng) -> DVec3 {
+        match *self {
+            Component::Gaussian { centre, sigma } => {
+                centre + sigma * DVec3::new(rng.normal(), rng.normal(), rng.normal())
+            }
+            Component::Shell { centre, radius, width } => {
+                // Radial pdf ~ r^2 g(r): propose r from the Gaussian g, accept with
+                // probability (r / r_max)^2 (rejection sampling).
+                let r_max = radius + SHELL_CUT * width;
+                let r = loop {
+                    let t = rng.normal();
+                    let r = radius + width * t;
+                    if t.abs() <= SHELL_CUT && r >= 0.0 && rng.uniform() * r_max * r_max < r * r {
+                        break r;
+                    }
+                };
+                centre + r * rng.unit_vector()
+            }
+        }
+    }
+}
+
+/// integral over space of exp(-(r-R)^2/(2w^2)) on |r-R| <= 6w, r >= 0 (Simpson in r).
+fn shell_norm(radius: f64, width: f64) -> f64 {
+    let a = (radius - SHELL_CUT * width).max(0.0);
+    let b = radius + SHELL_CUT * width;
+    let n = 4000;
+    let h = (b - a) / n as f64;
+    let f = |r: f64| 4.0 * PI * r * r * (-0.5 * ((r - radius) / width).powi(2)).exp();
+    let mut sum = f(a) + f(b);
+    for i in 1..n {
+        sum += f(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+    }
+    sum * h / 3.0
+}
+
+/// A weighted sum of components, normalised by the weights' sum.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Analytic {
+    pub components: Vec<(f64, Component)>,
+}
+
+impl Analytic {
+    pub fn pdf(&self, p: DVec3) -> f64 {
+        let total: f64 = self.components.iter().map(|c| c.0).sum();
+        self.components.iter().map(|(w, c)| w * c.pdf(p)).sum::<f64>() / total
+    }
+
+    /// `n` positions, particle i drawn with the generator keyed by (seed, i).
+    pub fn sample(&self, n: usize, seed: u64) -> Vec<DVec3> {
+        let total: f64 = self.components.iter().map(|c| c.0).sum();
+        let cumulative: Vec<f64> = self
+            .components
+            .iter()
+            .scan(0.0, |acc, c| {
+                *acc += c.0 / total;
+                Some(*acc)
+            })
+            .collect();
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut rng = Rng::new(seed, i as u64);
+                let u = rng.uniform();
+                let k = cumulative.partition_point(|&c| c <= u).min(self.components.len() - 1);
+                self.components[k].1.sample(&mut rng)
+            })
+            .collect()
+    }
+}
+
+/// A named test scene: a density, its total mass and particle count, and the grid it is meant
+/// for.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: &'static str,
+    pub density: Analytic,
+    pub total_mass: f64,
+    pub particles: usize,
+    /// Suggested voxel size.
+    pub voxel_size: f64,
+    /// Suggested explicit bounds (None: the estimator's padded particle bounds).
+    pub bounds: Option<(DVec3, DVec3)>,
+}
+
+impl Scene {
+    /// The particles, each carrying total_mass / n (as the masses attribute).
+    pub fn particles(&self, seed: u64) -> ParticleSet {
+        let positions = self.density.sample(self.particles, seed);
+        let m = (self.total_mass / self.particles as f64) as f32;
+        ParticleSet { masses: Some(vec![m; positions.len()]), positions }
+    }
+
+    pub fn true_density(&self, p: DVec3) -> f64 {
+        self.total_mass * self.density.pdf(p)
+    }
+
+    /// Same scene with `n` particles.
+    pub fn with_particles(mut self, n: usize) -> Scene {
+        self.particles = n;
+        self
+    }
+
+    /// Dense knots (contrast ~1000) inside a thin, wide envelope.
+    pub fn knots() -> Scene {
+        let mut rng = Rng::new(11, 0);
+        let mut components = vec![(0.35, Component::Gaussian { centre: DVec3::ZERO, sigma: DVec3::new(24.0, 16.0, 6.0) })];
+        for _ in 0..16 {
+            let centre = DVec3::new(24.0, 16.0, 5.0) * DVec3::new(rng.normal(), rng.normal(), rng.normal()) * 0.8;
+            let s = 0.8 + 1.6 * rng.uniform();
+            components.push((0.65 / 16.0 * (0.5 + rng.uniform()), Component::Gaussian { centre, sigma: DVec3::splat(s) }));
+        }
+        Scene {
+            name: "knots",
+            density: Analytic { components },
+            total_mass: 1000.0,
+            particles: 150_000,
+            voxel_size: 0.6,
+            bounds: None,
+        }
+    }
+
+    /// A thin dense shell around an empty cavity, in a faint wide halo.
+    pub fn shell() -> Scene {
+        let components = vec![
+            (0.8, Component::Shell { centre: DVec3::ZERO, radius: 20.0, width: 0.7 }),
+            (0.2, Component::Gaussian { centre: DVec3::ZERO, sigma: DVec3::splat(18.0) }),
+        ];
+        Scene {
+            name: "shell",
+            density: Analytic { components },
+            total_mass: 1000.0,
+            particles: 150_000,
+            voxel_size: 0.5,
+            bounds: None,
+        }
+    }
+
+    /// Cloud1-class: 500k particles over a flat wide box of ~339 x 42 x 361 unit voxels, made
+    /// of flattened puffs of widely varying density.
+    pub fn cloud1() -> Scene {
+        let size = DVec3::new(339.0, 42.0, 361.0);
+        let mut rng = Rng::new(21, 0);
+        let mut components = Vec::new();
+        for _ in 0..240 {
+            let sigma = DVec3::new(6.0 + 22.0 * rng.uniform(), 2.0 + 3.0 * rng.uniform(), 6.0 + 22.0 * rng.uniform());
+            let margin = DVec3::new(2.0 * sigma.x, 3.0 * sigma.y, 2.0 * sigma.z);
+            let u = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform());
+            let centre = margin + u * (size - 2.0 * margin);
+            // Log-uniform weights over two decades: steep contrasts between puffs.
+            let weight = 10f64.powf(2.0 * rng.uniform());
+            components.push((weight, Component::Gaussian { centre, sigma }));
+        }
+        Scene {
+            name: "cloud1",
+            density: Analytic { components },
+            total_mass: 5000.0,
+            particles: 500_000,
+            voxel_size: 1.0,
+            bounds: Some((DVec3::ZERO, size)),
+        }
+    }
+
+    /// Smoke-like plume: a rising, widening, wavering column of puffs, denser at the source.
+    pub fn plume() -> Scene {
+        let mut rng = Rng::new(31, 0);
+        let mut components = Vec::new();
+        let n = 80;
+        for i in 0..n {
+            let t = i as f64 / (n - 1) as f64;
+            let z = 150.0 * t;
+            let centre = DVec3::new(12.0 * (z / 25.0).sin() * t, 8.0 * (z / 35.0).cos() * t, z);
+            let s = 2.0 + 14.0 * t;
+            let jitter = DVec3::new(rng.normal(), rng.normal(), rng.normal()) * 0.4 * s;
+            let weight = 1.0 - 0.6 * t;
+            components.push((weight, Component::Gaussian { centre: centre + jitter, sigma: DVec3::splat(s) }));
+            // Small dense eddies riding on the column.
+            components.push((0.15 * weight, Component::Gaussian { centre: centre - jitter, sigma: DVec3::splat(0.3 * s + 0.5) }));
+        }
+        Scene {
+            name: "plume",
+            density: Analytic { components },
+            total_mass: 1000.0,
+            particles: 330_000,
+            voxel_size: 0.9,
+            bounds: None,
+        }
+    }
+
+    pub fn by_name(name: &str) -> Option<Scene> {
+        match name {
+            "knots" => Some(Scene::knots()),
+            "shell" => Some(Scene::shell()),
+            "cloud1" => Some(Scene::cloud1()),
+            "plume" => Some(Scene::plume()),
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shell_pdf_integrates_to_one() {
+        let c = Component::Shell { centre: DVec3::ZERO, radius: 5.0, width: 0.5 };
+        // Radial integral of the pdf, by Simpson on the radius.
+        let (a, b, n) = (2.0, 8.0, 2000);
+        let h = (b - a) / n as f64;
+        let f = |r: f64| 4.0 * PI * r * r * c.pdf(DVec3::new(r, 0.0, 0.0));
+        let mut s = f(a) + f(b);
+        for i in 1..n {
+            s += f(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
+        }
+        assert!((s * h / 3.0 - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn sampling_is_reproducible_and_matches_the_mean() {
+        let a = Analytic { components: vec![(1.0, Component::Gaussian { centre: DVec3::new(1.0, 2.0, 3.0), sigma: DVec3::ONE })] };
+        let s = a.sample(20_000, 5);
+        assert_eq!(s, a.sample(20_000, 5));
+        let mean = s.iter().copied().sum::<DVec3>() / s.len() as f64;
+        assert!((mean - DVec3::new(1.0, 2.0, 3.0)).length() < 0.05);
+    }
+}

@@ -1,0 +1,93 @@
+//! The per-grid-point mathematics of design.md section 8, as small pure f32 functions.
+//!
+//! Everything here is what a WGSL compute shader computes per grid point, written so the
+//! shader can mirror it line by line: no allocation, no branching on anything but the
+//! arguments, f32 throughout (the CPU backend calls these exact functions).
+
+use std::f32::consts::PI;
+
+/// Support radius of the kernel in units of h: W(r, h) = 0 for r >= KAPPA * h.
+pub const KAPPA: f32 = 2.0;
+
+/// The M4 cubic spline without its normalisation, as a function of q = r/h:
+/// `1 - 1.5 q^2 + 0.75 q^3` for q < 1, `0.25 (2 - q)^3` for 1 <= q < 2, 0 beyond.
+#[inline]
+pub fn m4_shape(q: f32) -> f32 {
+    if q < 1.0 {
+        1.0 - q * q * (1.5 - 0.75 * q)
+    } else if q < 2.0 {
+        let t = 2.0 - q;
+        0.25 * t * t * t
+    } else {
+        0.0
+    }
+}
+
+/// The normalised M4 kernel W(r, h) = m4_shape(r/h) / (pi h^3); its integral over space is 1.
+#[inline]
+pub fn m4(r: f32, h: f32) -> f32 {
+    m4_shape(r / h) / (PI * h * h * h)
+}
+
+/// Step 1 (predict): the smoothing length that would hold `n_star` particles if the `n0`
+/// found within KAPPA*h0 were spread uniformly; never above h0, and h0 where n0 = 0.
+#[inline]
+pub fn predict_h1(n0: u32, n_star: f32, h0: f32) -> f32 {
+    if n0 == 0 {
+        return h0;
+    }
+    (h0 * (n_star / n0 as f32).cbrt()).min(h0)
+}
+
+/// Step 2 (correct, asl3): from the counts n0 within KAPPA*h0 and n1 within KAPPA*h1.
+/// Too few (n1 < N*): interpolate the count linearly in sphere volume between h1 and h0
+/// (h0 when n0 = n1, where the shell between them is empty). Too many (n1 > N*): shrink by
+/// the cube root of the excess, times the relaxation alpha = 1 - s n1/n0.
+#[inline]
+pub fn correct_h(n0: u32, n1: u32, n_star: f32, h0: f32, h1: f32, relax: f32) -> f32 {
+    let (n0f, n1f) = (n0 as f32, n1 as f32);
+    if n1f < n_star {
+        if n0 == n1 {
+            return h0;
+        }
+        let (h0c, h1c) = (h0 * h0 * h0, h1 * h1 * h1);
+        ((n_star - n1f) * (h0c - h1c) / (n0f - n1f) + h1c).cbrt()
+    } else if n1f > n_star {
+        let alpha = 1.0 - relax * n1f / n0f;
+        alpha * h1 * (n_star / n1f).cbrt()
+    } else {
+        h1
+    }
+}
+
+/// The final clamp to [h_min, h0]; h0 wins when h_min > h0 (the user's upper bound is a
+/// hard limit, h_min only a floor against kernels narrower than the grid).
+#[inline]
+pub fn clamp_h(h: f32, h_min: f32, h0: f32) -> f32 {
+    h.max(h_min).min(h0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernel_is_continuous_at_the_joints() {
+        assert!((m4_shape(1.0 - 1e-6) - m4_shape(1.0)).abs() < 1e-5);
+        assert!(m4_shape(2.0 - 1e-4).abs() < 1e-10);
+        assert_eq!(m4_shape(0.0), 1.0);
+    }
+
+    #[test]
+    fn corrector_cases() {
+        // n1 = N*: keep h1.
+        assert_eq!(correct_h(100, 32, 32.0, 2.0, 1.0, 0.0), 1.0);
+        // n0 = n1 < N*: the shell is empty, fall back to h0.
+        assert_eq!(correct_h(10, 10, 32.0, 2.0, 2.0, 0.0), 2.0);
+        // n1 > N*, s = 0: shrink by the cube root.
+        assert!((correct_h(100, 64, 32.0, 2.0, 1.0, 0.0) - 0.5f32.cbrt()).abs() < 1e-6);
+        // n1 < N*: between h1 and h0.
+        let h = correct_h(100, 16, 32.0, 2.0, 1.0, 0.0);
+        assert!(h > 1.0 && h < 2.0);
+    }
+}

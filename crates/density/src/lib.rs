@@ -1,0 +1,256 @@
+//! nimbus-density: particles in, a sparse density volume out — the engine of `particles2vdb`.
+//!
+//! ```text
+//! read_particles / read_path        PLY (ascii, binary LE/BE), CSV/TSV      particles.rs
+//!        |  ParticleSet (f64 world positions, optional f32 masses) + ReadReport
+//! prepare(particles, params)        backend-independent set-up              setup.rs
+//!        |  h0 (fixed or auto), grid, particles rebased to index space as f32,
+//!        |  counting sort into cells, bricks within kappa*h0 of a particle
+//! estimate_cpu                      rayon over bricks, splat passes         cpu.rs
+//!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
+//! finish                            noise, threshold, volumes, stats        lib.rs, noise.rs
+//!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?, stats }
+//! ```
+//!
+//! # The mathematics (design.md section 8)
+//!
+//! Kernel: cubic spline M4, support kappa*h with kappa = 2 ([`kernel`]). Methods ([`Method`]):
+//! `usl` h = h0; `asl2` h = h1 from the count N0 within kappa*h0; `asl3` corrects h1 with the
+//! count N1 within kappa*h1; `knn` h = distance to the N*-th nearest / kappa (exact
+//! reference). Every h is clamped to [h_min, h0], h_min defaulting to one voxel. The
+//! per-grid-point functions ([`kernel::predict_h1`], [`kernel::correct_h`],
+//! [`kernel::clamp_h`], [`kernel::m4_shape`]) are pure f32 so a WGSL backend can mirror them.
+//!
+//! # Decisions a user can see
+//!
+//! - Grid: voxel footprints tile the bounds; index (0,0,0) is the voxel at the bounds' low
+//!   corner, its value at that voxel's centre, `low + voxel/2` ([`Grid`]). Bounds default to
+//!   the particles' box padded by kappa*h0, so density reaches zero inside the grid.
+//!   `Resolution::Longest(n)` puts n voxels on the longest axis of the bounds.
+//! - `h0 auto` ([`auto_h0`]): (4/3) pi (kappa h0)^3 n_p = N*, n_p the number density below
+//!   which only 10% of the particles live (histogram over cells of edge 2 kappa h0); never
+//!   below h_min.
+//! - Active voxels: rho > `active_tolerance` (default 1e-6) times the maximum density. The
+//!   kernel has compact support, so this only drops rounding dust and far-tail values; the mass
+//!   it removes is below tolerance * max * (active voxel volume).
+//! - Noise: `rho * max(0, 1 + amp * fbm(x / L))` at the world position x, so the pattern stays
+//!   fixed in the world when bounds change between frames.
+//! - Stats ([`DensityStats`]): over grid points whose voxel footprint holds at least one
+//!   particle, mean and std of the particles used (within kappa*h) — the paper's Table 2.
+//!
+//! # Backends
+//!
+//! [`prepare`] does everything that is not per grid point and returns [`Prepared`] (sorted
+//! f32 positions, masses, cell table, brick list): a GPU backend uploads it and runs the same
+//! passes per voxel with [`PointParams`] as its uniform block, then hands its per-brick arrays
+//! to the same finishing code. [`estimate_cpu`] is the CPU path.
+
+pub mod analytic;
+mod cpu;
+pub mod kernel;
+pub mod noise;
+mod params;
+mod particles;
+mod setup;
+
+use std::time::{Duration, Instant};
+
+use glam::{DVec3, IVec3};
+use nimbus_volume::{brick_local, BrickMask, Volume, BRICK_VOXELS};
+use rayon::prelude::*;
+
+pub use params::{DensityParams, Method, NoiseParams, Resolution, H0};
+pub use particles::{read_particles, read_path, Format, ParticleSet, ReadError, ReadReport};
+pub use setup::{auto_h0, bin, plan_grid, prepare, CellGrid, Grid, Prepared, AUTO_H0_PERCENTILE};
+
+#[derive(Debug, thiserror::Error)]
+pub enum DensityError {
+    #[error("no particles to estimate a density from")]
+    NoParticles,
+    #[error("invalid {name} {value}: {why}")]
+    InvalidParam { name: &'static str, value: String, why: &'static str },
+    #[error("grid of {dims:?} voxels exceeds the budget of {max} voxels (use a larger voxel size or a lower resolution)")]
+    TooManyVoxels { dims: [f64; 3], max: u64 },
+    #[error("cannot choose h0 automatically: the particles span no volume (give h0 or a voxel size)")]
+    H0Undetermined,
+}
+
+/// The per-grid-point parameters in index (voxel) units: what the passes read, and the
+/// uniform block a GPU backend uploads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointParams {
+    /// N* as f32.
+    pub n_star: f32,
+    pub h0: f32,
+    pub h_min: f32,
+    pub relax: f32,
+    /// World voxel edge, to turn index-unit kernels into world densities.
+    pub voxel_size: f64,
+}
+
+impl PointParams {
+    pub fn new(grid: &Grid, params: &DensityParams) -> PointParams {
+        PointParams {
+            n_star: params.neighbours as f32,
+            h0: (grid.h0 / grid.voxel_size) as f32,
+            h_min: (grid.h_min / grid.voxel_size) as f32,
+            relax: params.relax,
+            voxel_size: grid.voxel_size,
+        }
+    }
+
+    /// 1 / (pi h^3) for h in index units, as a world-space kernel normalisation.
+    #[inline]
+    pub fn world_norm(&self, h_index: f32) -> f32 {
+        let h = h_index as f64 * self.voxel_size;
+        (1.0 / (std::f64::consts::PI * h * h * h)) as f32
+    }
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Timings {
+    /// h0, grid, binning and brick proposal ([`prepare`]).
+    pub prepare: Duration,
+    /// The method's passes.
+    pub estimate: Duration,
+    /// Noise, threshold, building the volumes, statistics.
+    pub finish: Duration,
+}
+
+impl Timings {
+    pub fn total(&self) -> Duration {
+        self.prepare + self.estimate + self.finish
+    }
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DensityStats {
+    /// Particles binned (finite, near the grid).
+    pub particles: u64,
+    pub skipped_nonfinite: u64,
+    /// Particles too far outside explicit bounds to matter.
+    pub outside: u64,
+    pub cells: u64,
+    pub bricks_proposed: u64,
+    pub bricks_active: u64,
+    pub active_voxels: u64,
+    /// Over grid points whose voxel footprint holds >= 1 particle: particles used (within
+    /// kappa*h), mean and standard deviation, and how many such points there were.
+    pub used_mean: f64,
+    pub used_std: f64,
+    pub used_points: u64,
+    pub max_density: f32,
+    /// sum of rho * voxel volume over active voxels: the mass the grid holds.
+    pub grid_mass: f64,
+    pub timings: Timings,
+}
+
+pub struct DensityOutput {
+    pub density: Volume<f32>,
+    /// h* per active voxel, world units.
+    pub smoothing_length: Option<Volume<f32>>,
+    /// Particles used per active voxel.
+    pub neighbour_count: Option<Volume<f32>>,
+    pub grid: Grid,
+    pub stats: DensityStats,
+}
+
+/// Estimates the density on the CPU: [`prepare`], the method's passes over bricks, [`finish`].
+pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
+    let t0 = Instant::now();
+    let prep = prepare(particles, params)?;
+    if prep.positions.is_empty() {
+        return Err(DensityError::NoParticles);
+    }
+    let t1 = Instant::now();
+    let pp = PointParams::new(&prep.grid, params);
+    let bricks = cpu::estimate_bricks(&prep, params.method, &pp);
+    let t2 = Instant::now();
+    let mut out = finish(&prep, params, bricks);
+    out.stats.timings = Timings { prepare: t1 - t0, estimate: t2 - t1, finish: t2.elapsed() };
+    Ok(out)
+}
+
+/// Noise, activity threshold, volumes and statistics from per-brick results.
+fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<cpu::BrickResult>) -> DensityOutput {
+    let grid = prep.grid;
+    let noise = params.noise;
+    if noise.amplitude != 0.0 {
+        let fbm = noise::Fbm::new(noise.octaves, noise.seed);
+        bricks.par_iter_mut().for_each(|b| {
+            b.max_rho = 0.0;
+            for (v, rho) in b.rho.iter_mut().enumerate() {
+                if *rho > 0.0 {
+                    let world = grid.transform.to_world((b.origin + brick_local(v)).as_dvec3());
+                    *rho *= (1.0 + noise.amplitude * fbm.eval(world / noise.scale)).max(0.0);
+                    b.max_rho = b.max_rho.max(*rho);
+                }
+            }
+        });
+    }
+
+    let max_density = bricks.iter().map(|b| b.max_rho).fold(0.0f32, f32::max);
+    let threshold = params.active_tolerance * max_density;
+    let mut density = Volume::new(grid.transform, 0.0f32);
+    let mut smoothing = params.smoothing_length.then(|| Volume::new(grid.transform, 0.0f32));
+    let mut counts = params.neighbour_count.then(|| Volume::new(grid.transform, 0.0f32));
+    let (mut used_n, mut used_sum, mut used_sq) = (0u64, 0.0f64, 0.0f64);
+    let mut grid_mass = 0.0f64;
+    let mut values = [0.0f32; BRICK_VOXELS];
+    for b in &bricks {
+        for v in 0..BRICK_VOXELS {
+            if b.occupied[v >> 6] & (1 << (v & 63)) != 0 {
+                let u = b.used[v] as f64;
+                used_n += 1;
+                used_sum += u;
+                used_sq += u * u;
+            }
+        }
+        let mut mask: BrickMask = [0; 8];
+        for v in 0..BRICK_VOXELS {
+            if b.rho[v] > threshold {
+                mask[v >> 6] |= 1 << (v & 63);
+                grid_mass += b.rho[v] as f64;
+            }
+        }
+        if mask.iter().all(|&w| w == 0) {
+            continue;
+        }
+        let mut insert = |volume: &mut Volume<f32>, value: &dyn Fn(usize) -> f32| {
+            for (v, out) in values.iter_mut().enumerate() {
+                *out = if mask[v >> 6] & (1 << (v & 63)) != 0 { value(v) } else { 0.0 };
+            }
+            volume.insert_brick(b.origin, &values, &mask);
+        };
+        insert(&mut density, &|v| b.rho[v]);
+        if let Some(vol) = smoothing.as_mut() {
+            insert(vol, &|v| (b.h[v] as f64 * grid.voxel_size) as f32);
+        }
+        if let Some(vol) = counts.as_mut() {
+            insert(vol, &|v| b.used[v] as f32);
+        }
+    }
+    let mean = if used_n > 0 { used_sum / used_n as f64 } else { 0.0 };
+    let var = if used_n > 0 { (used_sq / used_n as f64 - mean * mean).max(0.0) } else { 0.0 };
+    let stats = DensityStats {
+        particles: prep.positions.len() as u64,
+        skipped_nonfinite: prep.skipped_nonfinite,
+        outside: prep.outside,
+        cells: (prep.cells.start.len() - 1) as u64,
+        bricks_proposed: prep.bricks.len() as u64,
+        bricks_active: density.brick_count() as u64,
+        active_voxels: density.active_voxel_count(),
+        used_mean: mean,
+        used_std: var.sqrt(),
+        used_points: used_n,
+        max_density,
+        grid_mass: grid_mass * grid.transform.voxel_volume(),
+        timings: Timings::default(),
+    };
+    DensityOutput { density, smoothing_length: smoothing, neighbour_count: counts, grid, stats }
+}
+
+/// World position of voxel `ijk` of `grid` (convenience for tests and tools).
+pub fn voxel_world(grid: &Grid, ijk: IVec3) -> DVec3 {
+    grid.transform.to_world(ijk.as_dvec3())
+}

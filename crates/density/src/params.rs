@@ -1,0 +1,161 @@
+//! The parameter struct every backend (CPU now, GPU later) reads, and its validation.
+
+use glam::DVec3;
+
+use crate::DensityError;
+
+/// How the smoothing length h(x) is chosen at each grid point (design.md section 8).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// Uniform: h = h0 everywhere. One pass.
+    Usl,
+    /// Adaptive, predictor only: h = h1 from the count within kappa*h0. Two passes.
+    Asl2,
+    /// Adaptive, predictor + corrector. Three passes. The default.
+    Asl3,
+    /// Exact reference: h = (distance to the N*-th nearest particle) / kappa.
+    Knn,
+}
+
+impl Method {
+    pub const ALL: [Method; 4] = [Method::Usl, Method::Asl2, Method::Asl3, Method::Knn];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Usl => "usl",
+            Method::Asl2 => "asl2",
+            Method::Asl3 => "asl3",
+            Method::Knn => "knn",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Method> {
+        Method::ALL.into_iter().find(|m| m.name().eq_ignore_ascii_case(name))
+    }
+}
+
+/// The upper bound of the smoothing length (and the uniform length for `usl`), world units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum H0 {
+    /// Chosen from a histogram of particle number density; see [`crate::auto_h0`].
+    Auto,
+    Fixed(f64),
+}
+
+/// Grid spacing: a voxel edge in world units, or a voxel count along the longest axis of
+/// the bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Resolution {
+    VoxelSize(f64),
+    Longest(u32),
+}
+
+/// fBm noise perturbation of the density: `rho * max(0, 1 + amplitude * fbm(x / scale))`,
+/// x the world position. Amplitude 0 (the default) switches it off at no cost.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NoiseParams {
+    pub amplitude: f32,
+    /// Feature size L in world units.
+    pub scale: f64,
+    pub octaves: u32,
+    pub seed: u32,
+}
+
+impl Default for NoiseParams {
+    fn default() -> Self {
+        NoiseParams { amplitude: 0.0, scale: 1.0, octaves: 4, seed: 0 }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct DensityParams {
+    pub method: Method,
+    /// N*, the target neighbour count of the adaptive methods and of `h0 auto`.
+    pub neighbours: u32,
+    pub h0: H0,
+    /// Floor of the smoothing length, world units; `None` = one voxel.
+    pub h_min: Option<f64>,
+    /// s in [0, 1], the asl3 relaxation for overestimated lengths.
+    pub relax: f32,
+    /// Mass of each particle when the set has no `mass` attribute.
+    pub mass: f32,
+    pub resolution: Resolution,
+    /// Explicit world bounds (low, high corner). `None` = the particles' bounding box padded
+    /// by kappa*h0 on every side, so the density falls to zero inside the grid.
+    pub bounds: Option<(DVec3, DVec3)>,
+    /// Refuse grids whose bounding box holds more voxels than this, before any heavy work.
+    pub max_voxels: u64,
+    pub noise: NoiseParams,
+    /// A voxel is active where rho > active_tolerance * max(rho).
+    pub active_tolerance: f32,
+    /// Also output the smoothing length used at each voxel (world units).
+    pub smoothing_length: bool,
+    /// Also output the number of particles used at each voxel.
+    pub neighbour_count: bool,
+}
+
+impl Default for DensityParams {
+    fn default() -> Self {
+        DensityParams {
+            method: Method::Asl3,
+            neighbours: 32,
+            h0: H0::Auto,
+            h_min: None,
+            relax: 0.0,
+            mass: 1.0,
+            resolution: Resolution::Longest(256),
+            bounds: None,
+            max_voxels: 1 << 32,
+            noise: NoiseParams::default(),
+            active_tolerance: 1e-6,
+            smoothing_length: false,
+            neighbour_count: false,
+        }
+    }
+}
+
+impl DensityParams {
+    /// Checks every value on its own; combinations are checked where they are used.
+    pub fn validate(&self) -> Result<(), DensityError> {
+        let bad = |name: &'static str, value: String, why: &'static str| {
+            Err(DensityError::InvalidParam { name, value, why })
+        };
+        let positive = |x: f64| x.is_finite() && x > 0.0;
+        if self.neighbours == 0 {
+            return bad("neighbours", "0".into(), "must be at least 1");
+        }
+        if let H0::Fixed(h) = self.h0 {
+            if !positive(h) {
+                return bad("h0", h.to_string(), "must be positive and finite");
+            }
+        }
+        if let Some(h) = self.h_min {
+            if !(h.is_finite() && h >= 0.0) {
+                return bad("h-min", h.to_string(), "must be finite and not negative");
+            }
+        }
+        if !(0.0..=1.0).contains(&self.relax) {
+            return bad("relax", self.relax.to_string(), "must be in [0, 1]");
+        }
+        if !(self.mass.is_finite() && self.mass >= 0.0) {
+            return bad("mass", self.mass.to_string(), "must be finite and not negative");
+        }
+        match self.resolution {
+            Resolution::VoxelSize(v) if !positive(v) => return bad("voxel-size", v.to_string(), "must be positive and finite"),
+            Resolution::Longest(0) => return bad("resolution", "0".into(), "must be at least 1"),
+            _ => {}
+        }
+        if let Some((lo, hi)) = self.bounds {
+            if !(lo.is_finite() && hi.is_finite() && hi.cmpgt(lo).all()) {
+                return bad("bounds", format!("{lo} .. {hi}"), "need finite corners with low < high on every axis");
+            }
+        }
+        if self.noise.amplitude != 0.0 && !(positive(self.noise.scale) && self.noise.amplitude.is_finite()) {
+            return bad("noise-scale", self.noise.scale.to_string(), "must be positive and finite");
+        }
+        if !(self.active_tolerance.is_finite() && self.active_tolerance >= 0.0) {
+            return bad("active-tolerance", self.active_tolerance.to_string(), "must be finite and not negative");
+        }
+        Ok(())
+    }
+}

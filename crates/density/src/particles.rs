@@ -1,0 +1,592 @@
+//! Particle sets and their readers: PLY (ascii, binary little and big endian) and delimited
+//! text with a header (CSV, TSV, whitespace).
+//!
+//! Readers stream: a `BufRead` is parsed record by record straight into the output vectors,
+//! so stdin works and memory is the particle set itself. Positions are kept in f64 because
+//! scenes come with large offsets (1e6 away from the origin an f32 keeps only ~0.06 units);
+//! the estimator rebases them onto its grid before going to f32.
+//!
+//! Skipped, not fatal: rows with a non-finite position or mass (counted in [`ReadReport`]).
+//! Fatal, with the place named: a negative mass, a malformed number, a header that promises
+//! more vertices than the file holds, a file without x, y or z.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+
+use glam::DVec3;
+
+/// Particles in world space; `masses`, when present, has one entry per position.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParticleSet {
+    pub positions: Vec<DVec3>,
+    pub masses: Option<Vec<f32>>,
+}
+
+impl ParticleSet {
+    pub fn new(positions: Vec<DVec3>) -> ParticleSet {
+        ParticleSet { positions, masses: None }
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Mass of particle `i`, `default` when the set carries no masses.
+    #[inline]
+    pub fn mass(&self, i: usize, default: f32) -> f32 {
+        self.masses.as_ref().map_or(default, |m| m[i])
+    }
+
+    /// Total mass, `default` per particle when the set carries no masses.
+    pub fn total_mass(&self, default: f32) -> f64 {
+        match &self.masses {
+            Some(m) => m.iter().map(|&m| m as f64).sum(),
+            None => default as f64 * self.len() as f64,
+        }
+    }
+}
+
+/// What a reader found besides the particles, for the tool's warnings and `-v`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReadReport {
+    pub format: Option<Format>,
+    /// Records read, kept or not.
+    pub rows: u64,
+    /// Records skipped for a non-finite position or mass.
+    pub skipped_nonfinite: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Ply,
+    /// Delimited text with a header row; the delimiter (`,` `;` tab or whitespace) is detected
+    /// from the header.
+    Csv,
+    /// Tab-separated text with a header row.
+    Tsv,
+}
+
+impl Format {
+    /// The format a file name implies: .ply, .csv, .tsv, and .txt/.xyz as detected text.
+    pub fn from_path(path: &Path) -> Option<Format> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "ply" => Some(Format::Ply),
+            "csv" | "txt" | "xyz" => Some(Format::Csv),
+            "tsv" | "tab" => Some(Format::Tsv),
+            _ => None,
+        }
+    }
+
+    /// Parses a `--format` value.
+    pub fn from_name(name: &str) -> Option<Format> {
+        match name.to_ascii_lowercase().as_str() {
+            "ply" => Some(Format::Ply),
+            "csv" | "txt" | "text" => Some(Format::Csv),
+            "tsv" => Some(Format::Tsv),
+            _ => None,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error("read failed: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("unknown particle format {0:?} (expected ply, csv or tsv)")]
+    UnknownFormat(String),
+    #[error("not a PLY file: {0}")]
+    NotPly(String),
+    #[error("PLY header line {line}: {message}")]
+    PlyHeader { line: usize, message: String },
+    #[error("PLY header promises {expected} vertices but the file holds only {found}")]
+    Truncated { expected: u64, found: u64 },
+    #[error("no `{0}` column or property")]
+    MissingCoordinate(&'static str),
+    #[error("{place}: cannot read {what} from {text:?}")]
+    BadNumber { place: String, what: String, text: String },
+    #[error("{place}: expected {expected} fields, found {found}")]
+    FieldCount { place: String, expected: usize, found: usize },
+    #[error("{place}: negative mass {mass}")]
+    NegativeMass { place: String, mass: f64 },
+    #[error("empty input: no header line")]
+    NoHeader,
+}
+
+/// Reads particles from any reader (a file, stdin) in the given format.
+pub fn read_particles<R: Read>(reader: R, format: Format) -> Result<(ParticleSet, ReadReport), ReadError> {
+    let mut reader = BufReader::with_capacity(1 << 16, reader);
+    let mut sink = Sink::default();
+    match format {
+        Format::Ply => read_ply(&mut reader, &mut sink)?,
+        Format::Csv => read_delimited(&mut reader, None, &mut sink)?,
+        Format::Tsv => read_delimited(&mut reader, Some(Delimiter::Byte(b'\t')), &mut sink)?,
+    }
+    sink.report.format = Some(format);
+    Ok(sink.finish())
+}
+
+/// Reads a particle file; the format comes from `format` or else the file's extension.
+pub fn read_path(path: &Path, format: Option<Format>) -> Result<(ParticleSet, ReadReport), ReadError> {
+    let format = format
+        .or_else(|| Format::from_path(path))
+        .ok_or_else(|| ReadError::UnknownFormat(path.display().to_string()))?;
+    read_particles(std::fs::File::open(path)?, format)
+}
+
+/// Collects records into the output vectors as they are parsed, applying the skip/error rules
+/// in one place for every format.
+#[derive(Default)]
+struct Sink {
+    positions: Vec<DVec3>,
+    masses: Option<Vec<f32>>,
+    report: ReadReport,
+}
+
+impl Sink {
+    fn reserve(&mut self, n: usize, with_mass: bool) {
+        // Cap the up-front reservation: a header's count is a promise, not a fact.
+        let n = n.min(1 << 24);
+        self.positions.reserve(n);
+        if with_mass {
+            self.masses.get_or_insert_with(Vec::new).reserve(n);
+        }
+    }
+
+    fn push(&mut self, p: DVec3, mass: Option<f64>, place: impl FnOnce() -> String) -> Result<(), ReadError> {
+        self.report.rows += 1;
+        if !p.is_finite() || mass.is_some_and(|m| !m.is_finite()) {
+            self.report.skipped_nonfinite += 1;
+            return Ok(());
+        }
+        if let Some(m) = mass {
+            if m < 0.0 {
+                return Err(ReadError::NegativeMass { place: place(), mass: m });
+            }
+            self.masses.get_or_insert_with(Vec::new).push(m as f32);
+        }
+        self.positions.push(p);
+        Ok(())
+    }
+
+    fn finish(self) -> (ParticleSet, ReadReport) {
+        (ParticleSet { positions: self.positions, masses: self.masses }, self.report)
+    }
+}
+
+/// Which fields of a record hold x, y, z and the optional mass.
+struct Columns {
+    xyz: [usize; 3],
+    mass: Option<usize>,
+}
+
+impl Columns {
+    fn find(names: &[String]) -> Result<Columns, ReadError> {
+        let find = |want: &[&str]| names.iter().position(|n| want.iter().any(|w| n.eq_ignore_ascii_case(w)));
+        let coord = |name: &'static str| find(&[name]).ok_or(ReadError::MissingCoordinate(name));
+        Ok(Columns { xyz: [coord("x")?, coord("y")?, coord("z")?], mass: find(&["mass", "m"]) })
+    }
+
+    fn record(&self, values: &[f64]) -> (DVec3, Option<f64>) {
+        let [x, y, z] = self.xyz;
+        (DVec3::new(values[x], values[y], values[z]), self.mass.map(|m| values[m]))
+    }
+}
+
+fn parse_number(text: &str, place: impl FnOnce() -> String, what: impl FnOnce() -> String) -> Result<f64, ReadError> {
+    text.parse::<f64>()
+        .map_err(|_| ReadError::BadNumber { place: place(), what: what(), text: text.to_string() })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Delimited text
+
+#[derive(Clone, Copy, PartialEq)]
+enum Delimiter {
+    Byte(u8),
+    Whitespace,
+}
+
+impl Delimiter {
+    fn detect(header: &str) -> Delimiter {
+        [b',', b'\t', b';']
+            .into_iter()
+            .find(|&b| header.as_bytes().contains(&b))
+            .map_or(Delimiter::Whitespace, Delimiter::Byte)
+    }
+
+    /// The fields of a line, trimmed of surrounding whitespace.
+    fn split(self, line: &str) -> Box<dyn Iterator<Item = &str> + '_> {
+        match self {
+            Delimiter::Byte(b) => Box::new(line.split(b as char).map(str::trim)),
+            Delimiter::Whitespace => Box::new(line.split_ascii_whitespace()),
+        }
+    }
+}
+
+/// True for lines that carry no record: blank, or a `#` comment.
+fn is_blank(line: &str) -> bool {
+    let t = line.trim();
+    t.is_empty() || t.starts_with('#')
+}
+
+fn read_delimited<R: BufRead>(reader: &mut R, delimiter: Option<Delimiter>, sink: &mut Sink) -> Result<(), ReadError> {
+    let mut line = String::new();
+    let mut line_no = 0usize;
+    // Header: the first line that is not blank or a comment.
+    loop {
+        line.clear();
+        if reader.read_line(&mut line)? == 0 {
+            return Err(ReadError::NoHeader);
+        }
+        line_no += 1;
+        if !is_blank(&line) {
+            break;
+        }
+    }
+    let delimiter = delimiter.unwrap_or_else(|| Delimiter::detect(&line));
+    let names: Vec<String> =
+        delimiter.split(line.trim_end_matches(['\r', '\n'])).map(|f| f.trim_matches('"').to_string()).collect();
+    let columns = Columns::find(&names)?;
+    sink.reserve(0, columns.mass.is_some());
+    // Parse only the columns we use: other columns may hold text (ids, names).
+    let mut wanted = vec![false; names.len()];
+    for &c in columns.xyz.iter().chain(columns.mass.iter()) {
+        wanted[c] = true;
+    }
+
+    let mut values = vec![0.0f64; names.len()];
+    loop {
+        line.clear();
+        if reader.read_line(&mut line)? == 0 {
+            return Ok(());
+        }
+        line_no += 1;
+        if is_blank(&line) {
+            continue;
+        }
+        let place = || format!("line {line_no}");
+        let mut found = 0;
+        for (c, field) in delimiter.split(line.trim_end_matches(['\r', '\n'])).enumerate() {
+            found = c + 1;
+            if wanted.get(c) == Some(&true) {
+                let text = field.trim_matches('"');
+                values[c] = parse_number(text, place, || format!("column `{}`", names[c]))?;
+            }
+        }
+        if found < names.len() {
+            return Err(ReadError::FieldCount { place: place(), expected: names.len(), found });
+        }
+        let (p, m) = columns.record(&values);
+        sink.push(p, m, place)?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// PLY
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(name: &str) -> Option<Scalar> {
+        Some(match name {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return None,
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+
+    /// Decodes one value from its bytes in the file's byte order.
+    fn decode(self, b: &[u8], big_endian: bool) -> f64 {
+        macro_rules! get {
+            ($t:ty, $n:expr) => {{
+                let a: [u8; $n] = b[..$n].try_into().unwrap();
+                (if big_endian { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
+            }};
+        }
+        match self {
+            Scalar::I8 => b[0] as i8 as f64,
+            Scalar::U8 => b[0] as f64,
+            Scalar::I16 => get!(i16, 2),
+            Scalar::U16 => get!(u16, 2),
+            Scalar::I32 => get!(i32, 4),
+            Scalar::U32 => get!(u32, 4),
+            Scalar::F32 => get!(f32, 4),
+            Scalar::F64 => get!(f64, 8),
+        }
+    }
+}
+
+#[derive(Debug)]
+enum Property {
+    Scalar(Scalar),
+    /// A list: the count's type, then the items' type.
+    List(Scalar, Scalar),
+}
+
+#[derive(Debug)]
+struct Element {
+    name: String,
+    count: u64,
+    names: Vec<String>,
+    props: Vec<Property>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Encoding {
+    Ascii,
+    Binary { big_endian: bool },
+}
+
+fn read_ply<R: BufRead>(reader: &mut R, sink: &mut Sink) -> Result<(), ReadError> {
+    let (encoding, elements) = read_ply_header(reader)?;
+    let mut line_no = 0usize; // counts body lines, for ascii error places
+    for element in &elements {
+        if element.name == "vertex" {
+            return read_ply_vertices(reader, encoding, element, sink, &mut line_no);
+        }
+        skip_ply_element(reader, encoding, element, &mut line_no)?;
+    }
+    Err(ReadError::MissingCoordinate("x"))
+}
+
+fn read_ply_header<R: BufRead>(reader: &mut R) -> Result<(Encoding, Vec<Element>), ReadError> {
+    let mut line = String::new();
+    let mut line_no = 0usize;
+    let mut next_line = |line: &mut String| -> Result<usize, ReadError> {
+        line.clear();
+        if reader.read_line(line)? == 0 {
+            return Err(ReadError::NotPly("header ends before end_header".into()));
+        }
+        line_no += 1;
+        Ok(line_no)
+    };
+    next_line(&mut line)?;
+    if line.trim_end() != "ply" {
+        return Err(ReadError::NotPly("first line is not `ply`".into()));
+    }
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    loop {
+        let n = next_line(&mut line)?;
+        let err = |message: String| ReadError::PlyHeader { line: n, message };
+        let words: Vec<&str> = line.split_ascii_whitespace().collect();
+        match words.as_slice() {
+            ["end_header"] => break,
+            ["comment", ..] | ["obj_info", ..] | [] => {}
+            ["format", kind, _version] => {
+                encoding = Some(match *kind {
+                    "ascii" => Encoding::Ascii,
+                    "binary_little_endian" => Encoding::Binary { big_endian: false },
+                    "binary_big_endian" => Encoding::Binary { big_endian: true },
+                    other => return Err(err(format!("unknown format `{other}`"))),
+                });
+            }
+            ["element", name, count] => {
+                let count = count.parse().map_err(|_| err(format!("bad element count `{count}`")))?;
+                elements.push(Element { name: name.to_string(), count, names: Vec::new(), props: Vec::new() });
+            }
+            ["property", "list", count_ty, item_ty, name] => {
+                let ty = |t: &str| Scalar::parse(t).ok_or_else(|| err(format!("unknown type `{t}`")));
+                let prop = Property::List(ty(count_ty)?, ty(item_ty)?);
+                let element = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
+                element.props.push(prop);
+                element.names.push(name.to_string());
+            }
+            ["property", ty, name] => {
+                let prop = Property::Scalar(Scalar::parse(ty).ok_or_else(|| err(format!("unknown type `{ty}`")))?);
+                let element = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
+                element.props.push(prop);
+                element.names.push(name.to_string());
+            }
+            _ => return Err(err(format!("cannot read `{}`", line.trim_end()))),
+        }
+    }
+    let encoding = encoding.ok_or_else(|| ReadError::NotPly("no format line".into()))?;
+    Ok((encoding, elements))
+}
+
+/// Reads one binary value, mapping a short read to `None` (the caller knows what was promised).
+fn read_binary<R: BufRead>(reader: &mut R, ty: Scalar, big_endian: bool) -> Result<Option<f64>, ReadError> {
+    let mut buf = [0u8; 8];
+    match reader.read_exact(&mut buf[..ty.size()]) {
+        Ok(()) => Ok(Some(ty.decode(&buf, big_endian))),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(None),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Reads one record of `element` into `values` (scalars only; list properties are consumed
+/// and left as 0). Returns false at end of input before the record starts or completes.
+fn read_ply_record<R: BufRead>(
+    reader: &mut R,
+    encoding: Encoding,
+    element: &Element,
+    values: &mut [f64],
+    line: &mut String,
+    line_no: &mut usize,
+) -> Result<bool, ReadError> {
+    match encoding {
+        Encoding::Binary { big_endian } => {
+            for (prop, value) in element.props.iter().zip(values.iter_mut()) {
+                match *prop {
+                    Property::Scalar(ty) => match read_binary(reader, ty, big_endian)? {
+                        Some(v) => *value = v,
+                        None => return Ok(false),
+                    },
+                    Property::List(count_ty, item_ty) => {
+                        let Some(count) = read_binary(reader, count_ty, big_endian)? else { return Ok(false) };
+                        let bytes = count as u64 * item_ty.size() as u64;
+                        if std::io::copy(&mut reader.by_ref().take(bytes), &mut std::io::sink())? < bytes {
+                            return Ok(false);
+                        }
+                    }
+                }
+            }
+            Ok(true)
+        }
+        Encoding::Ascii => {
+            // Skip blank lines; a record is one line of tokens.
+            loop {
+                line.clear();
+                if reader.read_line(line)? == 0 {
+                    return Ok(false);
+                }
+                *line_no += 1;
+                if !line.trim().is_empty() {
+                    break;
+                }
+            }
+            let place = || format!("PLY body line {}", *line_no);
+            let mut tokens = line.split_ascii_whitespace();
+            let mut next = |what: &str| {
+                let t = tokens.next().ok_or_else(|| ReadError::BadNumber {
+                    place: place(),
+                    what: format!("property `{what}`"),
+                    text: String::new(),
+                })?;
+                parse_number(t, place, || format!("property `{what}`"))
+            };
+            for ((prop, name), value) in element.props.iter().zip(&element.names).zip(values.iter_mut()) {
+                match prop {
+                    Property::Scalar(_) => *value = next(name)?,
+                    Property::List(..) => {
+                        let count = next(name)?;
+                        for _ in 0..count as u64 {
+                            next(name)?;
+                        }
+                    }
+                }
+            }
+            Ok(true)
+        }
+    }
+}
+
+fn skip_ply_element<R: BufRead>(
+    reader: &mut R,
+    encoding: Encoding,
+    element: &Element,
+    line_no: &mut usize,
+) -> Result<(), ReadError> {
+    let mut values = vec![0.0; element.props.len()];
+    let mut line = String::new();
+    for i in 0..element.count {
+        if !read_ply_record(reader, encoding, element, &mut values, &mut line, line_no)? {
+            return Err(ReadError::NotPly(format!(
+                "header promises {} `{}` elements but the file holds only {i}",
+                element.count, element.name
+            )));
+        }
+    }
+    Ok(())
+}
+
+fn read_ply_vertices<R: BufRead>(
+    reader: &mut R,
+    encoding: Encoding,
+    element: &Element,
+    sink: &mut Sink,
+    line_no: &mut usize,
+) -> Result<(), ReadError> {
+    let columns = Columns::find(&element.names)?;
+    if columns.xyz.iter().chain(columns.mass.iter()).any(|&c| matches!(element.props[c], Property::List(..))) {
+        return Err(ReadError::NotPly("vertex x, y, z or mass is a list property".into()));
+    }
+    sink.reserve(element.count as usize, columns.mass.is_some());
+    let mut values = vec![0.0; element.props.len()];
+
+    // Binary records without lists have a fixed size: read each with one copy from the buffer.
+    let fixed: Option<Vec<(Scalar, usize)>> = element
+        .props
+        .iter()
+        .scan(0usize, |offset, p| {
+            Some(match *p {
+                Property::Scalar(ty) => {
+                    let at = *offset;
+                    *offset += ty.size();
+                    Some((ty, at))
+                }
+                Property::List(..) => None,
+            })
+        })
+        .collect();
+    if let (Encoding::Binary { big_endian }, Some(layout)) = (encoding, fixed) {
+        let size: usize = layout.iter().map(|(ty, _)| ty.size()).sum();
+        let mut record = vec![0u8; size];
+        for i in 0..element.count {
+            match reader.read_exact(&mut record) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+                    return Err(ReadError::Truncated { expected: element.count, found: i });
+                }
+                Err(e) => return Err(e.into()),
+            }
+            for (value, &(ty, at)) in values.iter_mut().zip(&layout) {
+                *value = ty.decode(&record[at..], big_endian);
+            }
+            let (p, m) = columns.record(&values);
+            sink.push(p, m, || format!("vertex {i}"))?;
+        }
+        return Ok(());
+    }
+
+    let mut line = String::new();
+    for i in 0..element.count {
+        if !read_ply_record(reader, encoding, element, &mut values, &mut line, line_no)? {
+            return Err(ReadError::Truncated { expected: element.count, found: i });
+        }
+        let (p, m) = columns.record(&values);
+        sink.push(p, m, || format!("vertex {i}"))?;
+    }
+    Ok(())
+}
