@@ -1,0 +1,18 @@
+//! What the four nimbus tools share as command-line programs (design.md sections 6 and 7).
+//!
+//! - [`Input`] / [`Output`]: a path or `-`, defaulting to stdin/stdout when they are not
+//!   terminals, so the tools pipe into each other. Outputs to a path are written to a temporary
+//!   name beside the target and renamed when complete: a failed run leaves no partial file.
+//! - [`Failure`]: the one-line `error: <what> (<where>)` and the exit code, 2 for bad usage or
+//!   bad input, 1 for failures while running. [`run`] turns a tool's result into the process
+//!   exit code and never lets a panic message be the last word.
+//! - [`Log`]: `-q` / `-v`, warnings, per-stage timings and counts, and progress bars that
+//!   appear only when stderr is a terminal.
+
+mod failure;
+mod io;
+mod log;
+
+pub use failure::{run, Failure, ResultExt};
+pub use io::{write_atomic, Input, Output};
+pub use log::{Log, Progress, StageTimes, Verbosity};

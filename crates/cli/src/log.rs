@@ -1,0 +1,133 @@
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Verbosity {
+    Quiet,
+    Normal,
+    Verbose,
+}
+
+impl Verbosity {
+    pub fn from_flags(quiet: bool, verbose: bool) -> Verbosity {
+        if quiet {
+            Verbosity::Quiet
+        } else if verbose {
+            Verbosity::Verbose
+        } else {
+            Verbosity::Normal
+        }
+    }
+}
+
+/// Per-stage wall-clock times, in order, for `-v` and for the file's metadata.
+#[derive(Debug, Default, Clone)]
+pub struct StageTimes {
+    pub stages: Vec<(String, Duration)>,
+}
+
+impl StageTimes {
+    pub fn total(&self) -> Duration {
+        self.stages.iter().map(|s| s.1).sum()
+    }
+
+    /// `read=0.012,trace=1.204` in seconds: compact enough for one metadata string.
+    pub fn to_metadata(&self) -> String {
+        self.stages.iter().map(|(n, d)| format!("{n}={:.3}", d.as_secs_f64())).collect::<Vec<_>>().join(",")
+    }
+}
+
+/// The tool's voice on stderr: errors always, warnings unless `-q`, stage lines with `-v`.
+pub struct Log {
+    tool: &'static str,
+    verbosity: Verbosity,
+    times: Mutex<StageTimes>,
+    started: Instant,
+}
+
+impl Log {
+    pub fn new(tool: &'static str, verbosity: Verbosity) -> Log {
+        Log { tool, verbosity, times: Mutex::new(StageTimes::default()), started: Instant::now() }
+    }
+
+    pub fn verbosity(&self) -> Verbosity {
+        self.verbosity
+    }
+
+    pub fn warn(&self, what: impl std::fmt::Display) {
+        if self.verbosity > Verbosity::Quiet {
+            eprintln!("warning: {what}");
+        }
+    }
+
+    /// A line printed only with `-v`.
+    pub fn verbose(&self, what: impl std::fmt::Display) {
+        if self.verbosity == Verbosity::Verbose {
+            eprintln!("{}: {what}", self.tool);
+        }
+    }
+
+    /// Runs one stage, recording its time; with `-v` prints the time and what `summary` says
+    /// about the stage's result (counts).
+    pub fn stage<T>(&self, name: &str, body: impl FnOnce() -> T, summary: impl FnOnce(&T) -> String) -> T {
+        let start = Instant::now();
+        let result = body();
+        let took = start.elapsed();
+        self.times.lock().unwrap().stages.push((name.to_string(), took));
+        if self.verbosity == Verbosity::Verbose {
+            let s = summary(&result);
+            let sep = if s.is_empty() { "" } else { "  " };
+            eprintln!("{}: {:<14} {:>9.3} s{sep}{s}", self.tool, name, took.as_secs_f64());
+        }
+        result
+    }
+
+    pub fn times(&self) -> StageTimes {
+        self.times.lock().unwrap().clone()
+    }
+
+    /// With `-v`, the closing total line.
+    pub fn finish(&self) {
+        self.verbose(format!("{:<14} {:>9.3} s", "total", self.started.elapsed().as_secs_f64()));
+    }
+
+    /// A progress bar over `len` steps, drawn only when stderr is a terminal and not `-q`.
+    pub fn progress(&self, what: &str, len: u64) -> Progress {
+        let visible = self.verbosity > Verbosity::Quiet && std::io::stderr().is_terminal();
+        let bar = if visible {
+            let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+            bar.set_style(
+                ProgressStyle::with_template("{prefix} {msg:<12} [{bar:32}] {percent:>3}% {eta}")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            );
+            bar.set_prefix(self.tool);
+            bar.set_message(what.to_string());
+            // Steps shorter than a second never show a bar.
+            bar.enable_steady_tick(Duration::from_millis(250));
+            bar
+        } else {
+            ProgressBar::hidden()
+        };
+        Progress { bar }
+    }
+}
+
+/// A progress bar handle; cheap to share across rayon workers.
+#[derive(Clone)]
+pub struct Progress {
+    bar: ProgressBar,
+}
+
+impl Progress {
+    pub fn inc(&self, n: u64) {
+        self.bar.inc(n);
+    }
+
+    pub fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
+}
