@@ -7,8 +7,8 @@
 //! [`MediumRay`], which walks the [`MajorantGrid`] so empty cells are stepped over in one
 //! move (design.md section 7), and offers:
 //!
-//! - [`MediumRay::optical_depth`]: composite Simpson over non-empty segments (the paper's
-//!   Eq. 2 integrand);
+//! - [`MediumRay::optical_depth`]: composite Simpson over non-empty segments, panels split
+//!   at voxel boundaries so the trilinear density is integrated exactly;
 //! - [`MediumRay::sample_simpson`]: the paper's Eq. 2, inverting the Simpson-integrated
 //!   optical depth, `integral_0^d sigma_t = -ln(1 - xi)`, exactly within the last step by a
 //!   quadratic fit of sigma_t;
@@ -84,28 +84,64 @@ impl<'a> MediumRay<'a> {
             .map(move |s| (s.t_start, s.t_end, s.majorant as f64 * ext))
     }
 
-    /// The composite Simpson panels over the non-empty segments, steps of at most `step`:
-    /// each panel's start, width, sigma_t at its start, middle and end, and its integral.
-    fn simpson_panels(&self, step: f64) -> impl Iterator<Item = SimpsonPanel> + '_ {
-        self.segments().flat_map(move |(a, b, _)| {
-            let n = ((b - a) / step).ceil().max(1.0) as usize;
-            let h = (b - a) / n as f64;
-            let mut left = self.sigma_t(a) as f64;
-            (0..n).map(move |i| {
-                let t = a + i as f64 * h;
-                let mid = self.sigma_t(t + 0.5 * h) as f64;
-                let right = self.sigma_t(t + h) as f64;
-                let panel = SimpsonPanel { t, h, left, mid, right, integral: h / 6.0 * (left + 4.0 * mid + right) };
-                left = right;
-                panel
-            })
-        })
+    /// Calls `f` on the composite Simpson panels over the non-empty segments, in order, until
+    /// it returns false. Panels are at most `step` long and never straddle a voxel boundary:
+    /// within one voxel cell the trilinear density along a ray is a cubic in t, which Simpson's
+    /// rule integrates exactly, so the optical depth is that of the interpolated density up to
+    /// rounding, whatever the step.
+    fn simpson_panels(&self, step: f64, mut f: impl FnMut(&SimpsonPanel) -> bool) {
+        let (o, d) = (self.origin_index, self.dir_index);
+        for (a, b, _) in self.segments() {
+            // The next lattice-plane crossing on each axis, as in a voxel DDA.
+            let mut next = DVec3::INFINITY;
+            let mut inc = DVec3::INFINITY;
+            for axis in 0..3 {
+                if d[axis] != 0.0 {
+                    let c = o[axis] + a * d[axis];
+                    let plane = if d[axis] > 0.0 { c.floor() + 1.0 } else { c.ceil() - 1.0 };
+                    next[axis] = (plane - o[axis]) / d[axis];
+                    inc[axis] = 1.0 / d[axis].abs();
+                }
+            }
+            let mut t = a;
+            let mut left = self.sigma_t(t) as f64;
+            while t < b {
+                let cross = next.min_element().min(b);
+                if cross > t {
+                    let n = ((cross - t) / step).ceil().max(1.0);
+                    let h = (cross - t) / n;
+                    for i in 0..n as usize {
+                        let t0 = t + i as f64 * h;
+                        let t1 = if i + 1 == n as usize { cross } else { t0 + h };
+                        let hh = t1 - t0;
+                        let mid = self.sigma_t(t0 + 0.5 * hh) as f64;
+                        let right = self.sigma_t(t1) as f64;
+                        let panel = SimpsonPanel { t: t0, h: hh, left, mid, right, integral: hh / 6.0 * (left + 4.0 * mid + right) };
+                        if !f(&panel) {
+                            return;
+                        }
+                        left = right;
+                    }
+                    t = cross;
+                }
+                for axis in 0..3 {
+                    while next[axis] <= t {
+                        next[axis] += inc[axis];
+                    }
+                }
+            }
+        }
     }
 
     /// Optical depth over the ray's interval by composite Simpson with steps of at most
     /// `step` (world length) within each non-empty segment.
     pub fn optical_depth(&self, step: f64) -> f64 {
-        self.simpson_panels(step).map(|p| p.integral).sum()
+        let mut tau = 0.0;
+        self.simpson_panels(step, |p| {
+            tau += p.integral;
+            true
+        });
+        tau
     }
 
     /// Transmittance exp(-optical depth), stopping early once it falls below `cutoff`
@@ -113,13 +149,15 @@ impl<'a> MediumRay<'a> {
     pub fn transmittance(&self, step: f64, cutoff: f64) -> f64 {
         let tau_cut = -cutoff.max(1e-300).ln();
         let mut tau = 0.0;
-        for panel in self.simpson_panels(step) {
-            tau += panel.integral;
-            if tau > tau_cut {
-                return 0.0;
-            }
+        self.simpson_panels(step, |p| {
+            tau += p.integral;
+            tau <= tau_cut
+        });
+        if tau > tau_cut {
+            0.0
+        } else {
+            (-tau).exp()
         }
-        (-tau).exp()
     }
 
     /// The paper's Eq. 2: the distance d with integral_0^d sigma_t = `tau_target`
@@ -129,13 +167,16 @@ impl<'a> MediumRay<'a> {
     /// Newton iteration, so the sampled point is as accurate as the integral.
     pub fn sample_simpson(&self, tau_target: f64, step: f64) -> FreePath {
         let mut tau = 0.0;
-        for p in self.simpson_panels(step) {
+        let mut hit = FreePath::Escaped;
+        self.simpson_panels(step, |p| {
             if tau + p.integral >= tau_target && p.integral > 0.0 {
-                return FreePath::Interaction(p.t + solve_quadratic_step(p.left, p.mid, p.right, p.h, tau_target - tau));
+                hit = FreePath::Interaction(p.t + solve_quadratic_step(p.left, p.mid, p.right, p.h, tau_target - tau));
+                return false;
             }
             tau += p.integral;
-        }
-        FreePath::Escaped
+            true
+        });
+        hit
     }
 
     /// The paper's Eq. 1: d = -ln(1 - xi) / sigma_t(x0), with sigma_t frozen at the first

@@ -107,6 +107,25 @@ impl MajorantGrid {
         self.values[((c.x * self.dims.y + c.y) * self.dims.z + c.z) as usize]
     }
 
+    /// The largest bound over cells overlapping the index-space box `[lo, hi]`: zero means
+    /// nothing within the box can interpolate to a positive value.
+    pub fn max_in_box(&self, lo: DVec3, hi: DVec3) -> f32 {
+        let size = self.cell_size() as f64;
+        let to_cell = |p: DVec3| ((p - self.origin.as_dvec3()) / size).floor();
+        let (c0, c1) = (to_cell(lo), to_cell(hi));
+        let mut m = if c0.cmplt(DVec3::ZERO).any() || c1.cmpge(self.dims.as_dvec3()).any() { self.outside } else { f32::MIN };
+        let c0 = c0.max(DVec3::ZERO).as_ivec3();
+        let c1 = c1.min(self.dims.as_dvec3() - 1.0).as_ivec3();
+        for x in c0.x..=c1.x {
+            for y in c0.y..=c1.y {
+                for z in c0.z..=c1.z {
+                    m = m.max(self.values[((x * self.dims.y + y) * self.dims.z + z) as usize]);
+                }
+            }
+        }
+        m.max(self.outside)
+    }
+
     /// Walks the ray `origin + t * dir` (both in index space; t is then the same parameter as
     /// for the world-space ray, the map being affine) over `t_min..t_max`. The segments cover
     /// the interval completely and in order; callers skip those whose majorant is zero.

@@ -137,6 +137,24 @@ fn majorant_bounds_every_sample() {
 }
 
 #[test]
+fn box_maximum_sees_what_points_see() {
+    let v = random_volume(19, 0.0);
+    let m = MajorantGrid::build(&v);
+    let mut rng = Lcg(8);
+    for _ in 0..2000 {
+        let lo = DVec3::new(rng.next() * 90.0 - 45.0, rng.next() * 90.0 - 45.0, rng.next() * 70.0 - 35.0);
+        let hi = lo + DVec3::new(rng.next(), rng.next(), rng.next()) * 6.0;
+        let boxmax = m.max_in_box(lo, hi);
+        for k in 0..8 {
+            let p = lo + (hi - lo) * DVec3::new((k & 1) as f64, ((k >> 1) & 1) as f64, ((k >> 2) & 1) as f64);
+            assert!(m.at(p) <= boxmax);
+            assert!(v.sample_index(p) <= boxmax);
+        }
+    }
+    assert_eq!(m.max_in_box(DVec3::splat(1000.0), DVec3::splat(1001.0)), 0.0);
+}
+
+#[test]
 fn empty_volume_has_no_majorant() {
     let v: Volume<f32> = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0);
     let m = MajorantGrid::build(&v);

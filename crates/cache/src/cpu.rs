@@ -1,0 +1,175 @@
+//! The CPU backend: cache bricks baked in parallel with rayon.
+
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::{DVec3, Vec3};
+use nimbus_optics::{Camera, Light, Medium};
+use nimbus_photon::PhotonMap;
+use nimbus_tracking::{DensityMedium, MediumRay};
+use nimbus_volume::{brick_local, MajorantGrid, Transform, Volume, BRICK_VOXELS};
+
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, PhotonBins};
+
+/// Single scattering toward the camera at world point `x`:
+/// sum over lights of p(w_light, w_out) E T_light(x).
+pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DVec3, w_out: Vec3, step: f64, cutoff: f64) -> Vec3 {
+    let phase = optics.phase();
+    lights
+        .iter()
+        .map(|light| {
+            let incident = light.incident(x);
+            if incident.irradiance == Vec3::ZERO {
+                return Vec3::ZERO;
+            }
+            let shadow = MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance);
+            let tr = shadow.transmittance(step, cutoff) as f32;
+            incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out)
+        })
+        .sum()
+}
+
+/// Offsets (in units of the radius) at which the mean density over a ball is taken: the
+/// centre, six points on the axes and eight on the diagonals, at half the radius, equally
+/// weighted. Enough for the ratio estimator's smooth denominator.
+const BALL_STENCIL: [[f64; 3]; 15] = {
+    const A: f64 = 0.5;
+    const D: f64 = 0.5 * 0.577_350_269_189_625_8;
+    [
+        [0.0, 0.0, 0.0],
+        [A, 0.0, 0.0],
+        [-A, 0.0, 0.0],
+        [0.0, A, 0.0],
+        [0.0, -A, 0.0],
+        [0.0, 0.0, A],
+        [0.0, 0.0, -A],
+        [D, D, D],
+        [D, D, -D],
+        [D, -D, D],
+        [D, -D, -D],
+        [-D, D, D],
+        [-D, D, -D],
+        [-D, -D, D],
+        [-D, -D, -D],
+    ]
+};
+
+/// Mean density over the ball of `radius` around world point `x`.
+pub fn mean_density_in_ball(density: &Volume<f32>, x: DVec3, radius: f64) -> f64 {
+    BALL_STENCIL.iter().map(|o| density.sample_world(x + DVec3::from_array(*o) * radius).max(0.0) as f64).sum::<f64>()
+        / BALL_STENCIL.len() as f64
+}
+
+/// The photons' radiance estimate at `x` toward `w_out`, divided by the mean sigma_s over the
+/// same ball; returns it and how many photons it used.
+#[allow(clippy::too_many_arguments)]
+pub fn li_multiple(
+    density: &Volume<f32>,
+    optics: &Medium,
+    photons: &PhotonMap,
+    bins: &PhotonBins,
+    gather: Gather,
+    x: DVec3,
+    w_out: Vec3,
+    scratch: &mut Vec<u32>,
+) -> (Vec3, u32) {
+    let phase = optics.phase();
+    let mut sum = Vec3::ZERO;
+    let mut used = 0u32;
+    let radius = match gather {
+        Gather::Radius(r) => {
+            bins.for_each_within(x, r, |i, _| {
+                sum += photons.power[i as usize] * phase.eval_dirs(photons.dir[i as usize], w_out);
+                used += 1;
+            });
+            r
+        }
+        Gather::Neighbours { k, max_radius } => {
+            let far2 = bins.nearest(x, k as usize, max_radius, scratch);
+            for &i in scratch.iter() {
+                sum += photons.power[i as usize] * phase.eval_dirs(photons.dir[i as usize], w_out);
+            }
+            used = scratch.len() as u32;
+            // Fewer than k photons within reach: the ball is the whole reach.
+            if scratch.len() < k as usize { max_radius } else { (far2 as f64).sqrt() }
+        }
+    };
+    if used == 0 || radius <= 0.0 {
+        return (Vec3::ZERO, used);
+    }
+    let volume = 4.0 / 3.0 * PI * radius * radius * radius;
+    let mean_sigma_s = optics.sigma_s(mean_density_in_ball(density, x, radius) as f32);
+    let ratio = |a: f32, s: f32| if s > 0.0 { a / s } else { 0.0 };
+    let estimate = sum / volume as f32;
+    (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
+}
+
+/// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
+pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
+    (camera.eye() - x).normalize_or_zero().as_vec3()
+}
+
+/// Bakes the cache on the CPU.
+pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
+    params.validate()?;
+    let majorant = MajorantGrid::build(density);
+    let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
+    let mut stats = plan.stats.clone();
+    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let step = params.step * density.transform().voxel_size().min_element();
+    let scatters = !params.medium.is_non_scattering();
+
+    let nonfinite = AtomicU64::new(0);
+    let bake = |f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| bake_plan(&plan, &params.camera, &nonfinite, f);
+    let li_single = (params.single && scatters && !params.lights.is_empty()).then(|| {
+        bake(&|x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
+    });
+    let li_multiple = (params.multiple && scatters && !photons.is_empty()).then(|| {
+        let cell = match params.gather {
+            Gather::Radius(r) => r,
+            // Cells of about the radius that holds k photons on average over the photons' box.
+            Gather::Neighbours { k, max_radius } => typical_radius(photons, k).min(max_radius),
+        };
+        let bins = PhotonBins::new(&photons.positions, cell);
+        let gathered = AtomicU64::new(0);
+        let volume = bake(&|x, w_out, scratch| {
+            let (li, used) = li_multiple(density, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
+            gathered.fetch_add(used as u64, Ordering::Relaxed);
+            li
+        });
+        stats.photons_gathered = gathered.into_inner();
+        volume
+    });
+    stats.nonfinite = nonfinite.into_inner();
+    Ok((IlluminationCache { li_single, li_multiple }, stats))
+}
+
+/// Radius of a ball holding about `k` photons if they filled their bounding box evenly.
+fn typical_radius(photons: &PhotonMap, k: u32) -> f64 {
+    let (lo, hi) = photons.positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), &p| (a.min(p), b.max(p)));
+    let volume = (hi - lo).max(DVec3::splat(1e-6)).element_product();
+    (k as f64 * volume / (photons.len() as f64 * 4.0 / 3.0 * PI)).cbrt()
+}
+
+/// Evaluates `f(world position, w_out, scratch)` at every planned cache voxel, w_out toward
+/// the camera's eye. A non-finite result is stored as zero and counted, never written.
+fn bake_plan(plan: &CachePlan, camera: &Camera, nonfinite: &AtomicU64, f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)) -> Volume<Vec3> {
+    let transform: Transform = plan.transform;
+    Volume::from_brick_fn(transform, Vec3::ZERO, &plan.origins(), |origin, values| {
+        let mask = *plan.mask_of(origin).expect("planned brick");
+        let mut scratch = Vec::new();
+        for offset in 0..BRICK_VOXELS {
+            if mask[offset >> 6] & (1 << (offset & 63)) != 0 {
+                let x = transform.to_world((origin + brick_local(offset)).as_dvec3());
+                let li = f(x, toward_eye(camera, x), &mut scratch);
+                values[offset] = if li.is_finite() {
+                    li
+                } else {
+                    nonfinite.fetch_add(1, Ordering::Relaxed);
+                    Vec3::ZERO
+                };
+            }
+        }
+        mask
+    })
+}

@@ -1,0 +1,111 @@
+//! vdbcache's engine: the [`IlluminationCache`], in-scattered radiance per unit scattering
+//! coefficient toward the camera, baked per voxel (design.md section 5).
+//!
+//! - `Li_single(x) = sum over lights p(w_light, w_out) E T_light(x)`, with the transmittance
+//!   toward each light integrated by composite Simpson through [`nimbus_tracking`], stopping
+//!   once it is negligible.
+//! - `Li_multiple(x) = [sum_p p(w_p, w_out) dPhi_p / (4/3 pi r^3)] / mean sigma_s(ball)`, the
+//!   volume radiance estimate over the photons in a ball around x (radius fixed, or the
+//!   distance to the K-th nearest photon), divided by the mean scattering coefficient over
+//!   the same ball: the ratio stays stable at thin edges where sigma_s(x) itself is near zero.
+//!
+//! `w_out` points from the voxel toward the camera's eye, so the cache holds what that camera
+//! sees. The cache lattice may be coarser than the density lattice (`cache_scale`); the
+//! [`CachePlan`] decides which cache voxels are baked: only those within one cache cell of
+//! density (found through the majorant grid) and inside the camera's view (a conservative
+//! sphere test), so empty space and what the camera cannot see cost nothing.
+//!
+//! Photons are found through [`PhotonBins`], a counting-sort grid built in O(photons).
+
+mod bins;
+mod cpu;
+mod plan;
+
+pub use bins::PhotonBins;
+pub use cpu::bake_cpu;
+pub use plan::{cache_transform, CachePlan};
+
+use nimbus_optics::{Camera, Light, Medium};
+use nimbus_volume::Volume;
+
+/// How the multiple-scattering estimate chooses its ball.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Gather {
+    /// The ball reaches the K-th nearest photon (at most `max_radius`).
+    Neighbours { k: u32, max_radius: f64 },
+    /// A fixed radius (world units).
+    Radius(f64),
+}
+
+/// Everything a bake depends on; the CPU and GPU backends read the same struct.
+#[derive(Clone, Debug)]
+pub struct CacheParams {
+    pub medium: Medium,
+    pub lights: Vec<Light>,
+    pub camera: Camera,
+    /// Simpson step toward the lights, as a fraction of the smallest density voxel edge.
+    pub step: f64,
+    /// Cache voxel edge in density voxels (>= 1 coarser).
+    pub cache_scale: f64,
+    pub single: bool,
+    pub multiple: bool,
+    pub gather: Gather,
+    /// Shadow rays stop once transmittance falls below this.
+    pub min_transmittance: f64,
+}
+
+/// The baked grids; `None` where that part was not asked for or had nothing to gather.
+#[derive(Clone, Debug, Default)]
+pub struct IlluminationCache {
+    pub li_single: Option<Volume<glam::Vec3>>,
+    pub li_multiple: Option<Volume<glam::Vec3>>,
+}
+
+/// What the bake did, for `-v` and metadata.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BakeStats {
+    /// Cache voxels in the bricks near density.
+    pub candidates: u64,
+    /// Of those, skipped for lying outside the camera's view.
+    pub culled_view: u64,
+    /// Of those, skipped for having no density within one cache cell.
+    pub culled_empty: u64,
+    pub baked: u64,
+    pub photons_gathered: u64,
+    /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
+    pub nonfinite: u64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CacheError {
+    #[error("invalid parameter: {0}")]
+    Param(String),
+}
+
+impl CacheParams {
+    pub fn validate(&self) -> Result<(), CacheError> {
+        self.medium.validate().map_err(|e| CacheError::Param(e.to_string()))?;
+        let positive = |name: &str, v: f64| {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(CacheError::Param(format!("{name} must be positive, got {v}")))
+            }
+        };
+        positive("--step", self.step)?;
+        positive("--cache-scale", self.cache_scale)?;
+        match self.gather {
+            Gather::Neighbours { k, max_radius } => {
+                if k == 0 {
+                    return Err(CacheError::Param("--gather-neighbours must be at least 1".into()));
+                }
+                positive("gather max radius", max_radius)?;
+            }
+            Gather::Radius(r) => positive("--radius", r)?,
+        }
+        if !(0.0..1.0).contains(&self.min_transmittance) {
+            return Err(CacheError::Param(format!("--min-transmittance must be in [0,1), got {}", self.min_transmittance)));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,99 @@
+//! Which cache voxels to bake: shared by the CPU and GPU backends.
+
+use glam::{DAffine3, DVec3, IVec3};
+use nimbus_optics::Camera;
+use nimbus_volume::{brick_local, brick_origin, BrickMask, MajorantGrid, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
+use rayon::prelude::*;
+use rustc_hash::FxHashSet;
+
+use crate::BakeStats;
+
+/// The cache lattice: the density lattice scaled by `scale`, so cache voxel c sits at density
+/// index scale * c and both share the origin.
+pub fn cache_transform(density: &Transform, scale: f64) -> Transform {
+    Transform::new(density.index_to_world() * DAffine3::from_scale(DVec3::splat(scale)))
+        .expect("a positive scale of an invertible map is invertible")
+}
+
+/// The cache bricks to bake and, in each, the voxels to bake.
+pub struct CachePlan {
+    pub transform: Transform,
+    /// Sorted by origin.
+    pub bricks: Vec<(IVec3, BrickMask)>,
+    pub stats: BakeStats,
+}
+
+impl CachePlan {
+    /// Cache voxels within one cache cell of density (so every trilinear cache lookup a
+    /// renderer makes where there is density finds baked corners) and inside the camera's
+    /// view, enlarged by the same footprint.
+    pub fn new(density: &Volume<f32>, majorant: &MajorantGrid, camera: &Camera, scale: f64) -> CachePlan {
+        let transform = cache_transform(density.transform(), scale);
+        let mut candidates = FxHashSet::default();
+        for brick in density.bricks() {
+            if !brick.values.iter().any(|&v| v > 0.0) {
+                continue;
+            }
+            // The density brick influences interpolation over [o-1, o+8] (density index); the
+            // cache voxels within one cache cell of that.
+            let lo = ((brick.origin.as_dvec3() - 1.0) / scale).floor().as_ivec3() - 1;
+            let hi = ((brick.origin.as_dvec3() + BRICK_DIM as f64) / scale).ceil().as_ivec3() + 1;
+            let (b0, b1) = (brick_origin(lo), brick_origin(hi));
+            for x in (b0.x..=b1.x).step_by(BRICK_DIM as usize) {
+                for y in (b0.y..=b1.y).step_by(BRICK_DIM as usize) {
+                    for z in (b0.z..=b1.z).step_by(BRICK_DIM as usize) {
+                        candidates.insert(IVec3::new(x, y, z));
+                    }
+                }
+            }
+        }
+        let mut origins: Vec<IVec3> = candidates.into_iter().collect();
+        origins.sort_unstable_by_key(|o| (o.x, o.y, o.z));
+        // A cache voxel's interpolation footprint is the ball around it reaching its cell's
+        // far corners.
+        let footprint = scale * density.transform().voxel_size().length();
+        let per_brick: Vec<(IVec3, BrickMask, BakeStats)> = origins
+            .par_iter()
+            .map(|&origin| {
+                let mut mask = [0u64; 8];
+                let mut stats = BakeStats { candidates: BRICK_VOXELS as u64, ..BakeStats::default() };
+                for offset in 0..BRICK_VOXELS {
+                    let c = (origin + brick_local(offset)).as_dvec3();
+                    let centre = c * scale;
+                    if !(majorant.max_in_box(centre - scale, centre + scale) > 0.0) {
+                        stats.culled_empty += 1;
+                    } else if !camera.sees_sphere(transform.to_world(c), footprint) {
+                        stats.culled_view += 1;
+                    } else {
+                        mask[offset >> 6] |= 1 << (offset & 63);
+                        stats.baked += 1;
+                    }
+                }
+                (origin, mask, stats)
+            })
+            .collect();
+        let mut stats = BakeStats::default();
+        let mut bricks = Vec::new();
+        for (origin, mask, s) in per_brick {
+            stats.candidates += s.candidates;
+            stats.culled_empty += s.culled_empty;
+            stats.culled_view += s.culled_view;
+            stats.baked += s.baked;
+            if mask.iter().any(|&w| w != 0) {
+                bricks.push((origin, mask));
+            }
+        }
+        CachePlan { transform, bricks, stats }
+    }
+
+    pub fn mask_of(&self, origin: IVec3) -> Option<&BrickMask> {
+        self.bricks
+            .binary_search_by_key(&(origin.x, origin.y, origin.z), |(o, _)| (o.x, o.y, o.z))
+            .ok()
+            .map(|i| &self.bricks[i].1)
+    }
+
+    pub fn origins(&self) -> Vec<IVec3> {
+        self.bricks.iter().map(|b| b.0).collect()
+    }
+}
