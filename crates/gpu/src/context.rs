@@ -118,8 +118,8 @@ impl GpuContext {
         if size > limits.max_buffer_size {
             return Err(too_large(limits.max_buffer_size, "max_buffer_size"));
         }
-        if storage && size > u64::from(limits.max_storage_buffer_binding_size) {
-            return Err(too_large(limits.max_storage_buffer_binding_size.into(), "max_storage_buffer_binding_size"));
+        if storage && size > limits.max_storage_buffer_binding_size {
+            return Err(too_large(limits.max_storage_buffer_binding_size, "max_storage_buffer_binding_size"));
         }
         Ok(())
     }

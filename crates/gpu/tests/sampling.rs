@@ -4,7 +4,7 @@
 mod common;
 
 use common::{brick_bounds, gpu, random_sparse_volume, Rng};
-use glam::{IVec3, Vec3};
+use glam::{IVec3, Vec3, Vec4};
 use nimbus_gpu::{DeviceChoice, GpuError, GpuOptions, GpuVolume, GpuVolumeOptions, PointSampler, SampleMode};
 use nimbus_volume::{Transform, Volume, BRICK_DIM};
 
@@ -137,4 +137,88 @@ fn a_table_over_budget_is_a_clear_error() {
         Err(GpuError::VolumeLayout(message)) => assert!(message.contains("indirection table"), "{message}"),
         other => panic!("expected a layout error, got {other:?}"),
     }
+}
+
+/// A stage that samples two volumes: the second one bound through `layout_entries` at
+/// another group and sampled with the `_in` functions, at world positions given relative to
+/// a far-away origin.
+#[test]
+fn a_second_volume_binds_anywhere_and_world_positions_stay_precise() {
+    use glam::{DAffine3, DQuat, DVec3};
+    use nimbus_gpu::{storage_entry, wgpu};
+
+    let Some(ctx) = gpu() else { return };
+    let mut rng = Rng::new(5);
+    let first = random_sparse_volume(&mut rng, 5);
+    let mut second = random_sparse_volume(&mut rng, 5);
+    // Rotated, anisotropic voxels 100 km from the world origin, where absolute f32 world
+    // coordinates would resolve only ~1 cm, about one voxel.
+    let far = DVec3::new(1.0e5, -2.0e5, 3.0e4);
+    let index_to_world = DAffine3::from_scale_rotation_translation(
+        DVec3::new(0.01, 0.02, 0.015),
+        DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.1),
+        far,
+    );
+    second.set_transform(Transform::new(index_to_world).unwrap());
+    let gpu_first = GpuVolume::upload(ctx, &first, &GpuVolumeOptions::default()).unwrap();
+    let mut gpu_second = GpuVolume::upload(ctx, &second, &GpuVolumeOptions::default()).unwrap();
+    let origin = far + DVec3::new(0.3, 0.1, -0.2);
+    gpu_second.set_world_origin(ctx, origin);
+
+    let (lo, hi) = brick_bounds(&second, 2.0);
+    let index_points: Vec<Vec3> = (0..500).map(|_| rng.point_in(lo, hi)).collect();
+    let relative: Vec<Vec4> =
+        index_points.iter().map(|p| (second.transform().to_world(p.as_dvec3()) - origin).as_vec3().extend(0.0)).collect();
+
+    let source = ctx.compose_shader(
+        "@group(1) @binding(0) var second_atlas: texture_3d<f32>;
+         @group(1) @binding(1) var second_table: texture_3d<u32>;
+         @group(1) @binding(2) var second_sampler: sampler;
+         @group(1) @binding(3) var<uniform> second_info: VolumeInfo;
+         @group(1) @binding(4) var<storage, read> points: array<vec4<f32>>;
+         @group(1) @binding(5) var<storage, read_write> out: array<vec4<f32>>;
+         @compute @workgroup_size(64)
+         fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+             let i = id.x;
+             if (i >= arrayLength(&points)) { return; }
+             let p = volume_world_to_index_in(second_info, points[i].xyz);
+             out[2u * i] = vec4<f32>(p, 0.0);
+             out[2u * i + 1u] = vec4<f32>(
+                 volume_sample_index_in(second_atlas, second_table, second_info, p).x,
+                 volume_sample_index(p), 0.0, 0.0);
+         }",
+    );
+    let mut entries = GpuVolume::layout_entries(0, ctx.float32_filterable()).to_vec();
+    entries.extend([storage_entry(4, true), storage_entry(5, false)]);
+    let first_layout = GpuVolume::bind_group_layout(ctx).unwrap();
+    let second_layout = ctx.bind_group_layout("second", &entries).unwrap();
+    let pipeline = ctx.compute_pipeline("two volumes", &source, "main", &[&first_layout, &second_layout]).unwrap();
+
+    let points = ctx.storage_buffer("points", &relative).unwrap();
+    let out = ctx.storage_buffer_zeroed("out", relative.len() as u64 * 32).unwrap();
+    let mut group_entries = gpu_second.bind_group_entries(0).to_vec();
+    group_entries.push(wgpu::BindGroupEntry { binding: 4, resource: points.as_entire_binding() });
+    group_entries.push(wgpu::BindGroupEntry { binding: 5, resource: out.as_entire_binding() });
+    let second_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("second"),
+        layout: &second_layout,
+        entries: &group_entries,
+    });
+    let first_group = gpu_first.bind_group(ctx, &first_layout).unwrap();
+    ctx.dispatch_1d("two volumes", &pipeline, &[&first_group, &second_group], relative.len() as u64, 64).unwrap();
+    let out: Vec<Vec4> = ctx.read_buffer(&out).unwrap();
+
+    let mut worst_index_error = 0.0f32;
+    for (i, p) in index_points.iter().enumerate() {
+        let (p_gpu, samples) = (out[2 * i].truncate(), out[2 * i + 1]);
+        worst_index_error = worst_index_error.max((p_gpu - *p).abs().max_element());
+        // Each volume sampled at the GPU's own index position, as in the exact test.
+        let second_cpu = second.sample_index(p_gpu.as_dvec3());
+        let first_cpu = first.sample_index(p_gpu.as_dvec3());
+        assert!((samples.x - second_cpu).abs() <= EXACT_TOLERANCE * 2.0, "second volume at {p_gpu}: cpu {second_cpu}, gpu {}", samples.x);
+        assert!((samples.y - first_cpu).abs() <= EXACT_TOLERANCE * 2.0, "first volume at {p_gpu}: cpu {first_cpu}, gpu {}", samples.y);
+    }
+    eprintln!("world -> index relative to an origin 1e5 away: max index error {worst_index_error:e} voxels");
+    // Only the f32 rounding of a relative position of a few metres and of the matrix: ~1e-5.
+    assert!(worst_index_error < 1e-3, "{worst_index_error}");
 }
