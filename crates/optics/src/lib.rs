@@ -24,6 +24,9 @@
 //!   sequence depends on nothing else, so results do not depend on threads or device.
 //!   [`Rng::next_f32`] is in [0,1), never 1.0.
 //!
+//! - **Noise** ([`noise`]): seeded Perlin gradient noise and fBm, a pure function of
+//!   position and seed (density perturbation in particles2vdb, offset jitter in vdbmarch).
+//!
 //! Everything that parses text returns a [`ParseError`] that prints as
 //! `invalid <what> '<text>' (<reason>)`; semantic checks have their own error enums.
 //!
@@ -43,6 +46,7 @@ mod camera;
 mod gpu;
 mod light;
 mod medium;
+pub mod noise;
 mod params;
 mod phase;
 mod rng;

@@ -1,0 +1,115 @@
+//! The CPU backend: pixels in parallel with rayon.
+
+use glam::{DVec3, Vec3};
+use nimbus_cache::IlluminationCache;
+use nimbus_optics::noise::fbm3_vec;
+use nimbus_optics::Rng;
+use nimbus_volume::{MajorantGrid, Volume};
+use rayon::prelude::*;
+
+use crate::{Image, MarchError, MarchParams};
+
+/// Random-number domain of camera samples.
+const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
+
+/// What one camera ray gathered.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RayResult {
+    pub single: Vec3,
+    pub multiple: Vec3,
+    pub transmittance: f32,
+    /// Distance to the first sample where opacity passed 1%, or infinity.
+    pub depth: f32,
+}
+
+/// Marches one camera ray. `xi` in [0,1) places the step lattice.
+pub fn march_ray(
+    density: &Volume<f32>,
+    majorant: &MajorantGrid,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    origin: DVec3,
+    dir: DVec3,
+    xi: f64,
+) -> RayResult {
+    let transform = density.transform();
+    let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
+    let dt = params.step;
+    let extinction = params.medium.extinction;
+    let albedo = params.medium.albedo;
+    let jitter = params.offset_noise > 0.0;
+    let mut r = RayResult { transmittance: 1.0, depth: f32::INFINITY, ..RayResult::default() };
+    let mut tr = 1.0f64;
+    for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
+        if !(seg.majorant > 0.0) || seg.t_end.is_infinite() {
+            continue;
+        }
+        let mut k = (seg.t_start / dt - xi).ceil();
+        loop {
+            let t = (k + xi) * dt;
+            if t >= seg.t_end {
+                break;
+            }
+            k += 1.0;
+            let mut x = origin + dir * t;
+            if jitter {
+                x += fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
+            }
+            let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
+            if sigma_t <= 0.0 {
+                continue;
+            }
+            let step_transmittance = (-sigma_t * dt).exp();
+            let weight = (tr * (1.0 - step_transmittance)) as f32;
+            if let Some(li) = &cache.li_single {
+                r.single += weight * albedo * li.sample_world(x);
+            }
+            if let Some(li) = &cache.li_multiple {
+                r.multiple += weight * albedo * li.sample_world(x);
+            }
+            tr *= step_transmittance;
+            if r.depth.is_infinite() && tr < 0.99 {
+                r.depth = t as f32;
+            }
+            if tr < params.min_transmittance {
+                r.transmittance = 0.0;
+                return r;
+            }
+        }
+    }
+    r.transmittance = tr as f32;
+    r
+}
+
+/// Renders the image on the CPU.
+pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
+    params.validate()?;
+    let majorant = MajorantGrid::build(density);
+    let camera = &params.camera;
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let spp = params.spp;
+    let pixels: Vec<RayResult> = (0..w * h)
+        .into_par_iter()
+        .map(|index| {
+            let (px, py) = ((index % w) as f64, (index / w) as f64);
+            let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
+            let mut sum = RayResult::default();
+            let mut depth = f32::INFINITY;
+            for _ in 0..spp {
+                // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
+                // in its edges; jittered over the pixel otherwise.
+                let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { (rng.next_f64(), rng.next_f64()) };
+                let xi = rng.next_f64();
+                let (origin, dir) = camera.ray(px + jx, py + jy);
+                let r = march_ray(density, &majorant, cache, params, origin, dir, xi);
+                sum.single += r.single;
+                sum.multiple += r.multiple;
+                sum.transmittance += r.transmittance;
+                depth = depth.min(r.depth);
+            }
+            let inv = 1.0 / spp as f32;
+            RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth }
+        })
+        .collect();
+    Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
+}

@@ -1,0 +1,156 @@
+//! Seeded 3D gradient (Perlin) noise and its fractal sum (fBm).
+//!
+//! Self-contained on purpose: it depends on nothing but glam, so it can move to a shared
+//! crate and be reused by the renderer's offset noise, and every operation has a direct WGSL
+//! equivalent (u32 wrapping arithmetic for the hash, f32 for the interpolation).
+//!
+//! Reproducibility: the gradient at a lattice point is chosen by an integer hash of
+//! (ix, iy, iz, seed), not by a shuffled permutation table, so the noise is a pure function of
+//! its arguments with no state and no period shorter than 2^32 lattice cells.
+//!
+//! Precision: positions are f64 and split into an integer lattice cell and an f32 fraction,
+//! so noise evaluated at world coordinates far from the origin (1e6) stays as detailed as
+//! near it; a field tied to world space does not swim when a scene's bounds change.
+
+use glam::{DVec3, Vec3};
+
+/// The PCG output hash (O'Neill), a good 32-bit integer mix.
+#[inline]
+fn pcg(v: u32) -> u32 {
+    let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
+    (word >> 22) ^ word
+}
+
+/// Hash of a lattice point and seed, nested so each coordinate is fully mixed before the next.
+#[inline]
+fn lattice_hash(x: u32, y: u32, z: u32, seed: u32) -> u32 {
+    pcg(x ^ pcg(y ^ pcg(z ^ pcg(seed))))
+}
+
+/// Dot product of the offset d with one of the 12 cube-edge gradients (Perlin 2002; the
+/// last four entries repeat four of the twelve so a 4-bit hash selects uniformly enough).
+#[inline]
+fn grad(hash: u32, d: Vec3) -> f32 {
+    let h = hash & 15;
+    let u = if h < 8 { d.x } else { d.y };
+    let v = if h < 4 {
+        d.y
+    } else if h == 12 || h == 14 {
+        d.x
+    } else {
+        d.z
+    };
+    (if h & 1 == 0 { u } else { -u }) + (if h & 2 == 0 { v } else { -v })
+}
+
+/// Quintic fade 6t^5 - 15t^4 + 10t^3: C2 continuity across lattice cells.
+#[inline]
+fn fade(t: f32) -> f32 {
+    t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+}
+
+#[inline]
+fn lerp(a: f32, b: f32, t: f32) -> f32 {
+    a + t * (b - a)
+}
+
+/// Perlin gradient noise at `p`, seeded. Zero on the integer lattice, values roughly in
+/// [-1, 1], mean zero; smooth (C2) everywhere.
+pub fn perlin3(p: DVec3, seed: u32) -> f32 {
+    let cell = p.floor();
+    let f = (p - cell).as_vec3();
+    // Wrapping i64 -> u32 keeps the hash defined for any finite coordinate.
+    let (ix, iy, iz) = (cell.x as i64 as u32, cell.y as i64 as u32, cell.z as i64 as u32);
+    let corner = |dx: u32, dy: u32, dz: u32| {
+        let h = lattice_hash(ix.wrapping_add(dx), iy.wrapping_add(dy), iz.wrapping_add(dz), seed);
+        grad(h, f - Vec3::new(dx as f32, dy as f32, dz as f32))
+    };
+    let (u, v, w) = (fade(f.x), fade(f.y), fade(f.z));
+    lerp(
+        lerp(lerp(corner(0, 0, 0), corner(0, 0, 1), w), lerp(corner(0, 1, 0), corner(0, 1, 1), w), v),
+        lerp(lerp(corner(1, 0, 0), corner(1, 0, 1), w), lerp(corner(1, 1, 0), corner(1, 1, 1), w), v),
+        u,
+    )
+}
+
+/// Fractal Brownian motion: a sum of octaves of [`perlin3`], each at `lacunarity` times the
+/// frequency and `gain` times the amplitude of the previous, normalised by the sum of the
+/// amplitudes so the result stays roughly in [-1, 1] whatever the octave count.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fbm {
+    pub octaves: u32,
+    pub lacunarity: f64,
+    pub gain: f32,
+    pub seed: u32,
+}
+
+impl Fbm {
+    pub fn new(octaves: u32, seed: u32) -> Fbm {
+        Fbm { octaves, lacunarity: 2.0, gain: 0.5, seed }
+    }
+
+    pub fn eval(&self, p: DVec3) -> f32 {
+        // Each octave gets its own seed and a shift, so the octaves' lattice zeros do not line
+        // up (otherwise every octave vanishes at the origin and the sum has visible grid points).
+        const SHIFT: DVec3 = DVec3::new(0.318_309_886, 0.577_215_665, 0.693_147_181);
+        let (mut sum, mut norm) = (0.0f32, 0.0f32);
+        let (mut freq, mut amp) = (1.0f64, 1.0f32);
+        for octave in 0..self.octaves {
+            sum += amp * perlin3(p * freq + SHIFT * octave as f64, self.seed.wrapping_add(octave));
+            norm += amp;
+            freq *= self.lacunarity;
+            amp *= self.gain;
+        }
+        if norm > 0.0 {
+            sum / norm
+        } else {
+            0.0
+        }
+    }
+}
+
+/// fBm with the usual lacunarity 2 and gain 1/2.
+pub fn fbm3(p: DVec3, octaves: u32, seed: u32) -> f32 {
+    Fbm::new(octaves, seed).eval(p)
+}
+
+/// A smooth vector field: three decorrelated fBm channels (seeds seed, seed+101, seed+202,
+/// far enough apart that no octave of one channel shares a seed with another's).
+pub fn fbm3_vec(p: DVec3, octaves: u32, seed: u32) -> Vec3 {
+    Vec3::new(fbm3(p, octaves, seed), fbm3(p, octaves, seed.wrapping_add(101)), fbm3(p, octaves, seed.wrapping_add(202)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zero_on_lattice_and_bounded() {
+        assert_eq!(perlin3(DVec3::new(3.0, -7.0, 1e6), 1), 0.0);
+        let mut max = 0.0f32;
+        let mut mean = 0.0f64;
+        let n = 20_000;
+        for i in 0..n {
+            let p = DVec3::new(i as f64 * 0.137, (i % 97) as f64 * 0.311, (i % 13) as f64 * 0.73);
+            let v = perlin3(p, 7);
+            max = max.max(v.abs());
+            mean += v as f64;
+        }
+        assert!(max <= 1.1 && max > 0.4, "max {max}");
+        assert!((mean / n as f64).abs() < 0.05, "mean {}", mean / n as f64);
+    }
+
+    #[test]
+    fn seeded_and_continuous() {
+        let p = DVec3::new(1.3, 2.7, -0.4);
+        assert_eq!(perlin3(p, 5), perlin3(p, 5));
+        assert_ne!(perlin3(p, 5), perlin3(p, 6));
+        let e = DVec3::splat(1e-4);
+        assert!((perlin3(p, 5) - perlin3(p + e, 5)).abs() < 1e-3);
+        // Far from the origin the fraction keeps full precision.
+        let far = DVec3::splat(1e6) + p;
+        assert!((perlin3(far, 5) - perlin3(far + e, 5)).abs() < 1e-3);
+        assert_eq!(fbm3(p, 1, 9), perlin3(p, 9));
+    }
+}
