@@ -12,7 +12,7 @@
 //! bit for bit and densities to summation order.
 
 use glam::{IVec3, Vec3};
-use nimbus_volume::{brick_offset, BRICK_DIM, BRICK_VOXELS};
+use nimbus_volume::{brick_local, brick_offset, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
 use crate::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
@@ -69,46 +69,58 @@ fn valid_extent(prep: &Prepared, origin: IVec3) -> IVec3 {
     (prep.grid.dims - origin).min(IVec3::splat(BRICK_DIM))
 }
 
-/// Visits the voxels of the brick (local 0..n) within radius `r` of `p` (global index space),
-/// calling `f(offset, r2)` where `r2 < r*r` and `r2 < radius2[offset]` would be the caller's
-/// test. The loop bounds come from the sphere, widened slightly, and the caller tests `r2`
-/// exactly, so rounding in the bounds never drops a voxel.
+const ROW: usize = BRICK_DIM as usize;
+
+/// Visits the (x, y) columns of the brick (valid part) whose axis passes within radius `r` of
+/// `p` (global index space), calling `f(offset of (x, y, 0), dx^2 + dy^2)`. The callers then
+/// treat the whole z column of 8 voxels at once, branch-free, testing each voxel's squared
+/// distance against its own radius: that is what vectorises (8 lanes = one z column), and the
+/// exact per-voxel test means rounding in these loop bounds (widened slightly) never drops a
+/// voxel.
 #[inline(always)]
-fn for_voxels_near(p: Vec3, r: f32, origin: IVec3, n: IVec3, mut f: impl FnMut(usize, f32)) {
+fn for_columns_near(p: Vec3, r: f32, origin: IVec3, n: IVec3, mut f: impl FnMut(usize, f32)) {
     const SLACK: f32 = 1e-3;
-    let o = origin.as_vec3();
-    let local = p - o;
+    let local = p - origin.as_vec3();
     let r2 = r * r;
     let x_lo = ((local.x - r - SLACK).ceil() as i32).max(0);
     let x_hi = ((local.x + r + SLACK).floor() as i32).min(n.x - 1);
     for x in x_lo..=x_hi {
         let dx = (origin.x + x) as f32 - p.x;
-        let rem_x = r2 - dx * dx;
-        if rem_x < 0.0 {
+        let rem = r2 - dx * dx;
+        if rem < 0.0 {
             continue;
         }
-        let ry = rem_x.sqrt() + SLACK;
+        let ry = rem.sqrt() + SLACK;
         let y_lo = ((local.y - ry).ceil() as i32).max(0);
         let y_hi = ((local.y + ry).floor() as i32).min(n.y - 1);
         for y in y_lo..=y_hi {
             let dy = (origin.y + y) as f32 - p.y;
-            let rem_y = rem_x - dy * dy;
-            if rem_y < 0.0 {
-                continue;
-            }
-            let rz = rem_y.sqrt() + SLACK;
-            let z_lo = ((local.z - rz).ceil() as i32).max(0);
-            let z_hi = ((local.z + rz).floor() as i32).min(n.z - 1);
-            let row = brick_offset(IVec3::new(x, y, 0));
-            for z in z_lo..=z_hi {
-                let dz = (origin.z + z) as f32 - p.z;
-                f(row + z as usize, dx * dx + dy * dy + dz * dz);
-            }
+            f(brick_offset(IVec3::new(x, y, 0)), dx * dx + dy * dy);
         }
     }
 }
 
+/// dz^2 for the brick's 8 z planes: the same for every column a particle touches.
+#[inline(always)]
+fn dz2_column(p: Vec3, origin: IVec3) -> [f32; ROW] {
+    std::array::from_fn(|z| {
+        let dz = (origin.z + z as i32) as f32 - p.z;
+        dz * dz
+    })
+}
+
+#[inline(always)]
+fn column<T>(a: &[T; BRICK_VOXELS], row: usize) -> &[T; ROW] {
+    a[row..row + ROW].try_into().unwrap()
+}
+
+#[inline(always)]
+fn column_mut<T>(a: &mut [T; BRICK_VOXELS], row: usize) -> &mut [T; ROW] {
+    (&mut a[row..row + ROW]).try_into().unwrap()
+}
+
 /// Gathers the particles whose support (radius r, index units) reaches the brick's voxels.
+#[inline(always)]
 fn gather(prep: &Prepared, origin: IVec3, n: IVec3, r: f32, out: &mut Vec<(Vec3, f32)>) {
     out.clear();
     let cells = &prep.cells;
@@ -131,40 +143,101 @@ fn gather(prep: &Prepared, origin: IVec3, n: IVec3, r: f32, out: &mut Vec<(Vec3,
     }
 }
 
-/// The per-brick work: gather, then the method's passes.
+/// Counting pass: count[v] += particles with r^2 < radius2[v].
+#[inline(always)]
+fn splat_count(parts: &[(Vec3, f32)], r_max: f32, radius2: &[f32; BRICK_VOXELS], origin: IVec3, n: IVec3, count: &mut [u32; BRICK_VOXELS]) {
+    count.fill(0);
+    for &(p, _) in parts {
+        let dz2 = dz2_column(p, origin);
+        for_columns_near(p, r_max, origin, n, |row, dxy2| {
+            let (rad2, c) = (column(radius2, row), column_mut(count, row));
+            for z in 0..ROW {
+                c[z] += (dxy2 + dz2[z] < rad2[z]) as u32;
+            }
+        });
+    }
+}
+
+/// Density pass: rho[v] += m * m4_shape(r / h[v]) and used[v] += 1 where r^2 < radius2[v].
+#[inline(always)]
+fn splat_density(
+    parts: &[(Vec3, f32)],
+    r_max: f32,
+    radius2: &[f32; BRICK_VOXELS],
+    inv_h: &[f32; BRICK_VOXELS],
+    origin: IVec3,
+    n: IVec3,
+    rho: &mut [f32; BRICK_VOXELS],
+    used: &mut [u32; BRICK_VOXELS],
+) {
+    for &(p, m) in parts {
+        let dz2 = dz2_column(p, origin);
+        for_columns_near(p, r_max, origin, n, |row, dxy2| {
+            let (rad2, ih) = (column(radius2, row), column(inv_h, row));
+            let (rho, used) = (column_mut(rho, row), column_mut(used, row));
+            for z in 0..ROW {
+                let r2 = dxy2 + dz2[z];
+                // All-ones where inside, else zero: a bit mask rather than a select, so the
+                // loop stays branch-free and vectorises.
+                let inside = ((r2 < rad2[z]) as u32).wrapping_neg();
+                let w = m4_shape(r2.sqrt() * ih[z]);
+                rho[z] += m * f32::from_bits(w.to_bits() & inside);
+                used[z] += inside & 1;
+            }
+        });
+    }
+}
+
+/// The per-brick work, compiled twice: for the baseline target and for AVX2 (picked at run
+/// time), where each z column of 8 voxels is a single vector op. No FMA contraction happens
+/// either way (Rust does not fuse), so both give bit-identical results.
 fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has just been checked for AVX2.
+        return unsafe { brick_avx2(prep, method, pp, origin, s) };
+    }
+    brick_impl(prep, method, pp, origin, s)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn brick_avx2(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+    brick_impl(prep, method, pp, origin, s)
+}
+
+/// Gather, then the method's passes.
+#[inline(always)]
+fn brick_impl(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
     let n = valid_extent(prep, origin);
     let r0 = KAPPA * pp.h0;
     gather(prep, origin, n, r0, &mut s.parts);
     if s.parts.is_empty() {
         return None;
     }
+    // Voxels outside the grid, and voxels with no particle within kappa*h0 (zero density),
+    // get radius 0: no pass touches them, and they do not hold a later pass's radius at h0.
+    let mut reached = [false; BRICK_VOXELS];
+    for v in 0..BRICK_VOXELS {
+        reached[v] = brick_local(v).cmplt(n).all();
+    }
     let mut h = Box::new([pp.h0; BRICK_VOXELS]);
-    // Voxels with no particle within kappa*h0 have zero density: the final pass skips them,
-    // so they do not hold its radius at h0.
-    let mut reached = [true; BRICK_VOXELS];
 
     match method {
         Method::Usl => {}
         Method::Asl2 | Method::Asl3 => {
             // Pass 1: N0 within kappa*h0.
-            s.count.fill(0);
-            let r0_2 = r0 * r0;
-            for &(p, _) in &s.parts {
-                for_voxels_near(p, r0, origin, n, |v, r2| s.count[v] += (r2 < r0_2) as u32);
-            }
+            let r_max = set_radii(&h, &reached, &mut s.radius2);
+            splat_count(&s.parts, r_max, &s.radius2, origin, n, &mut s.count);
             let n0 = s.count;
             for v in 0..BRICK_VOXELS {
                 h[v] = predict_h1(n0[v], pp.n_star, pp.h0);
-                reached[v] = n0[v] > 0;
+                reached[v] &= n0[v] > 0;
             }
             if method == Method::Asl3 {
                 // Pass 2: N1 within each voxel's kappa*h1, then the corrector.
                 let r_max = set_radii(&h, &reached, &mut s.radius2);
-                s.count.fill(0);
-                for &(p, _) in &s.parts {
-                    for_voxels_near(p, r_max, origin, n, |v, r2| s.count[v] += (r2 < s.radius2[v]) as u32);
-                }
+                splat_count(&s.parts, r_max, &s.radius2, origin, n, &mut s.count);
                 for v in 0..BRICK_VOXELS {
                     h[v] = correct_h(n0[v], s.count[v], pp.n_star, pp.h0, h[v], pp.relax);
                 }
@@ -180,15 +253,19 @@ fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &m
             s.lists.iter_mut().for_each(Vec::clear);
             let r0_2 = r0 * r0;
             for &(p, _) in &s.parts {
-                for_voxels_near(p, r0, origin, n, |v, r2| {
-                    if r2 < r0_2 {
-                        s.lists[v].push(r2)
+                let dz2 = dz2_column(p, origin);
+                for_columns_near(p, r0, origin, n, |row, dxy2| {
+                    for z in 0..n.z as usize {
+                        let r2 = dxy2 + dz2[z];
+                        if r2 < r0_2 {
+                            s.lists[row + z].push(r2);
+                        }
                     }
                 });
             }
             let k = pp.n_star as usize;
             for v in 0..BRICK_VOXELS {
-                reached[v] = !s.lists[v].is_empty();
+                reached[v] &= !s.lists[v].is_empty();
                 h[v] = knn_h(&mut s.lists[v], k, pp);
             }
         }
@@ -196,21 +273,14 @@ fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &m
 
     // Final pass: the density with each voxel's h.
     let r_max = set_radii(&h, &reached, &mut s.radius2);
-    let mut inv_h = [0.0f32; BRICK_VOXELS];
-    for v in 0..BRICK_VOXELS {
-        inv_h[v] = 1.0 / h[v];
-    }
+    let inv_h: [f32; BRICK_VOXELS] = std::array::from_fn(|v| 1.0 / h[v]);
     let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
     let mut used = Box::new([0u32; BRICK_VOXELS]);
+    splat_density(&s.parts, r_max, &s.radius2, &inv_h, origin, n, &mut rho, &mut used);
+
+    // Voxels whose footprint holds a particle (nearest grid point): the stats population.
     let mut occupied = [0u64; 8];
-    for &(p, m) in &s.parts {
-        for_voxels_near(p, r_max, origin, n, |v, r2| {
-            if r2 < s.radius2[v] {
-                rho[v] += m * m4_shape(r2.sqrt() * inv_h[v]);
-                used[v] += 1;
-            }
-        });
-        // The voxel whose footprint holds p (nearest grid point), if it is in this brick.
+    for &(p, _) in &s.parts {
         let nearest = (p + 0.5).floor().as_ivec3() - origin;
         if nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(n).all() {
             let v = brick_offset(nearest);
@@ -231,6 +301,7 @@ fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &m
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing
 /// to find there) and the largest radius, which bounds the splat.
+#[inline(always)]
 fn set_radii(h: &[f32; BRICK_VOXELS], reached: &[bool; BRICK_VOXELS], radius2: &mut [f32; BRICK_VOXELS]) -> f32 {
     let mut r_max = 0.0f32;
     for v in 0..BRICK_VOXELS {

@@ -11,16 +11,15 @@ pub const KAPPA: f32 = 2.0;
 
 /// The M4 cubic spline without its normalisation, as a function of q = r/h:
 /// `1 - 1.5 q^2 + 0.75 q^3` for q < 1, `0.25 (2 - q)^3` for 1 <= q < 2, 0 beyond.
-#[inline]
+///
+/// Evaluated in its B-spline form `0.25 max(2-q, 0)^3 - max(1-q, 0)^3`, which equals the
+/// piecewise form and has no branch: the CPU loops over a z column vectorise (a select here
+/// would be lowered to branches and block that), and a shader mirrors it with `max`.
+#[inline(always)]
 pub fn m4_shape(q: f32) -> f32 {
-    if q < 1.0 {
-        1.0 - q * q * (1.5 - 0.75 * q)
-    } else if q < 2.0 {
-        let t = 2.0 - q;
-        0.25 * t * t * t
-    } else {
-        0.0
-    }
+    let a = (2.0 - q).max(0.0);
+    let b = (1.0 - q).max(0.0);
+    0.25 * a * a * a - b * b * b
 }
 
 /// The normalised M4 kernel W(r, h) = m4_shape(r/h) / (pi h^3); its integral over space is 1.
@@ -70,6 +69,21 @@ pub fn clamp_h(h: f32, h_min: f32, h0: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn kernel_matches_the_piecewise_form() {
+        for i in 0..=300 {
+            let q = i as f32 * 0.01;
+            let piecewise = if q < 1.0 {
+                1.0 - 1.5 * q * q + 0.75 * q * q * q
+            } else if q < 2.0 {
+                0.25 * (2.0 - q).powi(3)
+            } else {
+                0.0
+            };
+            assert!((m4_shape(q) - piecewise).abs() < 1e-6, "q {q}");
+        }
+    }
 
     #[test]
     fn kernel_is_continuous_at_the_joints() {

@@ -130,8 +130,8 @@ impl DensityParams {
             }
         }
         if let Some(h) = self.h_min {
-            if !(h.is_finite() && h >= 0.0) {
-                return bad("h-min", h.to_string(), "must be finite and not negative");
+            if !positive(h) {
+                return bad("h-min", h.to_string(), "must be positive and finite");
             }
         }
         if !(0.0..=1.0).contains(&self.relax) {
