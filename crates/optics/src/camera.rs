@@ -70,7 +70,7 @@ impl Camera {
         }
         // Relative test: |forward x up| / |up| = sin of the angle between them.
         let side = forward.cross(up);
-        if !(side.length() > 1e-9 * up.length()) {
+        if side.length() <= 1e-9 * up.length() {
             return Err(CameraError::UpParallelToForward(up));
         }
         let right = side.normalize();
@@ -156,7 +156,7 @@ impl Camera {
     pub fn project(&self, p: DVec3) -> Option<DVec2> {
         let d = p - self.eye;
         let depth = d.dot(self.forward);
-        if !(depth > 0.0) {
+        if depth.is_nan() || depth <= 0.0 {
             return None;
         }
         let sx = d.dot(self.right) / (depth * self.tan_half_fov_x);

@@ -88,7 +88,7 @@ impl Light {
     /// f32 rounding, so parsed text round-trips bit for bit).
     pub fn sun(dir: Vec3, irradiance: Vec3) -> Result<Light, LightError> {
         let len2 = dir.length_squared();
-        if !dir.is_finite() || !(len2 > 0.0) || !len2.is_finite() {
+        if !dir.is_finite() || len2 <= 0.0 || !len2.is_finite() {
             return Err(LightError::Direction(dir));
         }
         let dir = if (len2 - 1.0).abs() <= 4.0 * f32::EPSILON { dir } else { dir / len2.sqrt() };
