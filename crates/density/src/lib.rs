@@ -8,7 +8,7 @@
 //!        |  counting sort into cells, bricks within kappa*h0 of a particle
 //! estimate_cpu                      rayon over bricks, splat passes         cpu.rs
 //!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
-//! finish                            noise, threshold, volumes, stats        lib.rs, noise.rs
+//! finish                            noise, threshold, volumes, stats        lib.rs, optics::noise
 //!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?, stats }
 //! ```
 //!
@@ -48,7 +48,6 @@
 pub mod analytic;
 mod cpu;
 pub mod kernel;
-pub mod noise;
 mod params;
 mod particles;
 mod setup;
@@ -59,6 +58,8 @@ use glam::{DVec3, IVec3};
 use nimbus_volume::{brick_local, BrickMask, Volume, BRICK_VOXELS};
 use rayon::prelude::*;
 
+/// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
+pub use nimbus_optics::noise;
 pub use params::{DensityParams, Method, NoiseParams, Resolution, H0};
 pub use particles::{read_particles, read_path, Format, ParticleSet, ReadError, ReadReport};
 pub use setup::{auto_h0, bin, plan_grid, prepare, CellGrid, Grid, Prepared, AUTO_H0_PERCENTILE};
@@ -191,45 +192,47 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<cpu::BrickRes
 
     let max_density = bricks.iter().map(|b| b.max_rho).fold(0.0f32, f32::max);
     let threshold = params.active_tolerance * max_density;
-    let mut density = Volume::new(grid.transform, 0.0f32);
-    let mut smoothing = params.smoothing_length.then(|| Volume::new(grid.transform, 0.0f32));
-    let mut counts = params.neighbour_count.then(|| Volume::new(grid.transform, 0.0f32));
-    let (mut used_n, mut used_sum, mut used_sq) = (0u64, 0.0f64, 0.0f64);
-    let mut grid_mass = 0.0f64;
-    let mut values = [0.0f32; BRICK_VOXELS];
-    for b in &bricks {
-        for v in 0..BRICK_VOXELS {
-            if b.occupied[v >> 6] & (1 << (v & 63)) != 0 {
-                let u = b.used[v] as f64;
-                used_n += 1;
-                used_sum += u;
-                used_sq += u * u;
-            }
-        }
+    let active = |b: &cpu::BrickResult| -> BrickMask {
         let mut mask: BrickMask = [0; 8];
         for v in 0..BRICK_VOXELS {
-            if b.rho[v] > threshold {
-                mask[v >> 6] |= 1 << (v & 63);
-                grid_mass += b.rho[v] as f64;
-            }
+            mask[v >> 6] |= ((b.rho[v] > threshold) as u64) << (v & 63);
         }
-        if mask.iter().all(|&w| w == 0) {
-            continue;
-        }
-        let mut insert = |volume: &mut Volume<f32>, value: &dyn Fn(usize) -> f32| {
+        mask
+    };
+    // Bricks come out in proposal order, sorted by (z, y, x): found again by binary search.
+    let origins: Vec<IVec3> = bricks.iter().map(|b| b.origin).collect();
+    let find = |o: IVec3| &bricks[origins.binary_search_by_key(&(o.z, o.y, o.x), |b| (b.z, b.y, b.x)).unwrap()];
+    let volume = |value: &(dyn Fn(&cpu::BrickResult, usize) -> f32 + Sync)| {
+        Volume::from_brick_fn(grid.transform, 0.0f32, &origins, |origin, values| {
+            let b = find(origin);
+            let mask = active(b);
             for (v, out) in values.iter_mut().enumerate() {
-                *out = if mask[v >> 6] & (1 << (v & 63)) != 0 { value(v) } else { 0.0 };
+                *out = if mask[v >> 6] & (1 << (v & 63)) != 0 { value(b, v) } else { 0.0 };
             }
-            volume.insert_brick(b.origin, &values, &mask);
-        };
-        insert(&mut density, &|v| b.rho[v]);
-        if let Some(vol) = smoothing.as_mut() {
-            insert(vol, &|v| (b.h[v] as f64 * grid.voxel_size) as f32);
-        }
-        if let Some(vol) = counts.as_mut() {
-            insert(vol, &|v| b.used[v] as f32);
-        }
-    }
+            mask
+        })
+    };
+    let density = volume(&|b, v| b.rho[v]);
+    let smoothing = params.smoothing_length.then(|| volume(&|b, v| (b.h[v] as f64 * grid.voxel_size) as f32));
+    let counts = params.neighbour_count.then(|| volume(&|b, v| b.used[v] as f32));
+
+    // (points, sum, sum of squares) of the particles used at occupied voxels; active mass.
+    let (used_n, used_sum, used_sq, grid_mass) = bricks
+        .par_iter()
+        .map(|b| {
+            let mut acc = (0u64, 0.0f64, 0.0f64, 0.0f64);
+            for v in 0..BRICK_VOXELS {
+                if b.occupied[v >> 6] & (1 << (v & 63)) != 0 {
+                    let u = b.used[v] as f64;
+                    acc = (acc.0 + 1, acc.1 + u, acc.2 + u * u, acc.3);
+                }
+                if b.rho[v] > threshold {
+                    acc.3 += b.rho[v] as f64;
+                }
+            }
+            acc
+        })
+        .reduce(|| (0, 0.0, 0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3));
     let mean = if used_n > 0 { used_sum / used_n as f64 } else { 0.0 };
     let var = if used_n > 0 { (used_sq / used_n as f64 - mean * mean).max(0.0) } else { 0.0 };
     let stats = DensityStats {

@@ -220,10 +220,27 @@ impl Delimiter {
     }
 
     /// The fields of a line, trimmed of surrounding whitespace.
-    fn split(self, line: &str) -> Box<dyn Iterator<Item = &str> + '_> {
+    fn split(self, line: &str) -> Fields<'_> {
         match self {
-            Delimiter::Byte(b) => Box::new(line.split(b as char).map(str::trim)),
-            Delimiter::Whitespace => Box::new(line.split_ascii_whitespace()),
+            Delimiter::Byte(b) => Fields::Byte(line.split(b as char)),
+            Delimiter::Whitespace => Fields::Whitespace(line.split_ascii_whitespace()),
+        }
+    }
+}
+
+/// Iterator over a line's fields for either kind of delimiter, without allocating per line.
+enum Fields<'a> {
+    Byte(std::str::Split<'a, char>),
+    Whitespace(std::str::SplitAsciiWhitespace<'a>),
+}
+
+impl<'a> Iterator for Fields<'a> {
+    type Item = &'a str;
+
+    fn next(&mut self) -> Option<&'a str> {
+        match self {
+            Fields::Byte(s) => s.next().map(str::trim),
+            Fields::Whitespace(s) => s.next(),
         }
     }
 }

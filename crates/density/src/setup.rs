@@ -8,6 +8,7 @@ use std::f64::consts::PI;
 
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_volume::{Transform, BRICK_DIM};
+use rayon::prelude::*;
 
 use crate::kernel::KAPPA;
 use crate::params::{DensityParams, Resolution, H0};
@@ -134,12 +135,14 @@ pub fn auto_h0(positions: &[DVec3], n_star: u32) -> Option<f64> {
     for _ in 0..4 {
         // Keep cell coordinates within 21 bits per axis for the packed key.
         edge = edge.max(extent / 1.0e6);
-        keys.clear();
-        keys.extend(positions.iter().map(|&p| {
-            let c = ((p - lo) / edge).floor().as_u64vec3();
-            (c.x << 42) | (c.y << 21) | c.z
-        }));
-        keys.sort_unstable();
+        positions
+            .par_iter()
+            .map(|&p| {
+                let c = ((p - lo) / edge).floor().as_u64vec3();
+                (c.x << 42) | (c.y << 21) | c.z
+            })
+            .collect_into_vec(&mut keys);
+        keys.par_sort_unstable();
         let mut counts: Vec<u64> = keys.chunk_by(|a, b| a == b).map(|run| run.len() as u64).collect();
         counts.sort_unstable();
         let target = AUTO_H0_PERCENTILE * n;
@@ -251,22 +254,40 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
     // Rebase to index space; keep particles whose support can reach a voxel.
     let lo_keep = Vec3::splat(-support - 1.0);
     let hi_keep = dims.as_vec3() + support;
-    let mut positions = Vec::with_capacity(particles.len());
-    let mut masses = Vec::with_capacity(particles.len());
+    enum Fate {
+        Keep(Vec3, f32),
+        NonFinite,
+        Outside,
+    }
+    let fates: Vec<Fate> = particles
+        .positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            let m = particles.mass(i, default_mass);
+            if !p.is_finite() || !m.is_finite() {
+                return Fate::NonFinite;
+            }
+            let q = grid.to_index_f32(p);
+            if q.cmplt(lo_keep).any() || q.cmpgt(hi_keep).any() {
+                Fate::Outside
+            } else {
+                Fate::Keep(q, m)
+            }
+        })
+        .collect();
     let (mut skipped_nonfinite, mut outside) = (0u64, 0u64);
-    for (i, &p) in particles.positions.iter().enumerate() {
-        let m = particles.mass(i, default_mass);
-        if !p.is_finite() || !m.is_finite() {
-            skipped_nonfinite += 1;
-            continue;
+    let mut positions = Vec::with_capacity(fates.len());
+    let mut masses = Vec::with_capacity(fates.len());
+    for fate in fates {
+        match fate {
+            Fate::Keep(q, m) => {
+                positions.push(q);
+                masses.push(m);
+            }
+            Fate::NonFinite => skipped_nonfinite += 1,
+            Fate::Outside => outside += 1,
         }
-        let q = grid.to_index_f32(p);
-        if q.cmplt(lo_keep).any() || q.cmpgt(hi_keep).any() {
-            outside += 1;
-            continue;
-        }
-        positions.push(q);
-        masses.push(m);
     }
 
     // Cells are only used to gather each brick's candidate particles, so their edge follows
@@ -282,7 +303,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
     let mut cells = CellGrid { origin: lo_keep, edge, dims: cell_dims, start: Vec::new() };
 
     // Counting sort: histogram, exclusive prefix sum, scatter.
-    let ids: Vec<u32> = positions.iter().map(|&p| cells.id(cells.cell_of(p)) as u32).collect();
+    let ids: Vec<u32> = positions.par_iter().map(|&p| cells.id(cells.cell_of(p)) as u32).collect();
     let ncells = cell_dims.as_i64vec3().element_product() as usize;
     let mut start = vec![0u32; ncells + 1];
     for &id in &ids {
