@@ -160,6 +160,7 @@ fn splat_count(parts: &[(Vec3, f32)], r_max: f32, radius2: &[f32; BRICK_VOXELS],
 
 /// Density pass: rho[v] += m * m4_shape(r / h[v]) and used[v] += 1 where r^2 < radius2[v].
 #[inline(always)]
+#[allow(clippy::too_many_arguments)] // the pass's inputs and outputs, each a plain array
 fn splat_density(
     parts: &[(Vec3, f32)],
     r_max: f32,
@@ -217,10 +218,7 @@ fn brick_impl(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, 
     }
     // Voxels outside the grid, and voxels with no particle within kappa*h0 (zero density),
     // get radius 0: no pass touches them, and they do not hold a later pass's radius at h0.
-    let mut reached = [false; BRICK_VOXELS];
-    for v in 0..BRICK_VOXELS {
-        reached[v] = brick_local(v).cmplt(n).all();
-    }
+    let mut reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| brick_local(v).cmplt(n).all());
     let mut h = Box::new([pp.h0; BRICK_VOXELS]);
 
     match method {
@@ -255,8 +253,8 @@ fn brick_impl(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, 
             for &(p, _) in &s.parts {
                 let dz2 = dz2_column(p, origin);
                 for_columns_near(p, r0, origin, n, |row, dxy2| {
-                    for z in 0..n.z as usize {
-                        let r2 = dxy2 + dz2[z];
+                    for (z, &dz2) in dz2.iter().enumerate().take(n.z as usize) {
+                        let r2 = dxy2 + dz2;
                         if r2 < r0_2 {
                             s.lists[row + z].push(r2);
                         }

@@ -119,7 +119,7 @@ impl Prepared {
 pub fn auto_h0(positions: &[DVec3], n_star: u32) -> Option<f64> {
     let (lo, hi) = bounding_box(positions)?;
     let extent = (hi - lo).max_element();
-    if !(extent > 0.0) {
+    if extent <= 0.0 {
         return None;
     }
     let n = positions.len() as f64;

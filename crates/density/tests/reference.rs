@@ -65,7 +65,7 @@ fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
         .map(|i| {
             let g = DVec3::new(rng.normal(), rng.normal(), rng.normal());
             match i % 5 {
-                0 | 1 | 2 => DVec3::new(3.0, 3.0, 3.0) + 0.6 * g,
+                0..=2 => DVec3::new(3.0, 3.0, 3.0) + 0.6 * g,
                 3 => DVec3::new(7.0, 5.0, 4.0) + 1.5 * g,
                 _ => DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0,
             }
