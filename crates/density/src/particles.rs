@@ -10,7 +10,7 @@
 //! Fatal, with the place named: a negative mass, a malformed number, a header that promises
 //! more vertices than the file holds, a file without x, y or z.
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 use glam::DVec3;
@@ -136,6 +136,27 @@ pub fn read_path(path: &Path, format: Option<Format>) -> Result<(ParticleSet, Re
         .or_else(|| Format::from_path(path))
         .ok_or_else(|| ReadError::UnknownFormat(path.display().to_string()))?;
     read_particles(std::fs::File::open(path)?, format)
+}
+
+/// Writes a binary little-endian PLY: `double x y z`, plus `float mass` when the set has
+/// masses. Positions stay f64, so a round trip through [`read_particles`] is exact.
+pub fn write_ply<W: Write>(writer: W, particles: &ParticleSet) -> std::io::Result<()> {
+    let mut w = BufWriter::new(writer);
+    writeln!(w, "ply\nformat binary_little_endian 1.0\nelement vertex {}", particles.len())?;
+    writeln!(w, "property double x\nproperty double y\nproperty double z")?;
+    if particles.masses.is_some() {
+        writeln!(w, "property float mass")?;
+    }
+    writeln!(w, "end_header")?;
+    for (i, p) in particles.positions.iter().enumerate() {
+        for c in p.to_array() {
+            w.write_all(&c.to_le_bytes())?;
+        }
+        if let Some(m) = &particles.masses {
+            w.write_all(&m[i].to_le_bytes())?;
+        }
+    }
+    w.flush()
 }
 
 /// Collects records into the output vectors as they are parsed, applying the skip/error rules

@@ -156,8 +156,12 @@ pub fn auto_h0(positions: &[DVec3], n_star: u32) -> Option<f64> {
             .copied()
             .unwrap_or(1);
         let n_p = count_p as f64 / edge.powi(3);
+        let previous = h0;
         h0 = ((3.0 * n_star / (4.0 * PI * n_p)).cbrt() / KAPPA as f64).min(cap);
         edge = 2.0 * KAPPA as f64 * h0;
+        if (h0 - previous).abs() < 0.02 * previous {
+            break;
+        }
     }
     Some(h0)
 }

@@ -22,7 +22,7 @@ fn sample() -> (Vec<DVec3>, Vec<f32>) {
 
 /// Writes a PLY with an element before the vertices, extra vertex properties (a list among
 /// them) and a face element after, in the given encoding.
-fn write_ply(encoding: &str, positions: &[DVec3], masses: &[f32]) -> Vec<u8> {
+fn write_test_ply(encoding: &str, positions: &[DVec3], masses: &[f32]) -> Vec<u8> {
     let mut out = Vec::new();
     writeln!(out, "ply\nformat {encoding} 1.0\ncomment written by the nimbus tests").unwrap();
     writeln!(out, "element camera 1\nproperty float view_px\nproperty uchar id").unwrap();
@@ -75,7 +75,7 @@ fn ply_round_trips_in_every_encoding() {
     let (positions, masses) = sample();
     for encoding in ["ascii", "binary_little_endian", "binary_big_endian"] {
         let path = temp_path(&format!("round-{encoding}.ply"));
-        std::fs::write(&path, write_ply(encoding, &positions, &masses)).unwrap();
+        std::fs::write(&path, write_test_ply(encoding, &positions, &masses)).unwrap();
         let (set, report) = read_path(&path, None).unwrap();
         assert_eq!(report.rows, 50, "{encoding}");
         assert_eq!(report.skipped_nonfinite, 0);
@@ -102,7 +102,7 @@ fn ply_integer_and_float_coordinates_without_mass() {
 fn ply_truncated_body_names_the_counts() {
     let (positions, masses) = sample();
     for encoding in ["ascii", "binary_little_endian"] {
-        let mut bytes = write_ply(encoding, &positions[..10], &masses[..10]);
+        let mut bytes = write_test_ply(encoding, &positions[..10], &masses[..10]);
         // Promise 12 vertices, hold 10 (the face element lines then read as broken vertices
         // in ascii, so drop them too).
         let text_end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
@@ -198,4 +198,16 @@ fn binary_negative_mass_names_the_vertex() {
     }
     let err = read_particles(&out[..], Format::Ply).unwrap_err();
     assert!(err.to_string().contains("vertex 1"), "{err}");
+}
+
+#[test]
+fn write_ply_round_trips() {
+    let (positions, masses) = sample();
+    for set in [ParticleSet { positions: positions.clone(), masses: Some(masses.clone()) }, ParticleSet::new(positions.clone())] {
+        let mut bytes = Vec::new();
+        write_ply(&mut bytes, &set).unwrap();
+        let (back, report) = read_particles(&bytes[..], Format::Ply).unwrap();
+        assert_eq!(back, set);
+        assert_eq!(report.rows, 50);
+    }
 }
