@@ -8,7 +8,8 @@
 //! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
 //! particles used (mean, std over occupied voxels) and the time. usl runs over an h0 sweep;
 //! asl3 over N* and h_min. `--timing` instead times each method on the Cloud1-class scene
-//! (500k particles, 339 x 42 x 361 voxels) and the plume (330k particles).
+//! (500k particles, 339 x 42 x 361 voxels) and the plume (330k particles); environment
+//! METHOD=usl|asl2|asl3|knn picks one method, NEIGHBOURS=N sets N* (default 32).
 
 use std::time::Instant;
 
@@ -159,7 +160,14 @@ fn timing(scene: Scene) {
     println!("\n{}: {} particles (sampled in {:.2} s), {} threads", scene.name, particles.len(), t.elapsed().as_secs_f64(), rayon::current_num_threads());
     let only = std::env::var("METHOD").ok().and_then(|m| Method::from_name(&m));
     for method in Method::ALL.into_iter().filter(|m| only.is_none_or(|o| o == *m)) {
-        let params = DensityParams { method, resolution: Resolution::VoxelSize(scene.voxel_size), bounds: scene.bounds, ..Default::default() };
+        let neighbours = std::env::var("NEIGHBOURS").ok().and_then(|n| n.parse().ok()).unwrap_or(32);
+        let params = DensityParams {
+            method,
+            neighbours,
+            resolution: Resolution::VoxelSize(scene.voxel_size),
+            bounds: scene.bounds,
+            ..Default::default()
+        };
         // Best of three: the machine is shared.
         let mut best: Option<DensityStats> = None;
         let mut best_cpu = f64::INFINITY;

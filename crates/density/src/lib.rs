@@ -31,8 +31,8 @@
 //!   which only 10% of the particles live (histogram over cells of edge 2 kappa h0); never
 //!   below h_min.
 //! - Active voxels: rho > `active_tolerance` (default 1e-6) times the maximum density. The
-//!   kernel has compact support, so this only drops rounding dust and far-tail values; the mass
-//!   it removes is below tolerance * max * (active voxel volume).
+//!   kernel has compact support, so this only drops rounding dust and far-tail values; each
+//!   dropped voxel loses at most tolerance * max * voxel volume of mass.
 //! - Noise: `rho * max(0, 1 + amp * fbm(x / L))` at the world position x, so the pattern stays
 //!   fixed in the world when bounds change between frames.
 //! - Stats ([`DensityStats`]): over grid points whose voxel footprint holds at least one
@@ -54,12 +54,23 @@
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
 //!   +0.5..4% on the analytic test scenes, see the accuracy example.
 //!
+//! # Measured (run examples/accuracy.rs to reproduce)
+//!
+//! Relative L2 error against analytic densities: asl3 ~= knn at the same N* (the
+//! predictor-corrector is as good as the exact neighbour search), and both far better than usl
+//! with h0 off by 2x. At N* = 32 the adaptive estimates are noise-limited on smooth or thin
+//! structures (a thin shell, a plume: +30..38% over the best oracle-tuned usl), while N* = 128
+//! beats or nearly matches that usl on every scene (-12%, -4%, +10%) at ~4x the cost. h_min =
+//! 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel), 2 voxels
+//! blurs dense knots.
+//!
 //! # Backends
 //!
 //! [`prepare`] does everything that is not per grid point and returns [`Prepared`] (sorted
 //! f32 positions, masses, cell table, brick list): a GPU backend uploads it and runs the same
-//! passes per voxel with [`PointParams`] as its uniform block, then hands its per-brick arrays
-//! to the same finishing code. [`estimate_cpu`] is the CPU path.
+//! passes per voxel with [`PointParams`] as its uniform block. The finishing step (noise,
+//! threshold, volumes, stats) takes per-brick arrays and is crate-private today: a GPU backend
+//! placed in this crate (behind a feature) reuses it as is. [`estimate_cpu`] is the CPU path.
 
 pub mod analytic;
 mod cpu;
