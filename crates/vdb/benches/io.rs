@@ -13,13 +13,12 @@ use nimbus_volume::{brick_local, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 
 const DIMS: IVec3 = IVec3::new(300, 40, 360);
 
-/// A smoke-like slab: an ellipsoid of smoothly varying density with some grain, so the
-/// compressors see realistic data rather than constants.
+/// A smoke-like slab: an ellipsoid of smoothly varying density (like an SPH estimate), so
+/// the compressors see realistic data rather than constants or noise.
 fn fog_volume() -> Volume<f32> {
     let mut vol = Volume::new(Transform::uniform(0.01, DVec3::new(-1.5, -0.2, 0.0)), 0.0f32);
     let half = DIMS.as_dvec3() * 0.5;
     let mut values = vec![0f32; BRICK_VOXELS];
-    let mut seed = 1u32;
     for bx in (0..DIMS.x).step_by(BRICK_DIM as usize) {
         for by in (0..DIMS.y).step_by(BRICK_DIM as usize) {
             for bz in (0..DIMS.z).step_by(BRICK_DIM as usize) {
@@ -29,10 +28,8 @@ fn fog_volume() -> Volume<f32> {
                     let ijk = origin + brick_local(n);
                     let p = (ijk.as_dvec3() - half) / half;
                     let r2 = p.length_squared();
-                    seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                    let grain = (seed >> 8) as f64 / (1u32 << 24) as f64;
                     let inside = ijk.cmplt(DIMS).all() && r2 < 1.0;
-                    *v = if inside { ((1.0 - r2) * (0.8 + 0.2 * (p.x * 9.0).sin()) * (0.9 + 0.1 * grain)) as f32 } else { 0.0 };
+                    *v = if inside { ((1.0 - r2) * (0.8 + 0.2 * (p.x * 9.0).sin() * (p.z * 5.0).cos())) as f32 } else { 0.0 };
                     if inside {
                         mask[n / 64] |= 1 << (n % 64);
                     }
@@ -90,7 +87,7 @@ fn main() {
     let mut unknown_class = VdbFile::new();
     unknown_class.insert_volume("density", &vol, GridClass::Unknown).unwrap();
 
-    let mut cases = vec![("none", Compression::None, &file), ("zip (fog: mask only)", Compression::Zip, &file)];
+    let mut cases = vec![("none", Compression::None, &file), ("zip (fog volume)", Compression::Zip, &file)];
     cases.push(("zip (class unknown)", Compression::Zip, &unknown_class));
     if has_blosc() {
         cases.push(("blosc", Compression::Blosc, &file));

@@ -40,6 +40,12 @@ pub enum GridKind {
 }
 
 /// VDB compression. ZIP is the default because every OpenVDB build reads it.
+///
+/// OpenVDB itself never ZIP-compresses the voxel data of fog volumes and level sets
+/// (`io::Archive::setGridCompression`): such grids get only active-mask compression under
+/// `Zip`, yet the write still costs about as much time as real ZIP (measured: 9.8 MB,
+/// 1.0 s for a 2.3 M-voxel fog volume, against 0.07 s with `None`; see benches/io.rs).
+/// Blosc does apply to them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Compression {
     #[default]
