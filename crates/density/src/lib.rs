@@ -183,7 +183,8 @@ pub struct DensityOutput {
     pub stats: DensityStats,
 }
 
-/// Estimates the density on the CPU: [`prepare`], the method's passes over bricks, [`finish`].
+/// Estimates the density on the CPU: [`prepare`], the method's passes over bricks, then the
+/// finishing step (noise, threshold, volumes, stats).
 pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
     let prep = prepare(particles, params)?;
