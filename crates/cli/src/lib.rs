@@ -8,11 +8,21 @@
 //!   exit code and never lets a panic message be the last word.
 //! - [`Log`]: `-q` / `-v`, warnings, per-stage timings and counts, and progress bars that
 //!   appear only when stderr is a terminal.
+//! - Shared flags ([`CommonArgs`], [`MediumArgs`], [`LightArgs`], [`CameraArgs`],
+//!   [`VdbOutputArgs`]) and the pipeline's metadata ([`PipelineMeta`], [`MetaWriter`]): what
+//!   one tool records, the next takes as its defaults; a flag overrides, with a warning
+//!   where that makes earlier work inconsistent.
 
+mod args;
 mod failure;
 mod io;
 mod log;
+pub mod meta;
+mod vdbio;
 
+pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, VdbOutputArgs};
 pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
+pub use meta::{MetaWriter, PipelineMeta};
+pub use vdbio::{read_density, read_vdb, write_vdb};

@@ -181,6 +181,22 @@ pub fn wgpu_instances_created() -> usize {
     INSTANCES_CREATED.load(Ordering::SeqCst)
 }
 
+/// Mesa's Vulkan drivers probe for a Wayland display while the instance is created, and
+/// libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set" to stderr when that
+/// variable is missing (headless machines, CI, cron). The tools compute only and never show a
+/// window, and an `error:` line that is not ours misleads users, so point the variable at the
+/// temporary directory when it is unset: the probe then fails quietly.
+fn quiet_wayland_probe() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+            // SAFETY (edition 2021 API): done once, before wgpu or the driver start threads
+            // that read the environment.
+            std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
+        }
+    });
+}
+
 /// "vulkan, metal" for the backends that were both asked for and compiled in.
 fn backend_names(backends: wgpu::Backends) -> String {
     let names: Vec<String> = (backends & wgpu::Instance::enabled_backend_features())
@@ -192,6 +208,7 @@ fn backend_names(backends: wgpu::Backends) -> String {
 
 fn new_instance(options: &GpuOptions) -> wgpu::Instance {
     INSTANCES_CREATED.fetch_add(1, Ordering::SeqCst);
+    quiet_wayland_probe();
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
     desc.backends = options.backends;
     wgpu::Instance::new(desc)

@@ -1,0 +1,208 @@
+//! Flags several tools share, as clap groups, and how each resolves against what earlier
+//! tools recorded in the file (design.md section 6: metadata gives the defaults, a flag
+//! overrides, and a warning says so where that makes earlier work inconsistent).
+
+use std::path::PathBuf;
+
+use clap::Args;
+use glam::{DVec3, Vec3};
+use nimbus_gpu::{ComputeDevice, DeviceChoice};
+use nimbus_optics::{Camera, Light, Medium};
+use nimbus_vdb::{Compression, WriteOptions};
+
+use crate::{Failure, Log, PipelineMeta, Verbosity};
+
+/// `-q`, `-v`, `--device`.
+#[derive(Args, Debug, Clone)]
+pub struct CommonArgs {
+    /// Print nothing but errors.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Print each stage's time and counts.
+    #[arg(short, long, global = true)]
+    pub verbose: bool,
+    /// Compute backend: auto uses a hardware GPU when there is one, else the CPU;
+    /// gpu also accepts a software adapter.
+    #[arg(long, value_enum, default_value_t = DeviceChoice::Auto)]
+    pub device: DeviceChoice,
+}
+
+impl CommonArgs {
+    pub fn log(&self, tool: &'static str) -> Log {
+        Log::new(tool, Verbosity::from_flags(self.quiet, self.verbose))
+    }
+
+    /// The compute device, reported with -v.
+    pub fn compute_device(&self, log: &Log) -> Result<ComputeDevice, Failure> {
+        let device = self.device.resolve().map_err(|e| Failure::runtime(e, "--device"))?;
+        log.verbose(format!("device: {device}"));
+        Ok(device)
+    }
+}
+
+/// Where a VDB goes and how it is written.
+#[derive(Args, Debug, Clone)]
+pub struct VdbOutputArgs {
+    /// Output VDB file, or - for stdout (the default when stdout is not a terminal).
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// VDB compression: zip (every OpenVDB build reads it), blosc or none.
+    #[arg(long, default_value = "zip", value_parser = ["zip", "blosc", "none"])]
+    pub compression: String,
+    /// Store float grids as 16-bit halves.
+    #[arg(long)]
+    pub half: bool,
+}
+
+impl VdbOutputArgs {
+    pub fn write_options(&self) -> Result<WriteOptions, Failure> {
+        let compression = match self.compression.as_str() {
+            "zip" => Compression::Zip,
+            "blosc" if nimbus_vdb::has_blosc() => Compression::Blosc,
+            "blosc" => return Err(Failure::usage("this OpenVDB build cannot write blosc (use --compression zip)")),
+            _ => Compression::None,
+        };
+        Ok(WriteOptions { compression, half: self.half })
+    }
+}
+
+/// `--extinction --albedo --g`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct MediumArgs {
+    /// Extinction per unit density (default 1, or what the input file records).
+    #[arg(long)]
+    pub extinction: Option<f32>,
+    /// Single-scattering albedo, one grey value or R,G,B (default 0.9).
+    #[arg(long, value_parser = parse_rgb)]
+    pub albedo: Option<Vec3>,
+    /// Henyey-Greenstein asymmetry in (-1,1), > 0 forward (default 0).
+    #[arg(long, allow_negative_numbers = true)]
+    pub g: Option<f32>,
+}
+
+impl MediumArgs {
+    /// The medium: recorded values as defaults, flags over them. `consistency` names what the
+    /// recorded medium was used for; a differing flag then draws a warning.
+    pub fn resolve(&self, meta: &PipelineMeta, log: &Log, consistency: Option<&str>) -> Result<Medium, Failure> {
+        let recorded = meta.medium()?;
+        let base = recorded.unwrap_or_default();
+        let medium = Medium {
+            extinction: self.extinction.unwrap_or(base.extinction),
+            albedo: self.albedo.unwrap_or(base.albedo),
+            g: self.g.unwrap_or(base.g),
+        };
+        medium.validate().map_err(|e| Failure::usage(format!("{e} (medium flags)")))?;
+        if let (Some(recorded), Some(what)) = (recorded, consistency) {
+            if recorded != medium {
+                log.warn(format!("medium {medium} differs from the one {what} ({recorded})"));
+            }
+        }
+        Ok(medium)
+    }
+}
+
+/// `--sun` and `--point`, repeatable.
+#[derive(Args, Debug, Clone, Default)]
+pub struct LightArgs {
+    /// A sun: dir=X,Y,Z,irradiance=R,G,B (dir is where the light travels; repeatable).
+    #[arg(long, value_name = "SPEC", value_parser = Light::parse_sun)]
+    pub sun: Vec<Light>,
+    /// A point light: pos=X,Y,Z,intensity=R,G,B (repeatable).
+    #[arg(long, value_name = "SPEC", value_parser = Light::parse_point)]
+    pub point: Vec<Light>,
+}
+
+impl LightArgs {
+    pub fn given(&self) -> Option<Vec<Light>> {
+        let lights: Vec<Light> = self.sun.iter().chain(&self.point).copied().collect();
+        (!lights.is_empty()).then_some(lights)
+    }
+
+    /// Flags, else what the file records, else one sun from above.
+    pub fn resolve(&self, meta: &PipelineMeta, log: &Log, consistency: Option<&str>) -> Result<Vec<Light>, Failure> {
+        let recorded = meta.lights()?;
+        let lights = self.given().or_else(|| recorded.clone()).unwrap_or_else(|| vec![Light::default_sun()]);
+        if let (Some(recorded), Some(what)) = (recorded, consistency) {
+            if recorded != lights {
+                log.warn(format!("lights differ from the ones {what}"));
+            }
+        }
+        Ok(lights)
+    }
+}
+
+/// `--eye --look-at --up --fov --width --height`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct CameraArgs {
+    /// Camera position X,Y,Z (default: frames the volume from -Y).
+    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    pub eye: Option<DVec3>,
+    /// Point the camera looks at, X,Y,Z (default: the volume's centre).
+    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    pub look_at: Option<DVec3>,
+    /// Up direction X,Y,Z (default 0,0,1).
+    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    pub up: Option<DVec3>,
+    /// Horizontal field of view in degrees (default 40).
+    #[arg(long)]
+    pub fov: Option<f64>,
+    #[arg(long)]
+    pub width: Option<u32>,
+    #[arg(long)]
+    pub height: Option<u32>,
+}
+
+impl CameraArgs {
+    fn any(&self) -> bool {
+        self.eye.is_some() || self.look_at.is_some() || self.up.is_some() || self.fov.is_some() || self.width.is_some() || self.height.is_some()
+    }
+
+    /// Flags over the recorded camera over the default camera for `bounds`.
+    pub fn resolve(&self, meta: &PipelineMeta, bounds: Option<(DVec3, DVec3)>, log: &Log, consistency: Option<&str>) -> Result<Camera, Failure> {
+        let recorded = meta.camera()?;
+        let base = match (&recorded, bounds) {
+            (Some(c), _) => c.clone(),
+            (None, Some((lo, hi))) => Camera::default_for_bounds(lo, hi).map_err(|e| Failure::runtime(e, "default camera"))?,
+            (None, None) => Camera::default_for_bounds(DVec3::splat(-1.0), DVec3::ONE).expect("unit box camera"),
+        };
+        if !self.any() {
+            return Ok(base);
+        }
+        let camera = Camera::new(
+            self.eye.unwrap_or(base.eye()),
+            self.look_at.unwrap_or(base.look_at()),
+            self.up.unwrap_or(base.up()),
+            self.fov.unwrap_or(base.fov_deg()),
+            self.width.unwrap_or(base.width()),
+            self.height.unwrap_or(base.height()),
+        )
+        .map_err(|e| Failure::usage(format!("{e} (camera flags)")))?;
+        if let (Some(recorded), Some(what)) = (recorded, consistency) {
+            // Resolution alone does not change what the cache holds.
+            let moved = recorded.eye() != camera.eye() || recorded.look_at() != camera.look_at() || recorded.fov_deg() != camera.fov_deg() || recorded.up() != camera.up();
+            if moved {
+                log.warn(format!("camera differs from the one {what}: view-dependent lighting and culling were computed for {recorded}"));
+            }
+        }
+        Ok(camera)
+    }
+}
+
+/// `R,G,B` or one grey value.
+pub fn parse_rgb(s: &str) -> Result<Vec3, String> {
+    let v: Vec<f32> = s.split(',').map(|p| p.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|e| format!("'{s}': {e}"))?;
+    match v[..] {
+        [g] => Ok(Vec3::splat(g)),
+        [r, g, b] => Ok(Vec3::new(r, g, b)),
+        _ => Err(format!("'{s}': expected one value or R,G,B")),
+    }
+}
+
+/// `X,Y,Z`.
+pub fn parse_dvec3(s: &str) -> Result<DVec3, String> {
+    let v: Vec<f64> = s.split(',').map(|p| p.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| format!("'{s}': {e}"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(DVec3::new(x, y, z)),
+        _ => Err(format!("'{s}': expected three finite numbers X,Y,Z")),
+    }
+}

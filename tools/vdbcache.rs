@@ -1,0 +1,170 @@
+//! vdbcache: photon VDB -> the same VDB plus `Li_single` and `Li_multiple` grids, the
+//! illumination cache baked for the camera. The engine is `nimbus-cache`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_cli::{read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
+use nimbus_photon::PhotonMap;
+use nimbus_vdb::{GridClass, GridKind, VdbFile};
+
+#[derive(Parser, Debug)]
+#[command(name = "vdbcache", version, about = "Photon VDB -> illumination cache grids (single + multiple scattering) baked for a camera")]
+struct Args {
+    /// Input VDB from vdbphoton (or any fog volume, for single scattering), or - for stdin.
+    input: Option<PathBuf>,
+    #[command(flatten)]
+    out: VdbOutputArgs,
+    /// The density grid (default: what the file records, else `density`).
+    #[arg(long)]
+    grid: Option<String>,
+    #[command(flatten)]
+    medium: MediumArgs,
+    #[command(flatten)]
+    lights: LightArgs,
+    #[command(flatten)]
+    camera: CameraArgs,
+    /// Simpson step toward the lights, as a fraction of the smallest voxel edge (Simpson
+    /// panels also split at voxel boundaries, so the trilinear density is integrated exactly).
+    #[arg(long, default_value_t = 1.0)]
+    step: f64,
+    /// Cache voxel edge in density voxels: illumination is smoother than density.
+    #[arg(long, default_value_t = 2.0)]
+    cache_scale: f64,
+    /// Photons per multiple-scattering estimate (adaptive radius).
+    #[arg(long, default_value_t = 64, conflicts_with = "radius")]
+    gather_neighbours: u32,
+    /// Fixed gather radius (world units) instead of --gather-neighbours.
+    #[arg(long)]
+    radius: Option<f64>,
+    /// Largest adaptive gather radius, in density voxels.
+    #[arg(long, default_value_t = 32.0)]
+    max_radius: f64,
+    /// Shadow rays stop below this transmittance.
+    #[arg(long, default_value_t = 1e-4)]
+    min_transmittance: f64,
+    /// Skip single scattering.
+    #[arg(long)]
+    no_single: bool,
+    /// Skip multiple scattering.
+    #[arg(long)]
+    no_multiple: bool,
+    /// Copy the photons grid to the output too.
+    #[arg(long)]
+    keep_photons: bool,
+    #[command(flatten)]
+    common: CommonArgs,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    run(move || vdbcache(args))
+}
+
+fn read_photons(file: &VdbFile) -> Result<PhotonMap, Failure> {
+    if !file.has_grid("photons") {
+        return Ok(PhotonMap::default());
+    }
+    let info = file.grid("photons").map_err(|e| Failure::input(e, file.label()))?;
+    if info.kind != GridKind::Points {
+        return Err(Failure::input("grid 'photons' is not a points grid", file.label()));
+    }
+    let points = file.read_points("photons").map_err(|e| Failure::input(e, file.label()))?;
+    let attr = |name: &str| {
+        points.vec3(name).map(<[_]>::to_vec).ok_or_else(|| Failure::input(format!("photons lack the vec3 attribute '{name}'"), file.label()))
+    };
+    let (power, dir) = (attr("power")?, attr("dir")?);
+    let finite = points.positions.iter().all(|p| p.is_finite()) && power.iter().all(|p| p.is_finite()) && dir.iter().all(|d| d.is_finite());
+    if !finite {
+        return Err(Failure::input("photons hold non-finite values", file.label()));
+    }
+    Ok(PhotonMap { positions: points.positions, power, dir })
+}
+
+fn vdbcache(args: Args) -> Result<(), Failure> {
+    let log = args.common.log("vdbcache");
+    let input = Input::from_arg(args.input.as_deref())?;
+    let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
+    let (grid, density) = read_density(&file, args.grid.as_deref())?;
+    let photons = read_photons(&file)?;
+    log.verbose(format!("density '{grid}': {} active voxels; {} photons", density.active_voxel_count(), photons.len()));
+    let meta = PipelineMeta::of(&file);
+    let traced = (!photons.is_empty()).then_some("the photons were traced with");
+    let voxel = density.transform().voxel_size().min_element();
+    let params = CacheParams {
+        medium: args.medium.resolve(&meta, &log, traced)?,
+        lights: args.lights.resolve(&meta, &log, traced)?,
+        camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
+        step: args.step,
+        cache_scale: args.cache_scale,
+        single: !args.no_single,
+        multiple: !args.no_multiple,
+        gather: match args.radius {
+            Some(r) => Gather::Radius(r),
+            None => Gather::Neighbours { k: args.gather_neighbours, max_radius: args.max_radius * voxel },
+        },
+        min_transmittance: args.min_transmittance,
+    };
+    params.validate().map_err(Failure::usage)?;
+    if params.multiple && photons.is_empty() {
+        log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first)");
+    }
+    let device = args.common.compute_device(&log)?;
+    if device.gpu().is_some() {
+        log.warn("the GPU cache baker is not wired into vdbcache yet; running on the CPU");
+    }
+    let (cache, stats) = log
+        .stage(
+            "bake",
+            || bake_cpu(&density, &photons, &params),
+            |r| {
+                r.as_ref()
+                    .map(|(_, s)| {
+                        format!(
+                            "baked {} cache voxels of {} candidates ({} out of view, {} empty), {} photons gathered",
+                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.photons_gathered
+                        )
+                    })
+                    .unwrap_or_default()
+            },
+        )
+        .map_err(Failure::usage)?;
+    if stats.nonfinite > 0 {
+        log.warn(format!("{} cache voxels came out non-finite and were set to zero", stats.nonfinite));
+    }
+    if !args.keep_photons {
+        file.remove_grid("photons");
+    }
+    for (name, volume) in [("Li_single", &cache.li_single), ("Li_multiple", &cache.li_multiple)] {
+        file.remove_grid(name);
+        if let Some(v) = volume {
+            file.insert_volume(name, v, GridClass::Unknown).map_err(|e| Failure::runtime(e, name))?;
+        }
+    }
+    let record = [
+        ("step", params.step.to_string()),
+        ("cache_scale", params.cache_scale.to_string()),
+        ("gather", match params.gather {
+            Gather::Radius(r) => format!("radius:{r}"),
+            Gather::Neighbours { k, max_radius } => format!("neighbours:{k}:{max_radius}"),
+        }),
+        ("single", (cache.li_single.is_some()).to_string()),
+        ("multiple", (cache.li_multiple.is_some()).to_string()),
+        ("candidates", stats.candidates.to_string()),
+        ("baked", stats.baked.to_string()),
+        ("culled_view", stats.culled_view.to_string()),
+        ("culled_empty", stats.culled_empty.to_string()),
+        ("photons_gathered", stats.photons_gathered.to_string()),
+    ];
+    MetaWriter::new(&mut file)
+        .density_grid(&grid)?
+        .medium(&params.medium)?
+        .lights(&params.lights)?
+        .camera(&params.camera)?
+        .tool("vdbcache", &record, &log.times())?;
+    log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
+    log.finish();
+    Ok(())
+}

@@ -1,0 +1,133 @@
+//! vdbmarch: cache VDB -> EXR image (and PNG preview), by ray marching the density with
+//! illumination-cache lookups. The engine is `nimbus-march`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use glam::Vec3;
+use nimbus_cache::IlluminationCache;
+use nimbus_cli::{parse_rgb, read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, MediumArgs, Output, PipelineMeta};
+use nimbus_march::{render_cpu, MarchParams};
+use nimbus_vdb::{GridKind, VdbFile};
+use nimbus_volume::Volume;
+
+#[derive(Parser, Debug)]
+#[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
+struct Args {
+    /// Input VDB from vdbcache, or - for stdin.
+    input: Option<PathBuf>,
+    /// Output EXR file, or - for stdout.
+    #[arg(short, long, value_name = "FILE.exr")]
+    output: Option<PathBuf>,
+    /// Also write a tone-mapped sRGB PNG here.
+    #[arg(long, value_name = "FILE.png")]
+    preview: Option<PathBuf>,
+    /// Preview exposure in stops.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    exposure: f32,
+    /// Add the layers single, multiple, transmittance and depth to the EXR.
+    #[arg(long)]
+    aovs: bool,
+    /// The density grid (default: what the file records, else `density`).
+    #[arg(long)]
+    grid: Option<String>,
+    #[command(flatten)]
+    medium: MediumArgs,
+    #[command(flatten)]
+    camera: CameraArgs,
+    /// March step, world units (default one third of a voxel diagonal).
+    #[arg(long)]
+    step: Option<f64>,
+    /// Jittered samples per pixel.
+    #[arg(long, default_value_t = 1)]
+    spp: u32,
+    /// Background radiance R,G,B (or one grey value) seen through the volume.
+    #[arg(long, value_parser = parse_rgb, default_value = "0")]
+    background: Vec3,
+    /// Amplitude of the Perlin offset noise on sample positions, world units (0 = off).
+    #[arg(long, default_value_t = 0.0)]
+    offset_noise: f64,
+    /// Feature size of the offset noise, world units (default four voxels).
+    #[arg(long)]
+    noise_scale: Option<f64>,
+    /// Rays stop below this transmittance.
+    #[arg(long, default_value_t = 1e-4)]
+    min_transmittance: f64,
+    /// Random seed (default: what the file records, else 0).
+    #[arg(long)]
+    seed: Option<u64>,
+    #[command(flatten)]
+    common: CommonArgs,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    run(move || vdbmarch(args))
+}
+
+fn read_cache_grid(file: &VdbFile, name: &str) -> Result<Option<Volume<Vec3>>, Failure> {
+    if !file.has_grid(name) {
+        return Ok(None);
+    }
+    let info = file.grid(name).map_err(|e| Failure::input(e, file.label()))?;
+    if info.kind != GridKind::Vec3 {
+        return Err(Failure::input(format!("grid '{name}' is not a vec3 grid"), file.label()));
+    }
+    file.read_vec3(name).map(Some).map_err(|e| Failure::input(e, file.label()))
+}
+
+fn vdbmarch(args: Args) -> Result<(), Failure> {
+    let log = args.common.log("vdbmarch");
+    let input = Input::from_arg(args.input.as_deref())?;
+    let output = Output::from_arg(args.output.as_deref())?;
+    if let Some(ext) = output.extension() {
+        if ext != "exr" {
+            return Err(Failure::usage(format!("the output is an EXR image; '{}' does not end in .exr", output.name())));
+        }
+    }
+    let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
+    let (_, density) = read_density(&file, args.grid.as_deref())?;
+    let cache = IlluminationCache { li_single: read_cache_grid(&file, "Li_single")?, li_multiple: read_cache_grid(&file, "Li_multiple")? };
+    if cache.li_single.is_none() && cache.li_multiple.is_none() {
+        log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
+    }
+    let meta = PipelineMeta::of(&file);
+    let voxel = density.transform().voxel_size();
+    let params = MarchParams {
+        medium: args.medium.resolve(&meta, &log, Some("the cache was baked with"))?,
+        camera: args.camera.resolve(&meta, density.world_bounds(), &log, Some("the cache was baked for"))?,
+        step: args.step.unwrap_or(voxel.length() / 3.0),
+        spp: args.spp,
+        background: args.background,
+        offset_noise: args.offset_noise,
+        noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),
+        noise_octaves: 3,
+        min_transmittance: args.min_transmittance,
+        seed: args.seed.or(meta.seed()).unwrap_or(0),
+        aovs: args.aovs,
+    };
+    params.validate().map_err(Failure::usage)?;
+    let device = args.common.compute_device(&log)?;
+    if device.gpu().is_some() {
+        log.warn("the GPU ray marcher is not wired into vdbmarch yet; running on the CPU");
+    }
+    let image = log
+        .stage(
+            "march",
+            || render_cpu(&density, &cache, &params),
+            |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
+        )
+        .map_err(Failure::usage)?;
+    if image.nonfinite > 0 {
+        log.warn(format!("{} pixels came out non-finite and were set to zero", image.nonfinite));
+    }
+    let exr = image.to_exr().map_err(|e| Failure::runtime(e, output.name()))?;
+    log.stage("write", || output.write(&exr), |_| String::new())?;
+    if let Some(png_path) = &args.preview {
+        let png = image.to_png(args.exposure).map_err(|e| Failure::runtime(e, png_path.display()))?;
+        Output::Path(png_path.clone()).write(&png)?;
+    }
+    log.finish();
+    Ok(())
+}

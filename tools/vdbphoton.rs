@@ -1,0 +1,122 @@
+//! vdbphoton: density VDB -> the same VDB plus a `photons` points grid, by tracing photons
+//! from the lights through the nonhomogeneous medium. The engine is `nimbus-photon`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Parser;
+use nimbus_cli::{read_density, read_vdb, run, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
+use nimbus_photon::{trace_cpu, DistanceSampling, PhotonParams};
+use nimbus_vdb::PointSet;
+
+#[derive(Parser, Debug)]
+#[command(name = "vdbphoton", version, about = "Density VDB -> photon map (OpenVDB points) by photon tracing")]
+struct Args {
+    /// Input VDB with a fog volume, or - for stdin.
+    input: Option<PathBuf>,
+    #[command(flatten)]
+    out: VdbOutputArgs,
+    /// The density grid (default: what the file records, else `density`).
+    #[arg(long)]
+    grid: Option<String>,
+    #[command(flatten)]
+    medium: MediumArgs,
+    #[command(flatten)]
+    lights: LightArgs,
+    /// Free-path sampling: simpson (Eq. 2), exponential (Eq. 1, biased), delta (unbiased).
+    #[arg(long, default_value = "simpson")]
+    distance: DistanceSampling,
+    /// Simpson step, as a fraction of the smallest voxel edge.
+    #[arg(long, default_value_t = 0.5)]
+    step: f64,
+    /// Photons to store.
+    #[arg(long, default_value_t = 200_000)]
+    photons: u64,
+    /// Stop emitting after this many photons even if fewer were stored.
+    #[arg(long, default_value_t = 50_000_000)]
+    max_emitted: u64,
+    /// Interactions after which a path ends.
+    #[arg(long, default_value_t = 64)]
+    max_interactions: u32,
+    /// Random seed (default: what the file records, else 0).
+    #[arg(long)]
+    seed: Option<u64>,
+    #[command(flatten)]
+    common: CommonArgs,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    run(move || vdbphoton(args))
+}
+
+fn vdbphoton(args: Args) -> Result<(), Failure> {
+    let log = args.common.log("vdbphoton");
+    let input = Input::from_arg(args.input.as_deref())?;
+    let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
+    let (grid, density) = read_density(&file, args.grid.as_deref())?;
+    log.verbose(format!("density grid '{grid}': {} active voxels in {} bricks", density.active_voxel_count(), density.brick_count()));
+    let meta = PipelineMeta::of(&file);
+    let params = PhotonParams {
+        medium: args.medium.resolve(&meta, &log, None)?,
+        lights: args.lights.resolve(&meta, &log, None)?,
+        distance: args.distance,
+        step: args.step,
+        photons: args.photons,
+        max_emitted: args.max_emitted,
+        max_interactions: args.max_interactions,
+        seed: args.seed.or(meta.seed()).unwrap_or(0),
+    };
+    params.validate().map_err(|e| Failure::usage(e))?;
+    let device = args.common.compute_device(&log)?;
+    if device.gpu().is_some() {
+        log.warn("the GPU photon tracer is not wired into vdbphoton yet; running on the CPU");
+    }
+    let traced = log.stage(
+        "trace",
+        || trace_cpu(&density, &params),
+        |r| {
+            r.as_ref()
+                .map(|(_, s)| {
+                    format!(
+                        "emitted {}, stored {}, escaped {}, absorbed {}, cut {}, {:.2} interactions per photon",
+                        s.emitted, s.stored, s.escaped, s.absorbed, s.truncated, s.mean_interactions()
+                    )
+                })
+                .unwrap_or_default()
+        },
+    );
+    let (map, stats) = traced.map_err(Failure::usage)?;
+    if let Some(why) = &stats.skipped {
+        log.warn(format!("no photons traced: {why}; writing an empty photon map"));
+    } else if stats.stored < params.photons {
+        log.warn(format!("stored {} of {} photons before --max-emitted {} was reached", stats.stored, params.photons, params.max_emitted));
+    }
+
+    // The photons replace any earlier photon map; everything else passes through.
+    file.remove_grid("photons");
+    let points = PointSet::new(map.positions).with_vec3("power", map.power).with_vec3("dir", map.dir);
+    file.insert_points("photons", &points, None).map_err(|e| Failure::runtime(e, "photons grid"))?;
+    let record = [
+        ("distance", params.distance.name().to_string()),
+        ("step", params.step.to_string()),
+        ("photons", params.photons.to_string()),
+        ("max_emitted", params.max_emitted.to_string()),
+        ("max_interactions", params.max_interactions.to_string()),
+        ("emitted", stats.emitted.to_string()),
+        ("stored", stats.stored.to_string()),
+        ("escaped", stats.escaped.to_string()),
+        ("absorbed", stats.absorbed.to_string()),
+        ("truncated", stats.truncated.to_string()),
+        ("interactions", stats.interactions.to_string()),
+    ];
+    MetaWriter::new(&mut file)
+        .density_grid(&grid)?
+        .medium(&params.medium)?
+        .lights(&params.lights)?
+        .seed(params.seed)?
+        .tool("vdbphoton", &record, &log.times())?;
+    log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
+    log.finish();
+    Ok(())
+}
