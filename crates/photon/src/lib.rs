@@ -10,14 +10,38 @@
 //!
 //! Photon `i` draws every random number from `Rng(seed, i)`, and photons are emitted in
 //! index order until the stored count is reached, so the map is the same on any thread count
-//! and on the GPU backend. Power is set at the end: each photon carries
+//! and on the GPU backend (up to f32 rounding there, see below). Power is set at the end: each photon carries
 //! (light power / light choice probability) / photons emitted.
 //!
-//! The CPU backend ([`trace_cpu`]) runs photon paths in parallel with rayon.
+//! # Backends
+//!
+//! Both backends read the same [`PhotonParams`] and share the set-up and the batch loop
+//! (`batch.rs`: what to skip, emission in index-ordered batches, the stopping rule, the
+//! final power scale); they differ only in how a batch of paths is traced.
+//!
+//! - [`trace_cpu`] runs photon paths in parallel with rayon, in f64.
+//! - [`trace_gpu`] runs one wgpu invocation per path (`shaders/photon.wgsl` over
+//!   `shaders/tracking.wgsl`, the WGSL twin of `nimbus_tracking`'s majorant DDA and free-path
+//!   samplers). The density is the default volume of the brick atlas (exact trilinear
+//!   loads), the majorant grid a storage buffer. Every random number comes from the same
+//!   Philox stream as on the CPU (f64 draws take the same two words), so photon i's path
+//!   depends only on (seed, i). Stored photons are appended through an atomic counter into a
+//!   bounded buffer with their (path, interaction) tag (a dispatch that overflows it is run
+//!   again with room for all, which changes nothing as paths are deterministic), then sorted
+//!   on the host, so the map comes out in the CPU's order. The arithmetic is f32 (positions
+//!   relative to the volume's centre), so a path can part from its CPU twin where a decision
+//!   (a roulette draw, a delta-tracking acceptance, a Simpson panel) falls within rounding
+//!   of its threshold; the maps agree photon for photon until then and statistically after
+//!   (the tests hold count, emitted count, mean power, centroid and spread together).
+//!   Difference kept: where the majorant grid's outside bound (the volume's background) is
+//!   non-zero, the GPU does not integrate the infinite stretch beyond the grid.
 
+mod batch;
 mod cpu;
+mod gpu;
 
 pub use cpu::trace_cpu;
+pub use gpu::{trace_gpu, PHOTON_WGSL, TRACKING_WGSL};
 
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Light, Medium};
@@ -142,6 +166,8 @@ impl TraceStats {
 pub enum PhotonError {
     #[error("invalid parameter: {0}")]
     Param(String),
+    #[error(transparent)]
+    Gpu(#[from] nimbus_gpu::GpuError),
 }
 
 impl PhotonParams {

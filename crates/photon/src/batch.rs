@@ -1,0 +1,209 @@
+//! What both backends share: the set-up (what to skip, the emitter, the majorant grid, the
+//! Simpson step) and the batch loop with its accounting and stopping rule. A backend only
+//! supplies "trace photons `start..end` and return what each path did"; the map's order,
+//! the emitted count and the final power scale are decided here, once.
+
+use std::ops::Range;
+
+use glam::{DVec3, Vec3};
+use nimbus_optics::{sample_uniform_sphere, EmissionDisc, Light, Rng};
+use nimbus_volume::{MajorantGrid, Volume};
+
+use crate::{PhotonError, PhotonMap, PhotonParams, TraceStats};
+
+/// Random-number domain of photon paths (kept apart from other uses of the same seed).
+pub(crate) const PHOTON_DOMAIN: u32 = 0x5048_4f54; // "PHOT"
+
+/// Photons emitted before the tracer decides whether anything can be stored at all.
+const FIRST_BATCH: u64 = 1 << 14;
+
+/// Where and how photons leave the lights: per light its power and the probability of
+/// choosing it (proportional to its mean power), plus the sun discs for the volume's bounds.
+pub(crate) struct Emitter {
+    pub lights: Vec<Light>,
+    /// Light power / choice probability: the power a photon carries before dividing by the
+    /// number emitted.
+    pub weight: Vec<Vec3>,
+    pub cdf: Vec<f32>,
+    /// Each sun's emission disc over the volume's bounds (None for point lights).
+    pub discs: Vec<Option<EmissionDisc>>,
+}
+
+/// One photon leaving a light: origin, unit direction, power times photons emitted.
+pub(crate) struct Emission {
+    pub origin: DVec3,
+    pub dir: DVec3,
+    pub weight: Vec3,
+}
+
+impl Emitter {
+    pub fn new(lights: &[Light], bounds: (DVec3, DVec3)) -> Option<Emitter> {
+        let power: Vec<Vec3> = lights.iter().map(|l| l.emitted_power(bounds.0, bounds.1)).collect();
+        let total: f32 = power.iter().map(|p| p.element_sum()).sum();
+        if total.is_nan() || total <= 0.0 {
+            return None;
+        }
+        let mut acc = 0.0;
+        let cdf = power
+            .iter()
+            .map(|p| {
+                acc += p.element_sum() / total;
+                acc
+            })
+            .collect();
+        let weight = power.iter().map(|p| if p.element_sum() > 0.0 { *p * (total / p.element_sum()) } else { Vec3::ZERO }).collect();
+        let discs = lights.iter().map(|l| l.emission_disc(bounds.0, bounds.1)).collect();
+        Some(Emitter { lights: lights.to_vec(), weight, cdf, discs })
+    }
+
+    /// Which light photon with first draw `u` leaves from (mirrored in photon.wgsl).
+    pub fn choose(&self, u: f32) -> usize {
+        self.cdf.iter().position(|&c| u < c).unwrap_or(self.lights.len() - 1)
+    }
+
+    pub fn emit(&self, rng: &mut Rng) -> Emission {
+        let i = self.choose(rng.next_f32());
+        match (self.lights[i], &self.discs[i]) {
+            (_, Some(disc)) => {
+                Emission { origin: disc.sample_point(rng.next_vec2()), dir: disc.normal, weight: self.weight[i] }
+            }
+            (Light::Point { position, .. }, None) => Emission {
+                origin: position,
+                dir: sample_uniform_sphere(rng.next_vec2()).as_dvec3().normalize(),
+                weight: self.weight[i],
+            },
+            (Light::Sun { .. }, None) => unreachable!("every sun has an emission disc"),
+        }
+    }
+}
+
+/// How one path ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum PathEnd {
+    Escaped,
+    Absorbed,
+    Truncated,
+}
+
+/// What one path did, for the statistics.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PathSummary {
+    pub interactions: u32,
+    pub end: PathEnd,
+}
+
+/// A photon stored by path `path` of its batch (0 = the batch's first photon index). Its
+/// power is still to be divided by the number of photons emitted.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BatchPhoton {
+    pub path: u32,
+    pub position: DVec3,
+    pub power: Vec3,
+    pub dir: Vec3,
+}
+
+/// A traced batch: one summary per path in index order, and the stored photons sorted by
+/// (path, interaction).
+#[derive(Default)]
+pub(crate) struct Batch {
+    pub paths: Vec<PathSummary>,
+    pub photons: Vec<BatchPhoton>,
+}
+
+/// What a trace needs once it is known there is something to trace.
+pub(crate) struct Setup {
+    pub emitter: Emitter,
+    pub bounds: (DVec3, DVec3),
+    pub majorant: MajorantGrid,
+    /// Simpson step (and exponential search step) in world units.
+    pub step: f64,
+}
+
+/// Either a [`Setup`], or the finished (empty) result of a trace with nothing to do.
+pub(crate) enum Prepared {
+    Trace(Setup),
+    Skip(PhotonMap, TraceStats),
+}
+
+fn skipped(why: &str, mut stats: TraceStats) -> (PhotonMap, TraceStats) {
+    stats.skipped = Some(why.to_string());
+    (PhotonMap::default(), stats)
+}
+
+/// Validates `params` and decides whether anything can be stored (design.md section 7:
+/// work whose contribution is zero is not done).
+pub(crate) fn prepare(density: &Volume<f32>, params: &PhotonParams) -> Result<Prepared, PhotonError> {
+    params.validate()?;
+    let skip = |why: &str| {
+        let (map, stats) = skipped(why, TraceStats::default());
+        Ok(Prepared::Skip(map, stats))
+    };
+    if params.photons == 0 {
+        return skip("no photons requested");
+    }
+    if params.medium.albedo_mean() <= 0.0 || params.medium.extinction <= 0.0 {
+        return skip("the medium does not scatter (albedo or extinction 0)");
+    }
+    let Some(bounds) = density.world_bounds() else {
+        return skip("the density grid is empty");
+    };
+    let Some(emitter) = Emitter::new(&params.lights, bounds) else {
+        return skip("the lights emit no power");
+    };
+    let majorant = MajorantGrid::build(density);
+    let step = params.step * density.transform().voxel_size().min_element();
+    Ok(Prepared::Trace(Setup { emitter, bounds, majorant, step }))
+}
+
+/// Emits photons in index-ordered batches, `trace(start..end)` tracing each batch, until
+/// `params.photons` are stored or `params.max_emitted` have left the lights; then scales the
+/// powers by 1 / emitted. Paths are kept in index order up to the one that completes the
+/// count, so the map depends neither on batch sizes nor on the backend's scheduling.
+pub(crate) fn run_batches(
+    params: &PhotonParams,
+    mut trace: impl FnMut(Range<u64>) -> Result<Batch, PhotonError>,
+) -> Result<(PhotonMap, TraceStats), PhotonError> {
+    let mut stats = TraceStats::default();
+    let mut map = PhotonMap::default();
+    let mut next = 0u64;
+    let mut batch = FIRST_BATCH.min(params.max_emitted);
+    'batches: while next < params.max_emitted && (map.len() as u64) < params.photons {
+        let end = (next + batch).min(params.max_emitted);
+        let traced = trace(next..end)?;
+        debug_assert_eq!(traced.paths.len() as u64, end - next);
+        let mut photons = traced.photons.iter().peekable();
+        for (i, path) in traced.paths.iter().enumerate() {
+            stats.emitted += 1;
+            stats.interactions += path.interactions as u64;
+            match path.end {
+                PathEnd::Escaped => stats.escaped += 1,
+                PathEnd::Absorbed => stats.absorbed += 1,
+                PathEnd::Truncated => stats.truncated += 1,
+            }
+            while let Some(p) = photons.next_if(|p| p.path as usize == i) {
+                map.positions.push(p.position);
+                map.power.push(p.power);
+                map.dir.push(p.dir);
+            }
+            if map.len() as u64 >= params.photons {
+                break 'batches;
+            }
+        }
+        next = end;
+        if stats.interactions == 0 {
+            let (map, stats) = skipped("no density in the lights' paths", stats);
+            return Ok((map, stats));
+        }
+        // Size the next batch from the yield so far, aiming a little past the target.
+        let per_photon = (map.len() as f64 / stats.emitted as f64).max(1e-3);
+        let wanted = ((params.photons - (map.len() as u64).min(params.photons)) as f64 / per_photon * 1.05) as u64;
+        batch = wanted.clamp(1024, 1 << 22);
+    }
+    map.positions.truncate(params.photons as usize);
+    map.power.truncate(params.photons as usize);
+    map.dir.truncate(params.photons as usize);
+    let scale = 1.0 / stats.emitted.max(1) as f32;
+    map.power.iter_mut().for_each(|p| *p *= scale);
+    stats.stored = map.len() as u64;
+    Ok((map, stats))
+}

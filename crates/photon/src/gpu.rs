@@ -1,0 +1,342 @@
+//! The GPU backend: one wgpu invocation per photon path (`shaders/photon.wgsl`), batching and
+//! accounting shared with the CPU backend through [`crate::batch::run_batches`].
+
+use std::ops::Range;
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec3, Vec3};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_optics::{split_u64, GpuMedium, Light, OPTICS_WGSL};
+use nimbus_volume::{MajorantGrid, Volume};
+
+use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup};
+use crate::{DistanceSampling, PhotonError, PhotonMap, PhotonParams, TraceStats};
+
+/// The WGSL twin of `nimbus_tracking` (majorant DDA, Simpson / exponential / delta free
+/// paths), `shaders/tracking.wgsl`.
+pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
+/// The photon kernel, `shaders/photon.wgsl`.
+pub const PHOTON_WGSL: &str = include_str!("../../../shaders/photon.wgsl");
+
+const WORKGROUP_SIZE: u32 = 64;
+/// Most paths one dispatch traces; bounds the path buffer and (with the yield) the record one.
+const MAX_CHUNK: u64 = 1 << 18;
+const RECORD_BYTES: u64 = size_of::<GpuRecord>() as u64;
+
+/// WGSL `MajorantGridInfo` (tracking.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub(crate) struct GpuMajorantInfo {
+    pub origin: [i32; 3],
+    pub cell_size: f32,
+    pub dims: [i32; 3],
+    pub outside: f32,
+}
+
+impl GpuMajorantInfo {
+    pub fn new(grid: &MajorantGrid, outside: f32) -> Self {
+        GpuMajorantInfo {
+            origin: grid.origin().to_array(),
+            cell_size: grid.cell_size() as f32,
+            dims: grid.dims().to_array(),
+            outside,
+        }
+    }
+}
+
+/// The majorant bounds as a storage buffer (one dummy value for an empty grid: bindings
+/// cannot be empty).
+pub(crate) fn majorant_buffer(ctx: &GpuContext, grid: &MajorantGrid) -> Result<wgpu::Buffer, GpuError> {
+    if grid.values().is_empty() {
+        ctx.storage_buffer("majorant", &[0f32])
+    } else {
+        ctx.storage_buffer("majorant", grid.values())
+    }
+}
+
+/// WGSL `PhotonUniforms`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuPhotonParams {
+    medium: GpuMedium,
+    seed: [u32; 2],
+    first_index: [u32; 2],
+    count: u32,
+    capacity: u32,
+    light_count: u32,
+    mode: u32,
+    step: f32,
+    max_interactions: u32,
+    _pad: [u32; 2],
+    grid: GpuMajorantInfo,
+}
+
+/// WGSL `PhotonLight`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuPhotonLight {
+    origin: [f32; 3],
+    kind: u32,
+    normal: [f32; 3],
+    radius: f32,
+    tangent: [f32; 3],
+    cdf: f32,
+    bitangent: [f32; 3],
+    _pad0: f32,
+    weight: [f32; 3],
+    _pad1: f32,
+}
+
+/// WGSL `PhotonRecord`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuRecord {
+    position: [f32; 3],
+    path: u32,
+    power: [f32; 3],
+    interaction: u32,
+    dir: [f32; 3],
+    _pad: u32,
+}
+
+fn rel(p: DVec3, origin: DVec3) -> [f32; 3] {
+    (p - origin).as_vec3().to_array()
+}
+
+/// Everything uploaded once per trace.
+struct GpuTracer<'a> {
+    ctx: &'a GpuContext,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    volume_group: wgpu::BindGroup,
+    uniforms: GpuPhotonParams,
+    uniform_buffer: wgpu::Buffer,
+    lights: wgpu::Buffer,
+    majorant: wgpu::Buffer,
+    counter: wgpu::Buffer,
+    paths: wgpu::Buffer,
+    records: Option<wgpu::Buffer>,
+    /// Stored photons per path seen so far: sizes the next record buffer.
+    yield_estimate: f64,
+    chunk: u64,
+    origin: DVec3,
+    _volume: GpuVolume,
+}
+
+impl<'a> GpuTracer<'a> {
+    fn new(ctx: &'a GpuContext, density: &Volume<f32>, params: &PhotonParams, setup: &Setup) -> Result<Self, GpuError> {
+        let origin = 0.5 * (setup.bounds.0 + setup.bounds.1);
+        let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
+        volume.set_world_origin(ctx, origin);
+        let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+        let layout = ctx.bind_group_layout(
+            "photon",
+            &[
+                uniform_entry(0),
+                storage_entry(1, true),
+                storage_entry(2, true),
+                storage_entry(3, false),
+                storage_entry(4, false),
+                storage_entry(5, false),
+            ],
+        )?;
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PHOTON_WGSL}"));
+        let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout])?;
+        let volume_group = volume.bind_group(ctx, &volume_layout)?;
+
+        let e = &setup.emitter;
+        let lights: Vec<GpuPhotonLight> = (0..e.lights.len())
+            .map(|i| {
+                let mut l = GpuPhotonLight { cdf: e.cdf[i], weight: e.weight[i].to_array(), ..Zeroable::zeroed() };
+                match (e.lights[i], &e.discs[i]) {
+                    (_, Some(disc)) => {
+                        l.kind = nimbus_optics::LIGHT_SUN;
+                        l.origin = rel(disc.centre, origin);
+                        l.normal = disc.normal.as_vec3().to_array();
+                        l.tangent = disc.tangent.as_vec3().to_array();
+                        l.bitangent = disc.bitangent.as_vec3().to_array();
+                        l.radius = disc.radius as f32;
+                    }
+                    (Light::Point { position, .. }, None) => {
+                        l.kind = nimbus_optics::LIGHT_POINT;
+                        l.origin = rel(position, origin);
+                    }
+                    (Light::Sun { .. }, None) => unreachable!("every sun has an emission disc"),
+                }
+                l
+            })
+            .collect();
+        let uniforms = GpuPhotonParams {
+            medium: GpuMedium::from(&params.medium),
+            seed: split_u64(params.seed),
+            first_index: [0; 2],
+            count: 0,
+            capacity: 0,
+            light_count: lights.len() as u32,
+            mode: match params.distance {
+                DistanceSampling::Simpson => 0,
+                DistanceSampling::Exponential => 1,
+                DistanceSampling::Delta => 2,
+            },
+            step: setup.step as f32,
+            max_interactions: params.max_interactions,
+            _pad: [0; 2],
+            grid: GpuMajorantInfo::new(&setup.majorant, density.background()),
+        };
+        let limit = ctx.limits().max_storage_buffer_binding_size.min(ctx.limits().max_buffer_size);
+        let chunk = MAX_CHUNK.min(limit / 8).max(1);
+        Ok(GpuTracer {
+            ctx,
+            pipeline,
+            layout,
+            volume_group,
+            uniforms,
+            uniform_buffer: ctx.uniform_buffer("photon params", &uniforms)?,
+            lights: ctx.storage_buffer("photon lights", &lights)?,
+            majorant: majorant_buffer(ctx, &setup.majorant)?,
+            counter: ctx.storage_buffer("photon count", &[0u32])?,
+            paths: ctx.storage_buffer_zeroed("photon paths", chunk * 8)?,
+            records: None,
+            yield_estimate: 2.0,
+            chunk,
+            origin,
+            _volume: volume,
+        })
+    }
+
+    fn record_limit(&self) -> u64 {
+        let limits = self.ctx.limits();
+        limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / RECORD_BYTES
+    }
+
+    /// Runs one dispatch of `count` paths from photon `first` with room for `capacity`
+    /// records; returns how many records the paths stored (possibly more than `capacity`).
+    fn dispatch(&mut self, first: u64, count: u64, capacity: u64) -> Result<u64, GpuError> {
+        let ctx = self.ctx;
+        let have = self.records.as_ref().map_or(0, |b| b.size() / RECORD_BYTES);
+        if have < capacity {
+            self.records = Some(ctx.storage_buffer_zeroed("photon records", capacity.max(1) * RECORD_BYTES)?);
+        }
+        let records = self.records.as_ref().expect("allocated above");
+        self.uniforms.first_index = split_u64(first);
+        self.uniforms.count = count as u32;
+        self.uniforms.capacity = (records.size() / RECORD_BYTES) as u32;
+        ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&self.uniforms));
+        ctx.queue.write_buffer(&self.counter, 0, bytemuck::bytes_of(&0u32));
+        let group = ctx.buffer_bind_group(
+            "photon",
+            &self.layout,
+            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths],
+        )?;
+        ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
+        let stored: Vec<u32> = ctx.read_buffer(&self.counter)?;
+        Ok(stored[0] as u64)
+    }
+
+    /// Traces photons `range`, in dispatches of at most `self.chunk` paths.
+    fn batch(&mut self, range: Range<u64>) -> Result<Batch, PhotonError> {
+        let mut batch = Batch::default();
+        let mut first = range.start;
+        while first < range.end {
+            let count = (range.end - first).min(self.chunk);
+            let limit = self.record_limit();
+            let estimate = ((count as f64 * self.yield_estimate * 1.25) as u64 + 1024).min(limit);
+            let mut stored = self.dispatch(first, count, estimate)?;
+            let capacity = self.records.as_ref().map_or(0, |b| b.size() / RECORD_BYTES);
+            if stored > capacity {
+                if stored > limit {
+                    // Too many records for one binding: trace fewer paths at a time.
+                    if count == 1 {
+                        return Err(GpuError::TooLarge {
+                            what: "one photon path's stored records".into(),
+                            size: stored * RECORD_BYTES,
+                            limit: limit * RECORD_BYTES,
+                            limit_name: "max_storage_buffer_binding_size",
+                        }
+                        .into());
+                    }
+                    self.chunk = (count / 2).max(1);
+                    continue;
+                }
+                // Deterministic: the same paths again, with room for all of them.
+                stored = self.dispatch(first, count, stored)?;
+            }
+            self.yield_estimate = 0.5 * self.yield_estimate + 0.5 * (stored as f64 / count as f64);
+            self.collect(&mut batch, first - range.start, count, stored)?;
+            first += count;
+        }
+        Ok(batch)
+    }
+
+    /// Reads back `count` path summaries and `stored` records, appending them to `batch`
+    /// with path numbers offset by `offset`, records in (path, interaction) order.
+    fn collect(&self, batch: &mut Batch, offset: u64, count: u64, stored: u64) -> Result<(), GpuError> {
+        let ctx = self.ctx;
+        let paths: Vec<[u32; 2]> = read_prefix(ctx, &self.paths, count * 8)?;
+        batch.paths.extend(paths.iter().map(|&[interactions, end]| PathSummary {
+            interactions,
+            end: match end {
+                0 => PathEnd::Escaped,
+                1 => PathEnd::Absorbed,
+                _ => PathEnd::Truncated,
+            },
+        }));
+        if stored == 0 {
+            return Ok(());
+        }
+        let records = self.records.as_ref().expect("a dispatch ran");
+        let mut records: Vec<GpuRecord> = read_prefix(ctx, records, stored * RECORD_BYTES)?;
+        records.sort_unstable_by_key(|r| (r.path, r.interaction));
+        batch.photons.extend(records.iter().map(|r| BatchPhoton {
+            path: (offset + r.path as u64) as u32,
+            position: self.origin + Vec3::from(r.position).as_dvec3(),
+            power: Vec3::from(r.power),
+            dir: Vec3::from(r.dir),
+        }));
+        Ok(())
+    }
+}
+
+/// The first `bytes` of `buffer`, through a copy so only those bytes cross back.
+pub(crate) fn read_prefix<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<T>, GpuError> {
+    if bytes == buffer.size() {
+        return ctx.read_buffer(buffer);
+    }
+    let staging = ctx.storage_buffer_zeroed("read-back prefix", bytes)?;
+    ctx.scoped("read-back prefix copy", || {
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+        ctx.queue.submit([encoder.finish()]);
+    })?;
+    ctx.read_buffer(&staging)
+}
+
+/// Traces photons through `density` on the GPU until `params.photons` are stored (or
+/// `params.max_emitted` have left the lights): the same emission, free paths, roulette and
+/// stopping rule as [`crate::trace_cpu`], in f32.
+pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
+    let setup = match prepare(density, params)? {
+        Prepared::Trace(setup) => setup,
+        Prepared::Skip(map, stats) => return Ok((map, stats)),
+    };
+    let mut tracer = GpuTracer::new(ctx, density, params, &setup)?;
+    run_batches(params, |range| tracer.batch(range))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_match_the_wgsl_structs() {
+        assert_eq!(size_of::<GpuMajorantInfo>(), 32);
+        assert_eq!(size_of::<GpuPhotonParams>(), 112);
+        assert_eq!(size_of::<GpuPhotonLight>(), 80);
+        assert_eq!(size_of::<GpuRecord>(), 48);
+    }
+
+    #[test]
+    fn the_shader_uses_the_cpu_random_domain() {
+        assert!(PHOTON_WGSL.contains(&format!("PHOTON_DOMAIN: u32 = 0x{:08x}u", crate::batch::PHOTON_DOMAIN)));
+    }
+}

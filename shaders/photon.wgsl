@@ -1,0 +1,145 @@
+// vdbphoton's GPU backend: one invocation per photon path (nimbus_photon::trace_gpu).
+//
+// Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl
+// + this file. Mirrors crates/photon/src/cpu.rs's trace_path draw for draw: photon i's
+// Rng is (seed, i, PHOTON_DOMAIN); emission (light by power CDF, sun disc or point-light
+// sphere), free path by the chosen mode, store after the first interaction, Russian roulette
+// with probability mean(albedo), HG scattering. Positions are f32 relative to the host's
+// origin (the volume's centre); the volume's world_to_index takes such positions.
+//
+// Output: stored photons appended through an atomic counter into `records` (bounded by
+// `capacity`: past it they are counted but not written, and the host re-runs the chunk with
+// a larger buffer), tagged with (path, interaction) so the host can restore the CPU's order;
+// and per path (interactions, end).
+
+struct PhotonUniforms {
+    medium: Medium,
+    seed: vec2<u32>,
+    // Photon index of invocation 0 (lo, hi).
+    first_index: vec2<u32>,
+    count: u32,
+    capacity: u32,
+    light_count: u32,
+    // 0 simpson, 1 exponential, 2 delta.
+    mode: u32,
+    // Simpson step / exponential search step, world units.
+    step: f32,
+    max_interactions: u32,
+    _pad0: u32,
+    _pad1: u32,
+    grid: MajorantGridInfo,
+}
+
+struct PhotonLight {
+    // Sun: emission disc centre; point: position. Relative to the origin.
+    origin: vec3<f32>,
+    kind: u32,
+    // Sun: disc normal (the direction photons travel).
+    normal: vec3<f32>,
+    radius: f32,
+    tangent: vec3<f32>,
+    // Cumulative choice probability.
+    cdf: f32,
+    bitangent: vec3<f32>,
+    _pad0: f32,
+    // Light power / choice probability.
+    weight: vec3<f32>,
+    _pad1: f32,
+}
+
+struct PhotonRecord {
+    position: vec3<f32>,
+    // Path within this dispatch.
+    path: u32,
+    power: vec3<f32>,
+    interaction: u32,
+    dir: vec3<f32>,
+    _pad: u32,
+}
+
+const PHOTON_DOMAIN: u32 = 0x50484f54u;
+const MODE_SIMPSON: u32 = 0u;
+const MODE_EXPONENTIAL: u32 = 1u;
+const END_ESCAPED: u32 = 0u;
+const END_ABSORBED: u32 = 1u;
+const END_TRUNCATED: u32 = 2u;
+
+@group(1) @binding(0) var<uniform> params: PhotonUniforms;
+@group(1) @binding(1) var<storage, read> lights: array<PhotonLight>;
+@group(1) @binding(2) var<storage, read> majorant_values: array<f32>;
+@group(1) @binding(3) var<storage, read_write> records: array<PhotonRecord>;
+@group(1) @binding(4) var<storage, read_write> record_count: atomic<u32>;
+@group(1) @binding(5) var<storage, read_write> path_out: array<vec2<u32>>;
+
+fn majorant_fetch(index: u32) -> f32 {
+    return majorant_values[index];
+}
+
+const WORKGROUP_SIZE: u32 = 64u;
+
+@compute @workgroup_size(64)
+fn trace_photons(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) lid: u32) {
+    let path = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (path >= params.count) {
+        return;
+    }
+    let lo = params.first_index.x + path;
+    let hi = params.first_index.y + select(0u, 1u, lo < params.first_index.x);
+    var rng = rng_new(params.seed, vec2<u32>(lo, hi), PHOTON_DOMAIN);
+
+    // Emission (Emitter::emit).
+    let u = rng_next_f32(&rng);
+    var li = params.light_count - 1u;
+    for (var i = 0u; i < params.light_count; i = i + 1u) {
+        if (u < lights[i].cdf) {
+            li = i;
+            break;
+        }
+    }
+    let light = lights[li];
+    var x: vec3<f32>;
+    var w: vec3<f32>;
+    if (light.kind == LIGHT_SUN) {
+        let d = sample_uniform_disk_concentric(rng_next_vec2(&rng)) * light.radius;
+        x = light.origin + d.x * light.tangent + d.y * light.bitangent;
+        w = light.normal;
+    } else {
+        x = light.origin;
+        w = normalize(sample_uniform_sphere(rng_next_vec2(&rng)));
+    }
+    var power = light.weight;
+
+    let m = params.medium;
+    let survival = m.albedo_mean;
+    let to_index = volume_info.world_to_index;
+    for (var interaction = 0u; interaction < params.max_interactions; interaction = interaction + 1u) {
+        let ray = TrackRay((to_index * vec4<f32>(x, 1.0)).xyz, (to_index * vec4<f32>(w, 0.0)).xyz, m.extinction);
+        var t: f32;
+        if (params.mode == MODE_SIMPSON) {
+            t = track_sample_simpson(ray, params.grid, rng_next_exp1(&rng), params.step);
+        } else if (params.mode == MODE_EXPONENTIAL) {
+            t = track_sample_exponential(ray, params.grid, rng_next_exp1(&rng), params.step);
+        } else {
+            t = track_sample_delta(ray, params.grid, &rng);
+        }
+        if (t < 0.0) {
+            path_out[path] = vec2<u32>(interaction, END_ESCAPED);
+            return;
+        }
+        x = x + w * t;
+        if (interaction > 0u) {
+            let slot = atomicAdd(&record_count, 1u);
+            if (slot < params.capacity) {
+                records[slot] = PhotonRecord(x, path, power * m.albedo, interaction, w, 0u);
+            }
+        }
+        if (rng_next_f32(&rng) >= survival) {
+            path_out[path] = vec2<u32>(interaction + 1u, END_ABSORBED);
+            return;
+        }
+        power = power * (m.albedo / survival);
+        w = normalize(hg_sample(m.g, w, rng_next_vec2(&rng)).w_out);
+    }
+    path_out[path] = vec2<u32>(params.max_interactions, END_TRUNCATED);
+}
