@@ -169,3 +169,21 @@ fn metadata_carries_parameters_down_the_chain() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_gpu_backend_runs_in_the_chain() {
+    let dir = scratch("gpu");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let (d, p) = (dir.join("d.vdb"), dir.join("p.vdb"));
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
+    let out = Command::new(bin("vdbphoton")).arg(&d).args(["--device", "gpu", "--photons", "2000", "-v"]).arg("-o").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    if out.status.code() == Some(1) && err.contains("adapter") {
+        eprintln!("SKIPPED: no GPU adapter, not even lavapipe (apt install mesa-vulkan-drivers): {err}");
+        return;
+    }
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("stored 2000"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -40,7 +40,7 @@ struct Args {
     #[arg(long)]
     radius: Option<f64>,
     /// Largest adaptive gather radius, in density voxels.
-    #[arg(long, default_value_t = 32.0)]
+    #[arg(long, default_value_t = 12.0)]
     max_radius: f64,
     /// Shadow rays stop below this transmittance.
     #[arg(long, default_value_t = 1e-4)]

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use nimbus_cli::{read_density, read_vdb, run, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
-use nimbus_photon::{trace_cpu, DistanceSampling, PhotonParams};
+use nimbus_photon::{trace_cpu, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
 #[derive(Parser, Debug)]
@@ -69,12 +69,12 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     };
     params.validate().map_err(|e| Failure::usage(e))?;
     let device = args.common.compute_device(&log)?;
-    if device.gpu().is_some() {
-        log.warn("the GPU photon tracer is not wired into vdbphoton yet; running on the CPU");
-    }
     let traced = log.stage(
         "trace",
-        || trace_cpu(&density, &params),
+        || match device.gpu() {
+            Some(ctx) => trace_gpu(ctx, &density, &params),
+            None => trace_cpu(&density, &params),
+        },
         |r| {
             r.as_ref()
                 .map(|(_, s)| {
@@ -86,7 +86,10 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
                 .unwrap_or_default()
         },
     );
-    let (map, stats) = traced.map_err(Failure::usage)?;
+    let (map, stats) = traced.map_err(|e| match e {
+        PhotonError::Param(_) => Failure::usage(e),
+        PhotonError::Gpu(_) => Failure::runtime(e, "GPU photon tracer"),
+    })?;
     if let Some(why) = &stats.skipped {
         log.warn(format!("no photons traced: {why}; writing an empty photon map"));
     } else if stats.stored < params.photons {

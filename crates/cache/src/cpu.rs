@@ -29,20 +29,16 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DV
         .sum()
 }
 
-/// Offsets (in units of the radius) at which the mean density over a ball is taken: the
-/// centre, six points on the axes and eight on the diagonals, at half the radius, equally
-/// weighted. Enough for the ratio estimator's smooth denominator.
-const BALL_STENCIL: [[f64; 3]; 15] = {
-    const A: f64 = 0.5;
-    const D: f64 = 0.5 * 0.577_350_269_189_625_8;
+/// Directions of the ball quadrature: the 6 axes and the 8 diagonals.
+const BALL_DIRECTIONS: [[f64; 3]; 14] = {
+    const D: f64 = 0.577_350_269_189_625_8;
     [
-        [0.0, 0.0, 0.0],
-        [A, 0.0, 0.0],
-        [-A, 0.0, 0.0],
-        [0.0, A, 0.0],
-        [0.0, -A, 0.0],
-        [0.0, 0.0, A],
-        [0.0, 0.0, -A],
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
         [D, D, D],
         [D, D, -D],
         [D, -D, D],
@@ -54,10 +50,22 @@ const BALL_STENCIL: [[f64; 3]; 15] = {
     ]
 };
 
-/// Mean density over the ball of `radius` around world point `x`.
+/// Radii (in units of the ball's radius) splitting the ball into three shells of equal
+/// volume, each taken at its volume midpoint: (1/6)^(1/3), (1/2)^(1/3), (5/6)^(1/3).
+const BALL_SHELLS: [f64; 3] = [0.550_321_208_149_104_4, 0.793_700_525_984_099_7, 0.941_036_415_534_214_6];
+
+/// Mean density over the ball of `radius` around world point `x`: 14 directions on 3
+/// equal-volume shells, equally weighted. The ratio estimator divides by this, so it must see
+/// the whole ball: a stencil hugging the centre would miss the dense part of a ball that only
+/// grazes a cloud, and the ratio would blow up at the cloud's edge.
 pub fn mean_density_in_ball(density: &Volume<f32>, x: DVec3, radius: f64) -> f64 {
-    BALL_STENCIL.iter().map(|o| density.sample_world(x + DVec3::from_array(*o) * radius).max(0.0) as f64).sum::<f64>()
-        / BALL_STENCIL.len() as f64
+    let mut sum = 0.0;
+    for shell in BALL_SHELLS {
+        for d in BALL_DIRECTIONS {
+            sum += density.sample_world(x + DVec3::from_array(d) * (shell * radius)).max(0.0) as f64;
+        }
+    }
+    sum / (BALL_SHELLS.len() * BALL_DIRECTIONS.len()) as f64
 }
 
 /// The photons' radiance estimate at `x` toward `w_out`, divided by the mean sigma_s over the
