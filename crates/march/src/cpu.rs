@@ -7,10 +7,10 @@ use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::{Image, MarchError, MarchParams};
+use crate::{assemble, Image, MarchError, MarchParams};
 
 /// Random-number domain of camera samples.
-const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
+pub(crate) const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
 
 /// What one camera ray gathered.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -41,7 +41,7 @@ pub fn march_ray(
     let mut r = RayResult { transmittance: 1.0, depth: f32::INFINITY, ..RayResult::default() };
     let mut tr = 1.0f64;
     for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-        if !(seg.majorant > 0.0) || seg.t_end.is_infinite() {
+        if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
             continue;
         }
         let mut k = (seg.t_start / dt - xi).ceil();
@@ -111,5 +111,5 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
             RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth }
         })
         .collect();
-    Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
+    Ok(assemble(params, &pixels))
 }

@@ -71,7 +71,7 @@ fn slab_with_constant_li_equals_the_closed_form_and_converges_with_step() {
     let want = Vec3::new(0.9, 0.5, 0.2) * li * (1.0 - (-tau).exp()) as f32;
     let mut errors = vec![];
     for step in [VOXEL * 2.0, VOXEL, VOXEL / 2.0, VOXEL / 4.0] {
-        let image = render_cpu(&v, &cache, &params(camera.clone(), step)).unwrap();
+        let image = render_cpu(&v, &cache, &params(camera, step)).unwrap();
         let centre = image.rgba[4 * 9 + 4];
         let err = ((centre.truncate() - want) / want).abs().max_element();
         errors.push(err);
@@ -91,7 +91,7 @@ fn sphere_with_constant_li_matches_chord_lengths() {
     let li = Vec3::ONE;
     let cache = constant_cache(&v, li);
     let camera = Camera::new(DVec3::new(0.0, -40.0, 0.0), DVec3::ZERO, DVec3::Z, 2.0, 24, 24).unwrap();
-    let image = render_cpu(&v, &cache, &params(camera.clone(), VOXEL / 8.0)).unwrap();
+    let image = render_cpu(&v, &cache, &params(camera, VOXEL / 8.0)).unwrap();
     // The closed form 0.9 (1 - exp(-tau)) with tau the optical depth of the voxelised ball
     // along the pixel's ray, integrated independently here by a fine midpoint rule.
     let mut worst = 0.0f64;

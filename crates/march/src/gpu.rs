@@ -1,0 +1,240 @@
+//! The GPU backend: one wgpu invocation per pixel (`shaders/march.wgsl`).
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec3, Vec3};
+use nimbus_cache::IlluminationCache;
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_optics::{split_u64, GpuCamera, GpuMedium, OPTICS_WGSL};
+use nimbus_volume::{MajorantGrid, Transform, Volume};
+
+use crate::{assemble, Image, MarchError, MarchParams, RayResult};
+
+/// The WGSL twin of `nimbus_tracking`'s majorant DDA (and free-path samplers),
+/// `shaders/tracking.wgsl`.
+pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
+/// Perlin noise and fBm, the WGSL twin of `nimbus_optics::noise` (`shaders/noise.wgsl`):
+/// plain functions, no bindings, for any stage shader to concatenate.
+pub const NOISE_WGSL: &str = include_str!("../../../shaders/noise.wgsl");
+/// The march kernel, `shaders/march.wgsl`.
+pub const MARCH_WGSL: &str = include_str!("../../../shaders/march.wgsl");
+
+const WORKGROUP_SIZE: u32 = 64;
+
+/// How the GPU backend reads the illumination cache.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CacheLookup {
+    /// One hardware-filtered fetch per lookup where the device filters 32-bit float textures
+    /// (design.md: hardware-filtered 3D textures); its weights are quantised to the
+    /// filter's sub-texel precision (8 bits on common hardware and lavapipe), so a lookup
+    /// is within about 1/256 of the local range of Li of the exact value. Exact where the
+    /// device cannot filter.
+    #[default]
+    Filtered,
+    /// Eight texel loads and trilinear weights in f32: agrees with the CPU to rounding.
+    Exact,
+}
+
+/// Options of [`render_gpu_with`] that have no CPU counterpart.
+#[derive(Clone, Debug, Default)]
+pub struct GpuMarchOptions {
+    pub cache_lookup: CacheLookup,
+}
+
+/// WGSL `MajorantGridInfo` (tracking.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuMajorantInfo {
+    origin: [i32; 3],
+    cell_size: f32,
+    dims: [i32; 3],
+    outside: f32,
+}
+
+/// WGSL `MarchUniforms`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuMarchParams {
+    camera: GpuCamera,
+    medium: GpuMedium,
+    grid: GpuMajorantInfo,
+    background: [f32; 3],
+    step: f32,
+    noise_base: [u32; 3],
+    spp: u32,
+    noise_offset: [f32; 3],
+    noise_inv_scale: f32,
+    seed: [u32; 2],
+    noise_octaves: u32,
+    noise_seed: u32,
+    offset_noise: f32,
+    min_transmittance: f32,
+    flags: u32,
+    width: u32,
+    pixel_count: u32,
+    _pad: [u32; 3],
+}
+
+/// WGSL `PixelOut`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuPixel {
+    single: [f32; 3],
+    transmittance: f32,
+    multiple: [f32; 3],
+    depth: f32,
+}
+
+/// `p / scale` split into a wrapping u32 lattice point and an f32 remainder, as noise.wgsl
+/// takes positions (the CPU's perlin3 casts its f64 cell through i64 to u32).
+fn noise_split(p: DVec3, scale: f64) -> ([u32; 3], [f32; 3]) {
+    let q = p / scale;
+    let cell = q.floor();
+    let base = [cell.x as i64 as u32, cell.y as i64 as u32, cell.z as i64 as u32];
+    (base, (q - cell).as_vec3().to_array())
+}
+
+/// Renders the image on the GPU with the default [`GpuMarchOptions`] (hardware-filtered
+/// cache lookups where the device can filter).
+pub fn render_gpu(ctx: &GpuContext, density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
+    render_gpu_with(ctx, density, cache, params, &GpuMarchOptions::default())
+}
+
+/// Renders the image on the GPU: the same rays, random numbers, step lattice, majorant
+/// skipping, offset noise and early termination as [`crate::render_cpu`], in f32.
+pub fn render_gpu_with(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    options: &GpuMarchOptions,
+) -> Result<Image, MarchError> {
+    params.validate()?;
+    let pixels = march_pixels(ctx, density, cache, params, options)?;
+    Ok(assemble(params, &pixels))
+}
+
+fn march_pixels(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    options: &GpuMarchOptions,
+) -> Result<Vec<RayResult>, GpuError> {
+    let camera = &params.camera;
+    let pixel_count = camera.width() as u64 * camera.height() as u64;
+    // Every position on the GPU is relative to the eye.
+    let origin = camera.eye();
+    let majorant = MajorantGrid::build(density);
+
+    let mut density_gpu = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
+    density_gpu.set_world_origin(ctx, origin);
+    // An absent cache grid is bound as an empty volume and never read (flags).
+    let empty = || Volume::new(Transform::uniform(1.0, DVec3::ZERO), Vec3::ZERO);
+    let upload = |v: Option<&Volume<Vec3>>| -> Result<GpuVolume, GpuError> {
+        let mut g = match v {
+            Some(v) => GpuVolume::upload(ctx, v, &GpuVolumeOptions::default())?,
+            None => GpuVolume::upload(ctx, &empty(), &GpuVolumeOptions::default())?,
+        };
+        g.set_world_origin(ctx, origin);
+        Ok(g)
+    };
+    let single = upload(cache.li_single.as_ref())?;
+    let multiple = upload(cache.li_multiple.as_ref())?;
+
+    let filterable = ctx.float32_filterable();
+    let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+    let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
+    entries.extend(GpuVolume::layout_entries(4, filterable));
+    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false)]);
+    let layout = ctx.bind_group_layout("march", &entries)?;
+    let filtered = options.cache_lookup == CacheLookup::Filtered;
+    let source = ctx.compose_shader(&format!(
+        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}"
+    ));
+    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout])?;
+
+    let (noise_base, noise_offset) =
+        if params.offset_noise > 0.0 { noise_split(origin, params.noise_scale) } else { ([0; 3], [0.0; 3]) };
+    let uniforms = GpuMarchParams {
+        camera: GpuCamera::new(camera, origin),
+        medium: GpuMedium::from(&params.medium),
+        grid: GpuMajorantInfo {
+            origin: majorant.origin().to_array(),
+            cell_size: majorant.cell_size() as f32,
+            dims: majorant.dims().to_array(),
+            outside: density.background(),
+        },
+        background: params.background.to_array(),
+        step: params.step as f32,
+        noise_base,
+        spp: params.spp,
+        noise_offset,
+        noise_inv_scale: if params.offset_noise > 0.0 { (1.0 / params.noise_scale) as f32 } else { 0.0 },
+        seed: split_u64(params.seed),
+        noise_octaves: params.noise_octaves,
+        noise_seed: params.seed as u32,
+        offset_noise: params.offset_noise as f32,
+        min_transmittance: params.min_transmittance as f32,
+        flags: u32::from(cache.li_single.is_some()) | (u32::from(cache.li_multiple.is_some()) << 1),
+        width: camera.width(),
+        pixel_count: u32::try_from(pixel_count).map_err(|_| GpuError::TooLarge {
+            what: "the image".into(),
+            size: pixel_count,
+            limit: u32::MAX as u64,
+            limit_name: "u32 pixel index",
+        })?,
+        _pad: [0; 3],
+    };
+    let uniform_buffer = ctx.uniform_buffer("march params", &uniforms)?;
+    let majorant_buffer =
+        if majorant.values().is_empty() { ctx.storage_buffer("majorant", &[0f32])? } else { ctx.storage_buffer("majorant", majorant.values())? };
+    let out = ctx.storage_buffer_zeroed("march pixels", pixel_count * size_of::<GpuPixel>() as u64)?;
+
+    let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
+    let mut group_entries = single.bind_group_entries(0).to_vec();
+    group_entries.extend(multiple.bind_group_entries(4));
+    group_entries.extend([
+        wgpu::BindGroupEntry { binding: 8, resource: uniform_buffer.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
+        wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
+    ]);
+    let group = ctx.scoped("march bind group", || {
+        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("march"), layout: &layout, entries: &group_entries })
+    })?;
+    ctx.dispatch_1d("march", &pipeline, &[&volume_group, &group], pixel_count, WORKGROUP_SIZE)?;
+    let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
+    Ok(pixels
+        .iter()
+        .map(|p| RayResult {
+            single: Vec3::from(p.single),
+            multiple: Vec3::from(p.multiple),
+            transmittance: p.transmittance,
+            depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cpu::MARCH_DOMAIN;
+
+    #[test]
+    fn layouts_match_the_wgsl_structs() {
+        assert_eq!(size_of::<GpuMajorantInfo>(), 32);
+        assert_eq!(size_of::<GpuMarchParams>(), 224);
+        assert_eq!(size_of::<GpuPixel>(), 32);
+    }
+
+    #[test]
+    fn the_shader_uses_the_cpu_random_domain() {
+        assert!(MARCH_WGSL.contains(&format!("MARCH_DOMAIN: u32 = 0x{MARCH_DOMAIN:08x}u")));
+    }
+
+    #[test]
+    fn noise_positions_split_like_the_cpu_cell() {
+        let (base, offset) = noise_split(DVec3::new(-2.5, 1e6 + 0.25, 3.0), 0.5);
+        assert_eq!(base, [(-5i64) as u32, 2_000_000, 6]);
+        assert_eq!(offset, [0.0, 0.5, 0.0]);
+    }
+}

@@ -1,0 +1,105 @@
+//! Shared by the GPU agreement tests and the bench: a device (or a loud skip), a cloud, a
+//! varying illumination cache and a camera.
+#![allow(dead_code)]
+
+use std::sync::OnceLock;
+
+use glam::{DVec3, IVec3, Vec3};
+use nimbus_cache::IlluminationCache;
+use nimbus_gpu::{DeviceChoice, GpuContext, GpuError};
+use nimbus_march::MarchParams;
+use nimbus_optics::{Camera, Medium};
+use nimbus_volume::{Transform, Volume};
+
+/// The process-wide test device: any adapter, software (lavapipe) included. `None`, after a
+/// loud message, only when the machine has no adapter at all.
+pub fn gpu() -> Option<&'static GpuContext> {
+    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
+    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
+        Ok(device) => {
+            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
+            eprintln!("GPU tests run on {} (FLOAT32_FILTERABLE: {})", ctx.info, ctx.float32_filterable());
+            Some(ctx)
+        }
+        Err(e @ GpuError::NoAdapter { .. }) => {
+            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
+            None
+        }
+        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
+    })
+    .as_ref()
+}
+
+pub const VOXEL: f64 = 0.1;
+
+/// A lumpy cloud in a cube of `n`^3 voxels around `centre`: a ball whose density falls off
+/// toward its edge, times a ripple, with a hole, so rays see gradients, empty majorant
+/// cells inside the bounds and edges.
+pub fn cloud(n: i32, peak: f32, centre: DVec3) -> Volume<f32> {
+    let mut v = Volume::new(Transform::uniform(VOXEL, centre + DVec3::new(0.013, -0.021, 0.007)), 0.0);
+    let r = n as f32 / 2.0;
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let p = IVec3::new(x, y, z).as_vec3() - (r - 0.5);
+                let q = p.length() / r;
+                let hole = (p - Vec3::new(r * 0.4, 0.0, r * 0.3)).length() < r * 0.3;
+                if q < 1.0 && !hole {
+                    let ripple = 1.0 + 0.4 * (p.x * 0.7).sin() * (p.y * 0.5).cos() * (p.z * 0.3 + 1.0).sin();
+                    v.set(IVec3::new(x, y, z) - IVec3::splat(n / 2), peak * (1.0 - q * q) * ripple);
+                }
+            }
+        }
+    }
+    v
+}
+
+/// A smoothly varying cache: Li_single on the density's lattice, Li_multiple on a lattice
+/// twice as coarse and offset, both covering the density and a margin.
+pub fn cache_for(density: &Volume<f32>) -> IlluminationCache {
+    let (lo, hi) = density.world_bounds().unwrap();
+    let fill = |voxel: f64, shift: DVec3, f: &dyn Fn(DVec3) -> Vec3| {
+        let t = Transform::uniform(voxel, lo + shift);
+        let mut v = Volume::new(t, Vec3::ZERO);
+        let n = ((hi - lo) / voxel).ceil().as_ivec3() + 2;
+        for x in -2..=n.x {
+            for y in -2..=n.y {
+                for z in -2..=n.z {
+                    let c = IVec3::new(x, y, z);
+                    v.set(c, f(t.to_world(c.as_dvec3()) - lo));
+                }
+            }
+        }
+        v
+    };
+    let single = fill(VOXEL, DVec3::ZERO, &|p| {
+        let s = (1.5 + (p.z * 2.0).sin() + 0.5 * (p.x * 3.0).cos()) as f32;
+        Vec3::new(2.0 * s, 1.6 * s, 1.2 * s)
+    });
+    let multiple = fill(2.0 * VOXEL, DVec3::splat(0.037), &|p| {
+        let s = (0.6 + 0.3 * (p.y * 2.5).sin() * (p.z * 1.5).cos()) as f32;
+        Vec3::new(0.3 * s, 0.35 * s, 0.5 * s)
+    });
+    IlluminationCache { li_single: Some(single), li_multiple: Some(multiple) }
+}
+
+/// Looks at `centre` from -Y and a little above, the cloud filling most of the frame.
+pub fn camera(centre: DVec3, width: u32, height: u32) -> Camera {
+    Camera::new(centre + DVec3::new(0.4, -5.0, 1.2), centre, DVec3::Z, 45.0, width, height).unwrap()
+}
+
+pub fn params(camera: Camera) -> MarchParams {
+    MarchParams {
+        medium: Medium { extinction: 1.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.0 },
+        camera,
+        step: 0.5 * VOXEL,
+        spp: 1,
+        background: Vec3::new(0.05, 0.1, 0.2),
+        offset_noise: 0.0,
+        noise_scale: 0.5,
+        noise_octaves: 3,
+        min_transmittance: 0.0,
+        seed: 7,
+        aovs: true,
+    }
+}

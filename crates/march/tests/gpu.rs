@@ -1,0 +1,217 @@
+//! The GPU backend against the CPU backend (design.md section 1), and the WGSL noise
+//! against nimbus_optics::noise. Runs on any adapter, lavapipe included; with no adapter at
+//! all each test says so loudly and passes.
+
+mod common;
+
+use common::{cache_for, camera, cloud, gpu, params};
+use glam::{DVec3, Vec3};
+use nimbus_gpu::{storage_entry, GpuContext};
+use nimbus_march::{render_cpu, render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, Image, MarchParams, NOISE_WGSL};
+use nimbus_optics::noise::{fbm3_vec, perlin3};
+
+/// Worst relative difference over lit pixels (scattered light above 1e-3 of the brightest pixel) of
+/// RGB, single and multiple; worst absolute difference of alpha and transmittance; how many
+/// depths differ by more than 1e-4 relative (a lattice sample whose transmittance sits at
+/// the 0.99 threshold within rounding can pick its neighbour).
+struct Diff {
+    rgb: f32,
+    single: f32,
+    multiple: f32,
+    alpha: f32,
+    transmittance: f32,
+    depth_mismatches: usize,
+    lit: usize,
+}
+
+fn rel(a: Vec3, b: Vec3, floor: f32) -> f32 {
+    ((a - b).abs() / b.abs().max(Vec3::splat(floor))).max_element()
+}
+
+fn diff(cpu: &Image, gpu: &Image) -> Diff {
+    assert_eq!((cpu.width, cpu.height), (gpu.width, gpu.height));
+    assert_eq!(gpu.nonfinite, 0);
+    let lum = |p: Vec3| p.element_sum();
+    let max = cpu.rgba.iter().map(|p| lum(p.truncate())).fold(0.0, f32::max);
+    let floor = 1e-3 * max / 3.0;
+    let (ca, ga) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+    let mut d = Diff { rgb: 0.0, single: 0.0, multiple: 0.0, alpha: 0.0, transmittance: 0.0, depth_mismatches: 0, lit: 0 };
+    for i in 0..cpu.rgba.len() {
+        let (c, g) = (cpu.rgba[i], gpu.rgba[i]);
+        d.alpha = d.alpha.max((c.w - g.w).abs());
+        d.transmittance = d.transmittance.max((ca.transmittance[i] - ga.transmittance[i]).abs());
+        let (cd, gd) = (ca.depth[i], ga.depth[i]);
+        if (cd - gd).abs() > 1e-4 * cd.abs().max(1.0) {
+            d.depth_mismatches += 1;
+        }
+        if lum(ca.single[i] + ca.multiple[i]) > 1e-3 * max {
+            d.lit += 1;
+            d.rgb = d.rgb.max(rel(g.truncate(), c.truncate(), floor));
+            d.single = d.single.max(rel(ga.single[i], ca.single[i], floor));
+            d.multiple = d.multiple.max(rel(ga.multiple[i], ca.multiple[i], floor));
+        }
+    }
+    d
+}
+
+fn report(name: &str, d: &Diff) {
+    eprintln!(
+        "{name}: {} lit pixels; max rel diff rgb {:.2e} single {:.2e} multiple {:.2e}; max abs diff alpha {:.2e} T {:.2e}; depth mismatches {}",
+        d.lit, d.rgb, d.single, d.multiple, d.alpha, d.transmittance, d.depth_mismatches
+    );
+}
+
+fn assert_close(name: &str, d: &Diff, pixels: usize) {
+    report(name, d);
+    assert!(d.lit > pixels / 4, "{name}: the scene should light a good part of the image ({} lit)", d.lit);
+    assert!(d.rgb <= 1e-4 && d.single <= 1e-4 && d.multiple <= 1e-4, "{name}: rgb {} single {} multiple {}", d.rgb, d.single, d.multiple);
+    assert!(d.alpha <= 1e-5 && d.transmittance <= 1e-5, "{name}: alpha {} T {}", d.alpha, d.transmittance);
+    assert!(d.depth_mismatches <= pixels / 200, "{name}: {} depth mismatches", d.depth_mismatches);
+}
+
+const EXACT: GpuMarchOptions = GpuMarchOptions { cache_lookup: CacheLookup::Exact };
+
+fn scene(centre: DVec3) -> (nimbus_volume::Volume<f32>, nimbus_cache::IlluminationCache, MarchParams) {
+    let v = cloud(32, 3.0, centre);
+    let cache = cache_for(&v);
+    (v, cache, params(camera(centre, 64, 48)))
+}
+
+#[test]
+fn images_agree_without_noise() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, p) = scene(DVec3::ZERO);
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    assert_close("no noise, 1 spp", &diff(&cpu, &gpu), 64 * 48);
+}
+
+#[test]
+fn images_agree_with_offset_noise_and_jittered_samples() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    p.offset_noise = 0.15;
+    p.spp = 3;
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    assert_close("offset noise, 3 spp", &diff(&cpu, &gpu), 64 * 48);
+    // The noise really moved the samples.
+    let plain = render_cpu(&v, &cache, &MarchParams { offset_noise: 0.0, ..p.clone() }).unwrap();
+    assert!(diff(&plain, &cpu).rgb > 1e-2);
+}
+
+#[test]
+fn images_agree_far_from_the_origin() {
+    // Positions relative to the eye and split noise positions keep f32 precise at 1e4.
+    let Some(ctx) = gpu() else { return };
+    let centre = DVec3::new(1.0e4, -2.5e3, 300.0);
+    let (v, cache, mut p) = scene(centre);
+    p.offset_noise = 0.1;
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let d = diff(&cpu, &gpu);
+    report("far from the origin, offset noise", &d);
+    // The CPU's own f64 world positions at 1e4 lose ~1e-12 relative; the GPU's eye-relative
+    // f32 ones ~1e-7 of the ray length: a little more slack than near the origin.
+    assert!(d.rgb <= 1e-3 && d.alpha <= 1e-4, "rgb {} alpha {}", d.rgb, d.alpha);
+}
+
+#[test]
+fn early_termination_and_missing_cache_grids_agree() {
+    let Some(ctx) = gpu() else { return };
+    let (v, mut cache, mut p) = scene(DVec3::ZERO);
+    p.medium.extinction = 8.0;
+    p.min_transmittance = 0.02;
+    cache.li_multiple = None;
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let d = diff(&cpu, &gpu);
+    assert_close("dense, early termination, no Li_multiple", &d, 64 * 48);
+    assert!(gpu.aovs.as_ref().unwrap().multiple.iter().all(|m| *m == Vec3::ZERO));
+    assert!(gpu.aovs.as_ref().unwrap().transmittance.contains(&0.0), "some rays should stop early");
+}
+
+#[test]
+fn hardware_filtered_cache_lookups_stay_close() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, p) = scene(DVec3::ZERO);
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu(ctx, &v, &cache, &p).unwrap();
+    let d = diff(&cpu, &gpu);
+    report(&format!("filtered cache (hardware filtering: {})", ctx.float32_filterable()), &d);
+    // Filter weights quantised to 1/256 of a texel: Li within ~1/256 of its local range,
+    // which here is a fraction of its value. Density is still exact, so alpha is too.
+    assert!(d.rgb <= 5e-3, "rgb {}", d.rgb);
+    assert!(d.alpha <= 1e-5, "alpha {}", d.alpha);
+}
+
+#[test]
+fn an_empty_scene_is_the_background() {
+    let Some(ctx) = gpu() else { return };
+    let v = nimbus_volume::Volume::new(nimbus_volume::Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    let p = params(camera(DVec3::ZERO, 16, 8));
+    let image = render_gpu(ctx, &v, &Default::default(), &p).unwrap();
+    assert!(image.rgba.iter().all(|c| c.truncate() == p.background && c.w == 0.0));
+    assert_eq!(image, render_cpu(&v, &Default::default(), &p).unwrap());
+}
+
+/// Runs `noise.wgsl` on the GPU: per point, perlin3 (seed 5), fbm3_vec (4 octaves, seed 9)
+/// and the lattice hash of the point's cell.
+fn gpu_noise(ctx: &GpuContext, points: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    let source = format!(
+        "{NOISE_WGSL}
+        @group(0) @binding(0) var<storage, read> points: array<vec4<f32>>;
+        @group(0) @binding(1) var<storage, read_write> out: array<vec4<f32>>;
+        @compute @workgroup_size(64)
+        fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
+            let i = id.x;
+            if (i >= arrayLength(&points)) {{ return; }}
+            let p = points[i].xyz;
+            let fl = floor(p);
+            let cell = vec3<u32>(vec3<i32>(fl));
+            out[2u * i] = vec4<f32>(noise_perlin3(p, 5u), bitcast<f32>(noise_lattice_hash(cell, 5u)), 0.0, 0.0);
+            out[2u * i + 1u] = vec4<f32>(noise_fbm3_vec_split(cell, p - fl, 4u, 9u), 0.0);
+        }}"
+    );
+    let layout = ctx.bind_group_layout("noise", &[storage_entry(0, true), storage_entry(1, false)]).unwrap();
+    let pipeline = ctx.compute_pipeline("noise", &source, "main", &[&layout]).unwrap();
+    let input = ctx.storage_buffer("points", points).unwrap();
+    let output = ctx.storage_buffer_zeroed("noise", points.len() as u64 * 32).unwrap();
+    let group = ctx.buffer_bind_group("noise", &layout, &[&input, &output]).unwrap();
+    ctx.dispatch_1d("noise", &pipeline, &[&group], points.len() as u64, 64).unwrap();
+    ctx.read_buffer(&output).unwrap()
+}
+
+/// The CPU's hash, restated (nimbus_optics::noise keeps it private): the GPU must match it
+/// bit for bit.
+fn pcg(v: u32) -> u32 {
+    let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
+    (word >> 22) ^ word
+}
+
+#[test]
+fn wgsl_noise_matches_the_cpu() {
+    let Some(ctx) = gpu() else { return };
+    // Points on a jittered grid over negative and positive cells.
+    let points: Vec<[f32; 4]> = (0..4096)
+        .map(|i| {
+            let f = i as f32;
+            [(f * 0.137).rem_euclid(13.0) - 6.5, (f * 0.0731).rem_euclid(9.0) - 4.0, (f * 0.311).rem_euclid(17.0) - 8.25, 0.0]
+        })
+        .collect();
+    let out = gpu_noise(ctx, &points);
+    let (mut worst_perlin, mut worst_fbm) = (0.0f32, 0.0f32);
+    for (i, p) in points.iter().enumerate() {
+        let pd = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        let cell = pd.floor();
+        let (x, y, z) = (cell.x as i64 as u32, cell.y as i64 as u32, cell.z as i64 as u32);
+        let hash = pcg(x ^ pcg(y ^ pcg(z ^ pcg(5))));
+        assert_eq!(out[2 * i][1].to_bits(), hash, "lattice hash at {pd}");
+        worst_perlin = worst_perlin.max((out[2 * i][0] - perlin3(pd, 5)).abs());
+        let g = Vec3::new(out[2 * i + 1][0], out[2 * i + 1][1], out[2 * i + 1][2]);
+        worst_fbm = worst_fbm.max((g - fbm3_vec(pd, 4, 9)).abs().max_element());
+    }
+    eprintln!("noise.wgsl vs CPU over {} points: hashes bit-exact, max |perlin| diff {worst_perlin:e}, max |fbm3_vec| diff {worst_fbm:e}", points.len());
+    assert!(worst_perlin < 2e-6 && worst_fbm < 2e-6, "perlin {worst_perlin}, fbm {worst_fbm}");
+}

@@ -1,0 +1,190 @@
+// vdbmarch's GPU backend: one invocation per pixel (nimbus_march::render_gpu).
+//
+// Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,
+// sampled exactly) + optics.wgsl + tracking.wgsl (majorant DDA) + noise.wgsl + this file.
+// Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
+// draws in the same order (jitter x, y when spp > 1, then the lattice offset xi, per
+// sample); steps at t_k = (k + xi) dt inside non-empty majorant segments; offset noise;
+// early termination; the same per-pixel averages. Positions are f32 relative to the
+// camera's eye (every volume's world_to_index is set to that origin by the host).
+// Li_single and Li_multiple are two more volumes at group 1, looked up with the hardware
+// filter when CACHE_FILTERED (and the device can filter R32/RGBA32 floats), else exactly.
+
+struct MarchUniforms {
+    camera: Camera,
+    medium: Medium,
+    grid: MajorantGridInfo,
+    background: vec3<f32>,
+    step: f32,
+    // Noise position of the eye, split: floor(eye / scale) (wrapping) and the rest.
+    noise_base: vec3<u32>,
+    spp: u32,
+    noise_offset: vec3<f32>,
+    noise_inv_scale: f32,
+    seed: vec2<u32>,
+    noise_octaves: u32,
+    noise_seed: u32,
+    offset_noise: f32,
+    min_transmittance: f32,
+    // bit 0: Li_single present, bit 1: Li_multiple present.
+    flags: u32,
+    width: u32,
+    pixel_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+struct PixelOut {
+    single: vec3<f32>,
+    transmittance: f32,
+    multiple: vec3<f32>,
+    // Distance to the first sample where opacity passed 1%; negative for none.
+    depth: f32,
+}
+
+const MARCH_DOMAIN: u32 = 0x4d415243u;
+const FLAG_SINGLE: u32 = 1u;
+const FLAG_MULTIPLE: u32 = 2u;
+
+@group(1) @binding(0) var single_atlas: texture_3d<f32>;
+@group(1) @binding(1) var single_table: texture_3d<u32>;
+@group(1) @binding(2) var single_sampler: sampler;
+@group(1) @binding(3) var<uniform> single_info: VolumeInfo;
+@group(1) @binding(4) var multiple_atlas: texture_3d<f32>;
+@group(1) @binding(5) var multiple_table: texture_3d<u32>;
+@group(1) @binding(6) var multiple_sampler: sampler;
+@group(1) @binding(7) var<uniform> multiple_info: VolumeInfo;
+@group(1) @binding(8) var<uniform> params: MarchUniforms;
+@group(1) @binding(9) var<storage, read> majorant_values: array<f32>;
+@group(1) @binding(10) var<storage, read_write> pixels: array<PixelOut>;
+
+fn majorant_fetch(index: u32) -> f32 {
+    return majorant_values[index];
+}
+
+fn li_single(x: vec3<f32>) -> vec3<f32> {
+    let p = volume_world_to_index_in(single_info, x);
+    if (CACHE_FILTERED) {
+        return volume_sample_index_filtered_in(single_atlas, single_table, single_sampler, single_info, p).xyz;
+    }
+    return volume_sample_index_in(single_atlas, single_table, single_info, p).xyz;
+}
+
+fn li_multiple(x: vec3<f32>) -> vec3<f32> {
+    let p = volume_world_to_index_in(multiple_info, x);
+    if (CACHE_FILTERED) {
+        return volume_sample_index_filtered_in(multiple_atlas, multiple_table, multiple_sampler, multiple_info, p).xyz;
+    }
+    return volume_sample_index_in(multiple_atlas, multiple_table, multiple_info, p).xyz;
+}
+
+// 1 - exp(-x) for x >= 0 without the cancellation that costs thin media their precision.
+fn one_minus_exp_neg(x: f32) -> f32 {
+    if (x < 0.03) {
+        return x * (1.0 - 0.5 * x * (1.0 - x / 3.0 * (1.0 - 0.25 * x)));
+    }
+    return 1.0 - exp(-x);
+}
+
+// march_ray: the ray eye + t dir (dir unit, world) with lattice offset xi.
+fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
+    let eye = params.camera.eye;
+    let o = volume_world_to_index(eye);
+    let d = (volume_info.world_to_index * vec4<f32>(dir, 0.0)).xyz;
+    let dt = params.step;
+    let m = params.medium;
+    let jitter = params.offset_noise > 0.0;
+    var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0);
+    var tr = 1.0;
+    // The lattice continues across adjacent non-empty segments: the next segment starts
+    // with the first index the previous one did not take (k_next) rather than recomputing
+    // it from t_start, which in f32 can skip or repeat a sample lying on the boundary
+    // within rounding. After a gap (skipped empty segments) it is recomputed.
+    var k_next = -3.0e38;
+    var prev_end = -1.0;
+    var walk = majorant_walk_new(params.grid, o, d, 0.0, TRACK_FAR);
+    loop {
+        let seg = majorant_walk_next(&walk, params.grid);
+        if (!seg.valid) {
+            break;
+        }
+        if (!(seg.majorant > 0.0) || seg.t_end >= 0.5 * TRACK_FAR) {
+            continue;
+        }
+        var k = k_next;
+        if (seg.t_start != prev_end) {
+            k = max(ceil(seg.t_start / dt - xi), k_next);
+        }
+        loop {
+            let t = (k + xi) * dt;
+            if (t >= seg.t_end) {
+                break;
+            }
+            k = k + 1.0;
+            k_next = k;
+            var x = eye + dir * t;
+            if (jitter) {
+                let q = params.noise_offset + x * params.noise_inv_scale;
+                x = x + noise_fbm3_vec_split(params.noise_base, q, params.noise_octaves, params.noise_seed) * params.offset_noise;
+            }
+            let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(x)), 0.0);
+            if (sigma_t <= 0.0) {
+                continue;
+            }
+            let absorbed = one_minus_exp_neg(sigma_t * dt);
+            let weight = tr * absorbed;
+            if ((params.flags & FLAG_SINGLE) != 0u) {
+                r.single = r.single + weight * m.albedo * li_single(x);
+            }
+            if ((params.flags & FLAG_MULTIPLE) != 0u) {
+                r.multiple = r.multiple + weight * m.albedo * li_multiple(x);
+            }
+            tr = tr * exp(-sigma_t * dt);
+            if (r.depth < 0.0 && tr < 0.99) {
+                r.depth = t;
+            }
+            if (tr < params.min_transmittance) {
+                r.transmittance = 0.0;
+                return r;
+            }
+        }
+        k_next = k;
+        prev_end = seg.t_end;
+    }
+    r.transmittance = tr;
+    return r;
+}
+
+const WORKGROUP_SIZE: u32 = 64u;
+
+@compute @workgroup_size(64)
+fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                @builtin(local_invocation_index) lid: u32) {
+    let index = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (index >= params.pixel_count) {
+        return;
+    }
+    let px = f32(index % params.width);
+    let py = f32(index / params.width);
+    var rng = rng_new(params.seed, vec2<u32>(index, 0u), MARCH_DOMAIN);
+    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0);
+    for (var s = 0u; s < params.spp; s = s + 1u) {
+        var j = vec2<f32>(0.5);
+        if (params.spp != 1u) {
+            j.x = rng_next_f64_as_f32(&rng);
+            j.y = rng_next_f64_as_f32(&rng);
+        }
+        let xi = rng_next_f64_as_f32(&rng);
+        let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
+        let r = march_ray(dir, xi);
+        sum.single = sum.single + r.single;
+        sum.multiple = sum.multiple + r.multiple;
+        sum.transmittance = sum.transmittance + r.transmittance;
+        if (r.depth >= 0.0 && (sum.depth < 0.0 || r.depth < sum.depth)) {
+            sum.depth = r.depth;
+        }
+    }
+    let inv = 1.0 / f32(params.spp);
+    pixels[index] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth);
+}
