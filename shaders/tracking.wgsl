@@ -305,7 +305,22 @@ fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, s
         while (t < seg.t_end) {
             let s = track_sigma_t(r, t);
             if (s > floor) {
-                return t + tau_target / s;
+                // Beyond the last non-empty segment the photon has left the medium.
+                let d = t + tau_target / s;
+                var medium_end = seg.t_end;
+                loop {
+                    let rest = majorant_walk_next(&walk, g);
+                    if (!rest.valid) {
+                        break;
+                    }
+                    if (rest.majorant > 0.0 && r.extinction > 0.0 && rest.t_end < 0.5 * TRACK_FAR) {
+                        medium_end = rest.t_end;
+                    }
+                }
+                if (d < medium_end) {
+                    return d;
+                }
+                return TRACK_ESCAPED;
             }
             t = t + step;
         }

@@ -183,18 +183,32 @@ impl<'a> MediumRay<'a> {
     /// point along the ray (stepping by `step`) where the medium is not empty. Biased where
     /// density varies; kept to compare against.
     pub fn sample_exponential(&self, tau_target: f64, step: f64) -> FreePath {
-        for (a, b, _) in self.segments() {
+        let mut segments = self.segments();
+        let mut hit = None;
+        for (a, b, _) in segments.by_ref() {
             let mut t = a;
-            while t < b {
+            while t < b && hit.is_none() {
                 let s = self.sigma_t(t) as f64;
                 if s > 0.0 {
-                    let d = t + tau_target / s;
-                    return if d < self.t_max { FreePath::Interaction(d) } else { FreePath::Escaped };
+                    hit = Some((t + tau_target / s, b));
                 }
                 t += step;
             }
+            if hit.is_some() {
+                break;
+            }
         }
-        FreePath::Escaped
+        let Some((d, mut medium_end)) = hit else { return FreePath::Escaped };
+        // Eq. 1 can send a photon past everything: beyond the last non-empty segment it has
+        // left the medium, and interacting there would store photons in empty space.
+        for (_, b, _) in segments {
+            medium_end = b;
+        }
+        if d < medium_end.min(self.t_max) {
+            FreePath::Interaction(d)
+        } else {
+            FreePath::Escaped
+        }
     }
 
     /// Delta (Woodcock) tracking: tentative collisions against each segment's majorant,
