@@ -49,6 +49,20 @@ const PHOTON: &[&str] = &["--photons", "4000", "--extinction", "6", "--seed", "5
 const CACHE: &[&str] = &["--width", "48", "--height", "32", "--gather-neighbours", "16"];
 const MARCH: &[&str] = &["--spp", "2"];
 
+/// An EXR's RGBA pixels, read with the exr crate (independent of how vdbmarch wrote them).
+fn read_rgba(path: &Path) -> Vec<[f32; 4]> {
+    use exr::prelude::read_first_rgba_layer_from_file;
+    let image = read_first_rgba_layer_from_file(
+        path,
+        |size, _| (size.width(), vec![[0.0f32; 4]; size.width() * size.height()]),
+        |(width, pixels): &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
+            pixels[pos.y() * *width + pos.x()] = [r, g, b, a];
+        },
+    )
+    .expect("a readable EXR");
+    image.layer_data.channel_data.pixels.1
+}
+
 fn run(cmd: &mut Command) -> Output {
     let out = cmd.output().expect("tool runs");
     assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -185,5 +199,16 @@ fn the_gpu_backend_runs_in_the_chain() {
     }
     assert!(out.status.success(), "{err}");
     assert!(err.contains("stored 2000"), "{err}");
+    // The rest of the chain on the GPU too: the image matches the CPU's to float tolerance.
+    let c = dir.join("c.vdb");
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--width", "24", "--height", "16"]).arg("-o").arg(&c));
+    let (cpu_exr, gpu_exr) = (dir.join("cpu.exr"), dir.join("gpu.exr"));
+    run(Command::new(bin("vdbmarch")).arg(&c).args(["--device", "cpu"]).arg("-o").arg(&cpu_exr));
+    run(Command::new(bin("vdbmarch")).arg(&c).args(["--device", "gpu"]).arg("-o").arg(&gpu_exr));
+    let (cpu, gpu) = (read_rgba(&cpu_exr), read_rgba(&gpu_exr));
+    let peak = cpu.iter().flatten().fold(0.0f32, |m, v| m.max(*v));
+    assert!(peak > 0.0, "the CPU image is lit");
+    let worst = cpu.iter().flatten().zip(gpu.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1e-3 * peak, "CPU and GPU images differ by {worst} (peak {peak})");
     std::fs::remove_dir_all(&dir).ok();
 }

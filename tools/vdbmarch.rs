@@ -8,7 +8,7 @@ use clap::Parser;
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
 use nimbus_cli::{parse_rgb, read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, MediumArgs, Output, PipelineMeta};
-use nimbus_march::{render_cpu, MarchParams};
+use nimbus_march::{render_cpu, render_gpu, MarchError, MarchParams};
 use nimbus_vdb::{GridKind, VdbFile};
 use nimbus_volume::Volume;
 
@@ -109,16 +109,19 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     };
     params.validate().map_err(Failure::usage)?;
     let device = args.common.compute_device(&log)?;
-    if device.gpu().is_some() {
-        log.warn("the GPU ray marcher is not wired into vdbmarch yet; running on the CPU");
-    }
     let image = log
         .stage(
             "march",
-            || render_cpu(&density, &cache, &params),
+            || match device.gpu() {
+                Some(ctx) => render_gpu(ctx, &density, &cache, &params),
+                None => render_cpu(&density, &cache, &params),
+            },
             |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
         )
-        .map_err(Failure::usage)?;
+        .map_err(|e| match e {
+            MarchError::Param(_) => Failure::usage(e),
+            MarchError::Gpu(_) => Failure::runtime(e, "GPU ray marcher"),
+        })?;
     if image.nonfinite > 0 {
         log.warn(format!("{} pixels came out non-finite and were set to zero", image.nonfinite));
     }

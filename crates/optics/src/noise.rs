@@ -93,6 +93,9 @@ impl Fbm {
     pub fn eval(&self, p: DVec3) -> f32 {
         // Each octave gets its own seed and a shift, so the octaves' lattice zeros do not line
         // up (otherwise every octave vanishes at the origin and the sum has visible grid points).
+        // Arbitrary irrational-looking offsets (their closeness to 1/pi and ln 2 is harmless);
+        // shaders/noise.wgsl uses the same digits, so they must not be "corrected".
+        #[allow(clippy::approx_constant)]
         const SHIFT: DVec3 = DVec3::new(0.318_309_886, 0.577_215_665, 0.693_147_181);
         let (mut sum, mut norm) = (0.0f32, 0.0f32);
         let (mut freq, mut amp) = (1.0f64, 1.0f32);
