@@ -73,14 +73,16 @@ impl<'a> MediumRay<'a> {
         self.medium.extinction * d.max(0.0)
     }
 
-    /// Segments of the ray with a non-zero majorant of sigma_t, in order. A segment that
-    /// would run to infinity (a volume whose background is not zero) ends at `t_max`.
+    /// Segments of the ray with a non-zero majorant of sigma_t, in order. Beyond the majorant
+    /// grid a volume holds only its background; a non-zero background there would make an
+    /// infinite medium, so the unbounded stretch past the grid counts as empty (the GPU
+    /// kernels do the same).
     fn segments(&self) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
         let ext = self.medium.extinction as f64;
         self.medium
             .majorant
             .walk(self.origin_index, self.dir_index, self.t_min, self.t_max)
-            .filter(move |s| s.majorant > 0.0 && ext > 0.0)
+            .filter(move |s| s.majorant > 0.0 && ext > 0.0 && s.t_end.is_finite())
             .map(move |s| (s.t_start, s.t_end, s.majorant as f64 * ext))
     }
 

@@ -120,3 +120,18 @@ fn optical_depth_is_exact_for_piecewise_linear_density() {
     assert!((got - exact).abs() < 1e-5, "{got} vs {exact}");
     let _ = BRICK_DIM;
 }
+
+#[test]
+fn a_nonzero_background_does_not_hang_any_sampler() {
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.01f32);
+    v.set(IVec3::ZERO, 1.0);
+    let majorant = MajorantGrid::build(&v);
+    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+    let ray = MediumRay::new(medium, DVec3::new(0.0, 0.0, -5.0), DVec3::Z, 0.0, f64::INFINITY);
+    let mut rng = Rng::new(1, 1);
+    assert!(ray.optical_depth(0.05).is_finite());
+    let _ = ray.sample_simpson(1e9, 0.05);
+    let _ = ray.sample_exponential(1e9, 0.05);
+    let _ = ray.sample_delta(&mut rng);
+    assert!(ray.transmittance_ratio(&mut rng, 0.1).is_finite());
+}
