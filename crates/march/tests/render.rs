@@ -150,3 +150,28 @@ fn exr_and_png_encode() {
     let png = image.to_png(0.0).unwrap();
     assert_eq!(&png[1..4], b"PNG");
 }
+
+#[test]
+fn one_pixel_images_and_huge_world_offsets() {
+    let v = filled(IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
+    let cache = constant_cache(&v, Vec3::ONE);
+    let one = Camera::new(DVec3::new(0.0, -2.0, 0.0), DVec3::ZERO, DVec3::Z, 10.0, 1, 1).unwrap();
+    let image = render_cpu(&v, &cache, &params(one, VOXEL / 2.0)).unwrap();
+    assert_eq!(image.rgba.len(), 1);
+    assert!(image.rgba[0].w > 0.5, "the one pixel looks straight through the ball");
+
+    // The same scene a million units away renders the same image: positions stay f64 until
+    // they are relative to the volume.
+    let offset = DVec3::new(1e6, -2e6, 5e5);
+    let near = Camera::new(DVec3::new(0.3, -2.0, 0.2), DVec3::ZERO, DVec3::Z, 40.0, 16, 12).unwrap();
+    let far = Camera::new(near.eye() + offset, offset, DVec3::Z, 40.0, 16, 12).unwrap();
+    let mut moved = v.clone();
+    moved.set_transform(Transform::uniform(VOXEL, offset));
+    let mut moved_cache = constant_cache(&v, Vec3::ONE);
+    moved_cache.li_single.as_mut().unwrap().set_transform(Transform::uniform(VOXEL, offset));
+    let a = render_cpu(&v, &cache, &params(near, VOXEL / 2.0)).unwrap();
+    let b = render_cpu(&moved, &moved_cache, &params(far, VOXEL / 2.0)).unwrap();
+    let worst = a.rgba.iter().zip(&b.rgba).map(|(p, q)| (*p - *q).abs().max_element()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-3, "offset scene differs by {worst}");
+    assert!(a.mean_rgb().x > 0.0);
+}
