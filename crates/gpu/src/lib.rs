@@ -77,3 +77,24 @@ pub const SAMPLE_POINTS_WGSL: &str = include_str!("../../../shaders/sample_point
 pub fn compose_shader(filterable: bool, stage: &str) -> String {
     format!("const VOLUME_FILTERABLE: bool = {filterable};\n{VOLUME_WGSL}\n{stage}")
 }
+
+/// The process-wide device for tests and benchmarks: any adapter, software (lavapipe)
+/// included. `None`, after a loud message on stderr, only when the machine has no adapter at
+/// all; CI has lavapipe, so there the GPU tests always run. An adapter that exists but cannot
+/// be used is a failure, not a skip.
+pub fn test_context() -> Option<&'static GpuContext> {
+    static CTX: std::sync::OnceLock<Option<GpuContext>> = std::sync::OnceLock::new();
+    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
+        Ok(device) => {
+            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
+            eprintln!("GPU tests run on {} (FLOAT32_FILTERABLE: {})", ctx.info, ctx.float32_filterable());
+            Some(ctx)
+        }
+        Err(e @ GpuError::NoAdapter { .. }) => {
+            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
+            None
+        }
+        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
+    })
+    .as_ref()
+}

@@ -5,22 +5,11 @@
 //! Skips loudly when the machine has no adapter at all (CI has lavapipe, so there it runs).
 
 use glam::{DVec3, Vec2, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, DeviceChoice, GpuContext, GpuError};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext};
 use nimbus_optics::{Camera, GpuCamera, GpuLight, GpuMedium, HenyeyGreenstein, Light, Medium, Rng, OPTICS_WGSL};
 
-fn gpu() -> Option<GpuContext> {
-    match DeviceChoice::Gpu.resolve() {
-        Ok(device) => {
-            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
-            eprintln!("GPU tests run on {}", ctx.info);
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
-    }
+fn gpu() -> Option<&'static GpuContext> {
+    nimbus_gpu::test_context()
 }
 
 const N: u32 = 4096;

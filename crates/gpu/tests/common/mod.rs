@@ -2,30 +2,13 @@
 //! deterministic RNG, and random sparse volumes.
 #![allow(dead_code)] // each test binary uses a different subset
 
-use std::sync::OnceLock;
-
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_gpu::{DeviceChoice, GpuContext, GpuError};
+use nimbus_gpu::GpuContext;
 use nimbus_volume::{Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 
-/// The process-wide test device: any adapter, software included. `None` (after a loud
-/// message) only when the machine has no adapter at all; CI has lavapipe, so there the
-/// GPU tests always run.
+/// The process-wide test device (see [`nimbus_gpu::test_context`]).
 pub fn gpu() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
-        Ok(device) => {
-            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
-            eprintln!("GPU tests run on {}", ctx.info);
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
-    })
-    .as_ref()
+    nimbus_gpu::test_context()
 }
 
 /// SplitMix64: enough randomness for test data, and reproducible.

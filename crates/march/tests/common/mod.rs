@@ -2,32 +2,16 @@
 //! varying illumination cache and a camera.
 #![allow(dead_code)]
 
-use std::sync::OnceLock;
-
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_cache::IlluminationCache;
-use nimbus_gpu::{DeviceChoice, GpuContext, GpuError};
+use nimbus_gpu::GpuContext;
 use nimbus_march::MarchParams;
 use nimbus_optics::{Camera, Medium};
 use nimbus_volume::{Transform, Volume};
 
-/// The process-wide test device: any adapter, software (lavapipe) included. `None`, after a
-/// loud message, only when the machine has no adapter at all.
+/// The process-wide test device (see [`nimbus_gpu::test_context`]).
 pub fn gpu() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
-        Ok(device) => {
-            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
-            eprintln!("GPU tests run on {} (FLOAT32_FILTERABLE: {})", ctx.info, ctx.float32_filterable());
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
-    })
-    .as_ref()
+    nimbus_gpu::test_context()
 }
 
 pub const VOXEL: f64 = 0.1;

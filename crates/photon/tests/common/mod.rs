@@ -1,29 +1,13 @@
 //! Shared by the GPU agreement tests and the bench: a device (or a loud skip) and test media.
 #![allow(dead_code)]
 
-use std::sync::OnceLock;
-
 use glam::{DVec3, IVec3};
-use nimbus_gpu::{DeviceChoice, GpuContext, GpuError};
+use nimbus_gpu::GpuContext;
 use nimbus_volume::{Transform, Volume};
 
-/// The process-wide test device: any adapter, software (lavapipe) included. `None`, after a
-/// loud message, only when the machine has no adapter at all.
+/// The process-wide test device (see [`nimbus_gpu::test_context`]).
 pub fn gpu() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
-    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
-        Ok(device) => {
-            let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
-            eprintln!("GPU tests run on {}", ctx.info);
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) => {
-            eprintln!("\n!!!!!!!! SKIPPING GPU TEST: {e} !!!!!!!!\n");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
-    })
-    .as_ref()
+    nimbus_gpu::test_context()
 }
 
 /// A smooth, lumpy cloud in a cube of `n`^3 voxels (voxel 0.1, centred near 0): a ball of
