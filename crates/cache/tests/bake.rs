@@ -158,3 +158,41 @@ fn photons_give_a_multiple_scattering_estimate_in_a_constant_medium() {
     assert!((mean / want - 1.0).abs() < 0.12, "{mean} vs {want}");
     assert!(stats.photons_gathered > 0);
 }
+
+#[test]
+fn stress_cases_bake_finite_values() {
+    let v = block(IVec3::splat(-10), IVec3::splat(10), |c| 1.0 + 0.1 * c.x as f32);
+    let photons = {
+        let mut m = PhotonMap::default();
+        for i in 0..500 {
+            let f = i as f64 / 500.0;
+            m.positions.push(DVec3::new(f - 0.5, 0.3 - f * 0.6, 0.2 * (f * 20.0).sin()));
+            m.power.push(Vec3::splat(1e-3));
+            m.dir.push(Vec3::new(0.0, 0.6, -0.8));
+        }
+        m
+    };
+    let no_photons = PhotonMap::default();
+    let inside = Camera::new(DVec3::new(0.05, 0.02, 0.01), DVec3::new(1.0, 0.3, 0.0), DVec3::Z, 90.0, 32, 32).unwrap();
+    let cases: Vec<(&str, CacheParams, &PhotonMap)> = vec![
+        ("camera inside", CacheParams { multiple: true, ..params(inside.clone()) }, &photons),
+        ("grazing sun", CacheParams { lights: vec![Light::sun(Vec3::new(1.0, 0.0, -1e-4), Vec3::ONE).unwrap()], ..params(side_camera(&v)) }, &photons),
+        ("zero photons", CacheParams { multiple: true, ..params(side_camera(&v)) }, &no_photons),
+        ("extinction 1e6", CacheParams { medium: Medium { extinction: 1e6, ..Medium::default() }, multiple: true, ..params(side_camera(&v)) }, &photons),
+    ];
+    for (name, p, map) in cases {
+        let (cache, stats) = bake_cpu(&v, map, &p).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(stats.nonfinite, 0, "{name}");
+        for grid in [&cache.li_single, &cache.li_multiple].into_iter().flatten() {
+            for brick in grid.bricks() {
+                assert!(brick.values.iter().all(|li| li.is_finite() && li.min_element() >= 0.0), "{name}");
+            }
+        }
+        if name == "zero photons" {
+            assert!(cache.li_multiple.is_none(), "no photons: multiple scattering skipped");
+        }
+        if name == "camera inside" {
+            assert!(stats.culled_view > 0 && stats.baked > 0, "{name}: {stats:?}");
+        }
+    }
+}
