@@ -109,7 +109,7 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
         if (!seg.valid) {
             break;
         }
-        if (!(seg.majorant > 0.0) || seg.t_end >= 0.5 * TRACK_FAR) {
+        if (!track_segment_has_medium(seg, m.extinction)) {
             continue;
         }
         var k = k_next;

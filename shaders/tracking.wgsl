@@ -101,6 +101,13 @@ fn majorant_cell_value(g: MajorantGridInfo, c: vec3<i32>) -> f32 {
 }
 
 // The next segment of the walk (MajorantWalk::next); valid = false when it is over.
+// MediumRay::segments: a segment holds medium when its majorant and the extinction are
+// positive; the unbounded stretch past the grid counts as empty (a non-zero background would
+// otherwise make an infinite medium). The one test every sampler uses.
+fn track_segment_has_medium(seg: MajorantSegment, extinction: f32) -> bool {
+    return seg.majorant > 0.0 && extinction > 0.0 && seg.t_end < 0.5 * TRACK_FAR;
+}
+
 fn majorant_walk_next(w: ptr<function, MajorantWalk>, g: MajorantGridInfo) -> MajorantSegment {
     loop {
         if (!((*w).t < (*w).t_max)) {
@@ -228,7 +235,7 @@ fn track_sample_simpson(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step:
             break;
         }
         // Empty, or beyond the grid (where the CPU would integrate the background forever).
-        if (!(seg.majorant > 0.0 && r.extinction > 0.0) || seg.t_end >= 0.5 * TRACK_FAR) {
+        if (!track_segment_has_medium(seg, r.extinction)) {
             continue;
         }
         let a = seg.t_start;
@@ -292,7 +299,7 @@ fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, s
         if (!seg.valid) {
             break;
         }
-        if (!(seg.majorant > 0.0 && r.extinction > 0.0) || seg.t_end >= 0.5 * TRACK_FAR) {
+        if (!track_segment_has_medium(seg, r.extinction)) {
             continue;
         }
         // sigma_t is divided by, so rounding noise matters: where the CPU's f64 trilinear
@@ -313,7 +320,7 @@ fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, s
                     if (!rest.valid) {
                         break;
                     }
-                    if (rest.majorant > 0.0 && r.extinction > 0.0 && rest.t_end < 0.5 * TRACK_FAR) {
+                    if (track_segment_has_medium(rest, r.extinction)) {
                         medium_end = rest.t_end;
                     }
                 }
@@ -337,7 +344,7 @@ fn track_sample_delta(r: TrackRay, g: MajorantGridInfo, rng: ptr<function, Rng>)
         if (!seg.valid) {
             break;
         }
-        if (!(seg.majorant > 0.0 && r.extinction > 0.0) || seg.t_end >= 0.5 * TRACK_FAR) {
+        if (!track_segment_has_medium(seg, r.extinction)) {
             continue;
         }
         let majorant = seg.majorant * r.extinction;

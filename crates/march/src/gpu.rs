@@ -5,13 +5,11 @@ use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, GpuCamera, GpuMedium, OPTICS_WGSL};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Transform, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
 
-/// The WGSL twin of `nimbus_tracking`'s majorant DDA (and free-path samplers),
-/// `shaders/tracking.wgsl`.
-pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 /// Perlin noise and fBm, the WGSL twin of `nimbus_optics::noise` (`shaders/noise.wgsl`):
 /// plain functions, no bindings, for any stage shader to concatenate.
 pub const NOISE_WGSL: &str = include_str!("../../../shaders/noise.wgsl");
@@ -38,16 +36,6 @@ pub enum CacheLookup {
 #[derive(Clone, Debug, Default)]
 pub struct GpuMarchOptions {
     pub cache_lookup: CacheLookup,
-}
-
-/// WGSL `MajorantGridInfo` (tracking.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct GpuMajorantInfo {
-    origin: [i32; 3],
-    cell_size: f32,
-    dims: [i32; 3],
-    outside: f32,
 }
 
 /// WGSL `MarchUniforms`.
@@ -158,12 +146,7 @@ fn march_pixels(
     let uniforms = GpuMarchParams {
         camera: GpuCamera::new(camera, origin),
         medium: GpuMedium::from(&params.medium),
-        grid: GpuMajorantInfo {
-            origin: majorant.origin().to_array(),
-            cell_size: majorant.cell_size() as f32,
-            dims: majorant.dims().to_array(),
-            outside: density.background(),
-        },
+        grid: GpuMajorantInfo::new(&majorant, density.background()),
         background: params.background.to_array(),
         step: params.step as f32,
         noise_base,
@@ -186,8 +169,7 @@ fn march_pixels(
         _pad: [0; 3],
     };
     let uniform_buffer = ctx.uniform_buffer("march params", &uniforms)?;
-    let majorant_buffer =
-        if majorant.values().is_empty() { ctx.storage_buffer("majorant", &[0f32])? } else { ctx.storage_buffer("majorant", majorant.values())? };
+    let majorant_buffer = majorant_buffer(ctx, &majorant)?;
     let out = ctx.storage_buffer_zeroed("march pixels", pixel_count * size_of::<GpuPixel>() as u64)?;
 
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
@@ -221,7 +203,6 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuMajorantInfo>(), 32);
         assert_eq!(size_of::<GpuMarchParams>(), 224);
         assert_eq!(size_of::<GpuPixel>(), 32);
     }

@@ -43,7 +43,7 @@ mod gpu;
 mod image;
 
 pub use cpu::{render_cpu, RayResult};
-pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL, TRACKING_WGSL};
+pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every

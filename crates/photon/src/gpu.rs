@@ -7,14 +7,12 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, GpuMedium, Light, OPTICS_WGSL};
-use nimbus_volume::{MajorantGrid, Volume};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_volume::Volume;
 
 use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup};
 use crate::{DistanceSampling, PhotonError, PhotonMap, PhotonParams, TraceStats};
 
-/// The WGSL twin of `nimbus_tracking` (majorant DDA, Simpson / exponential / delta free
-/// paths), `shaders/tracking.wgsl`.
-pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 /// The photon kernel, `shaders/photon.wgsl`.
 pub const PHOTON_WGSL: &str = include_str!("../../../shaders/photon.wgsl");
 
@@ -22,37 +20,6 @@ const WORKGROUP_SIZE: u32 = 64;
 /// Most paths one dispatch traces; bounds the path buffer and (with the yield) the record one.
 const MAX_CHUNK: u64 = 1 << 18;
 const RECORD_BYTES: u64 = size_of::<GpuRecord>() as u64;
-
-/// WGSL `MajorantGridInfo` (tracking.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub(crate) struct GpuMajorantInfo {
-    pub origin: [i32; 3],
-    pub cell_size: f32,
-    pub dims: [i32; 3],
-    pub outside: f32,
-}
-
-impl GpuMajorantInfo {
-    pub fn new(grid: &MajorantGrid, outside: f32) -> Self {
-        GpuMajorantInfo {
-            origin: grid.origin().to_array(),
-            cell_size: grid.cell_size() as f32,
-            dims: grid.dims().to_array(),
-            outside,
-        }
-    }
-}
-
-/// The majorant bounds as a storage buffer (one dummy value for an empty grid: bindings
-/// cannot be empty).
-pub(crate) fn majorant_buffer(ctx: &GpuContext, grid: &MajorantGrid) -> Result<wgpu::Buffer, GpuError> {
-    if grid.values().is_empty() {
-        ctx.storage_buffer("majorant", &[0f32])
-    } else {
-        ctx.storage_buffer("majorant", grid.values())
-    }
-}
 
 /// WGSL `PhotonUniforms`.
 #[repr(C)]
@@ -329,7 +296,6 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuMajorantInfo>(), 32);
         assert_eq!(size_of::<GpuPhotonParams>(), 112);
         assert_eq!(size_of::<GpuPhotonLight>(), 80);
         assert_eq!(size_of::<GpuRecord>(), 48);

@@ -41,7 +41,7 @@ mod cpu;
 mod gpu;
 
 pub use cpu::trace_cpu;
-pub use gpu::{trace_gpu, PHOTON_WGSL, TRACKING_WGSL};
+pub use gpu::{trace_gpu, PHOTON_WGSL};
 
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Light, Medium};

@@ -18,9 +18,16 @@
 //!   unbiased;
 //! - [`MediumRay::transmittance_ratio`]: ratio tracking, an unbiased transmittance estimate.
 //!
+//! The WGSL twin is `shaders/tracking.wgsl` ([`TRACKING_WGSL`], with [`GpuMajorantInfo`] and
+//! [`majorant_buffer`] for the host side).
+//!
 //! Rays are given in world space with a unit direction, so every distance is a world length;
 //! they are carried into index space once (the transform is affine, so the parameter t is the
 //! same in both).
+
+mod gpu;
+
+pub use gpu::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 
 use glam::DVec3;
 use nimbus_optics::Rng;
