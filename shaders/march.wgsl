@@ -30,9 +30,12 @@ struct MarchUniforms {
     flags: u32,
     width: u32,
     pixel_count: u32,
+    // Large images are marched in tiles of consecutive pixels (the host's MAX_TILE_PIXELS):
+    // this dispatch covers pixels first_pixel .. first_pixel + tile_pixels, and writes them
+    // from pixels[0].
+    first_pixel: u32,
+    tile_pixels: u32,
     _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 struct PixelOut {
@@ -161,10 +164,11 @@ const WORKGROUP_SIZE: u32 = 64u;
 @compute @workgroup_size(64)
 fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_index) lid: u32) {
-    let index = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
-    if (index >= params.pixel_count) {
+    let local = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (local >= params.tile_pixels) {
         return;
     }
+    let index = params.first_pixel + local;
     let px = f32(index % params.width);
     let py = f32(index / params.width);
     var rng = rng_new(params.seed, vec2<u32>(index, 0u), MARCH_DOMAIN);
@@ -186,5 +190,5 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         }
     }
     let inv = 1.0 / f32(params.spp);
-    pixels[index] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth);
+    pixels[local] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth);
 }

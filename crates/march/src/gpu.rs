@@ -17,6 +17,9 @@ pub const NOISE_WGSL: &str = include_str!("../../../shaders/noise.wgsl");
 pub const MARCH_WGSL: &str = include_str!("../../../shaders/march.wgsl");
 
 const WORKGROUP_SIZE: u32 = 64;
+/// Most pixels one dispatch marches (128 MiB of results): large images go in tiles, so the
+/// result buffer stays within every device's storage-binding limit, read-back memory stays
+/// bounded, and no single dispatch runs long enough to trip a desktop GPU's watchdog.
 
 /// How the GPU backend reads the illumination cache.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -33,9 +36,25 @@ pub enum CacheLookup {
 }
 
 /// Options of [`render_gpu_with`] that have no CPU counterpart.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct GpuMarchOptions {
     pub cache_lookup: CacheLookup,
+    /// Most pixels per dispatch (further capped by the device's storage-binding limit).
+    pub max_tile_pixels: u64,
+}
+
+impl GpuMarchOptions {
+    /// Most pixels one dispatch marches by default (128 MiB of results): large images go in
+    /// tiles, so the result buffer stays within every device's storage-binding limit,
+    /// read-back memory stays bounded, and no single dispatch runs long enough to trip a
+    /// desktop GPU's watchdog.
+    pub const DEFAULT_MAX_TILE_PIXELS: u64 = 1 << 22;
+}
+
+impl Default for GpuMarchOptions {
+    fn default() -> Self {
+        GpuMarchOptions { cache_lookup: CacheLookup::default(), max_tile_pixels: Self::DEFAULT_MAX_TILE_PIXELS }
+    }
 }
 
 /// WGSL `MarchUniforms`.
@@ -59,7 +78,11 @@ struct GpuMarchParams {
     flags: u32,
     width: u32,
     pixel_count: u32,
-    _pad: [u32; 3],
+    /// Global index of the first pixel of this dispatch's tile.
+    first_pixel: u32,
+    /// Pixels in this tile.
+    tile_pixels: u32,
+    _pad: u32,
 }
 
 /// WGSL `PixelOut`.
@@ -166,34 +189,44 @@ fn march_pixels(
             limit: u32::MAX as u64,
             limit_name: "u32 pixel index",
         })?,
-        _pad: [0; 3],
+        first_pixel: 0,
+        tile_pixels: 0,
+        _pad: 0,
     };
-    let uniform_buffer = ctx.uniform_buffer("march params", &uniforms)?;
     let majorant_buffer = majorant_buffer(ctx, &majorant)?;
-    let out = ctx.storage_buffer_zeroed("march pixels", pixel_count * size_of::<GpuPixel>() as u64)?;
-
+    let limits = ctx.limits();
+    let binding_pixels = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / size_of::<GpuPixel>() as u64;
+    let tile = pixel_count.min(options.max_tile_pixels).min(binding_pixels).max(1);
+    let out = ctx.storage_buffer_zeroed("march pixels", tile * size_of::<GpuPixel>() as u64)?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-    let mut group_entries = single.bind_group_entries(0).to_vec();
-    group_entries.extend(multiple.bind_group_entries(4));
-    group_entries.extend([
-        wgpu::BindGroupEntry { binding: 8, resource: uniform_buffer.as_entire_binding() },
-        wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
-        wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
-    ]);
-    let group = ctx.scoped("march bind group", || {
-        ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("march"), layout: &layout, entries: &group_entries })
-    })?;
-    ctx.dispatch_1d("march", &pipeline, &[&volume_group, &group], pixel_count, WORKGROUP_SIZE)?;
-    let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
-    Ok(pixels
-        .iter()
-        .map(|p| RayResult {
+
+    let mut result = Vec::with_capacity(pixel_count as usize);
+    let mut first = 0u64;
+    while first < pixel_count {
+        let count = tile.min(pixel_count - first);
+        let tile_uniforms = GpuMarchParams { first_pixel: first as u32, tile_pixels: count as u32, ..uniforms };
+        let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
+        let mut group_entries = single.bind_group_entries(0).to_vec();
+        group_entries.extend(multiple.bind_group_entries(4));
+        group_entries.extend([
+            wgpu::BindGroupEntry { binding: 8, resource: uniform_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
+        ]);
+        let group = ctx.scoped("march bind group", || {
+            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("march"), layout: &layout, entries: &group_entries })
+        })?;
+        ctx.dispatch_1d("march", &pipeline, &[&volume_group, &group], count, WORKGROUP_SIZE)?;
+        let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
+        result.extend(pixels[..count as usize].iter().map(|p| RayResult {
             single: Vec3::from(p.single),
             multiple: Vec3::from(p.multiple),
             transmittance: p.transmittance,
             depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
-        })
-        .collect())
+        }));
+        first += count;
+    }
+    Ok(result)
 }
 
 #[cfg(test)]

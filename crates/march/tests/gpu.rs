@@ -69,7 +69,8 @@ fn assert_close(name: &str, d: &Diff, pixels: usize) {
     assert!(d.depth_mismatches <= pixels / 200, "{name}: {} depth mismatches", d.depth_mismatches);
 }
 
-const EXACT: GpuMarchOptions = GpuMarchOptions { cache_lookup: CacheLookup::Exact };
+const EXACT: GpuMarchOptions =
+    GpuMarchOptions { cache_lookup: CacheLookup::Exact, max_tile_pixels: GpuMarchOptions::DEFAULT_MAX_TILE_PIXELS };
 
 fn scene(centre: DVec3) -> (nimbus_volume::Volume<f32>, nimbus_cache::IlluminationCache, MarchParams) {
     let v = cloud(32, 3.0, centre);
@@ -143,6 +144,17 @@ fn hardware_filtered_cache_lookups_stay_close() {
     // which here is a fraction of its value. Density is still exact, so alpha is too.
     assert!(d.rgb <= 5e-3, "rgb {}", d.rgb);
     assert!(d.alpha <= 1e-5, "alpha {}", d.alpha);
+}
+
+#[test]
+fn tiled_dispatches_equal_one_dispatch() {
+    // Tiles of 1000 pixels start mid-row; every pixel keeps its own random stream.
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    p.spp = 2;
+    let whole = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let tiled = render_gpu_with(ctx, &v, &cache, &p, &GpuMarchOptions { max_tile_pixels: 1000, ..EXACT }).unwrap();
+    assert_eq!(whole, tiled);
 }
 
 #[test]

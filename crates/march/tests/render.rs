@@ -175,3 +175,22 @@ fn one_pixel_images_and_huge_world_offsets() {
     assert!(worst < 1e-3, "offset scene differs by {worst}");
     assert!(a.mean_rgb().x > 0.0);
 }
+
+#[test]
+fn a_4096_square_image_renders_and_encodes() {
+    // 16.7M pixels, the ball a small spot mid-frame: the cost is the image's size (per-pixel
+    // set-up, rays that miss, assembly, EXR encoding), not marching.
+    let v = filled(IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
+    let cache = constant_cache(&v, Vec3::ONE);
+    let camera = Camera::new(DVec3::new(0.5, -12.0, 1.0), DVec3::ZERO, DVec3::Z, 30.0, 4096, 4096).unwrap();
+    let mut p = params(camera, VOXEL / 2.0);
+    p.aovs = false;
+    let image = render_cpu(&v, &cache, &p).unwrap();
+    assert_eq!((image.width, image.height, image.rgba.len()), (4096, 4096, 4096 * 4096));
+    assert_eq!(image.nonfinite, 0);
+    let covered = image.rgba.iter().filter(|c| c.w > 0.5).count();
+    assert!((1000..4096 * 4096 / 10).contains(&covered), "the ball covers {covered} pixels");
+    let exr = image.to_exr().unwrap();
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&exr), true).unwrap();
+    assert_eq!(meta.headers[0].layer_size, exr::math::Vec2(4096, 4096));
+}
