@@ -361,3 +361,38 @@ fn track_sample_delta(r: TrackRay, g: MajorantGridInfo, rng: ptr<function, Rng>)
     }
     return TRACK_ESCAPED;
 }
+
+// MediumRay::transmittance_ratio over [0, t_max]: the product of (1 - sigma_t / majorant) at
+// tentative collisions, Russian roulette (survive with 1/2, weight x2) once it falls below
+// `roulette_below`; the same draws as the CPU (an f64-style pair per tentative collision and
+// per roulette test).
+fn track_transmittance_ratio(r: TrackRay, g: MajorantGridInfo, t_max: f32, roulette_below: f32,
+                             rng: ptr<function, Rng>) -> f32 {
+    var tr = 1.0;
+    var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, t_max);
+    loop {
+        let seg = majorant_walk_next(&walk, g);
+        if (!seg.valid) {
+            break;
+        }
+        if (!track_segment_has_medium(seg, r.extinction)) {
+            continue;
+        }
+        let majorant = seg.majorant * r.extinction;
+        var t = seg.t_start;
+        loop {
+            t = t + rng_next_exp1(rng) / majorant;
+            if (t >= seg.t_end) {
+                break;
+            }
+            tr = tr * (1.0 - track_sigma_t(r, t) / majorant);
+            if (tr < roulette_below) {
+                if (rng_next_f64_as_f32(rng) >= 0.5) {
+                    return 0.0;
+                }
+                tr = tr * 2.0;
+            }
+        }
+    }
+    return tr;
+}

@@ -1,5 +1,6 @@
 //! vdbmarch: cache VDB -> EXR image (and PNG preview), by ray marching the density with
-//! illumination-cache lookups. The engine is `nimbus-march`.
+//! illumination-cache lookups; with `--reference`, density VDB -> EXR by an unbiased path
+//! tracer (the ground truth, needing no photons or cache). The engine is `nimbus-march`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -7,10 +8,14 @@ use std::process::ExitCode;
 use clap::Parser;
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
-use nimbus_cli::{parse_rgb, read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, MediumArgs, Output, PipelineMeta};
-use nimbus_march::{render_cpu, render_gpu, MarchError, MarchParams};
-use nimbus_vdb::{GridKind, VdbFile};
+use nimbus_cli::Log;
+use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
+use nimbus_cli::{
+    parse_rgb, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
+    PipelineMeta,
+};
+use nimbus_march::{reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams};
 
 #[derive(Parser, Debug)]
 #[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
@@ -36,6 +41,17 @@ struct Args {
     medium: MediumArgs,
     #[command(flatten)]
     camera: CameraArgs,
+    /// Render the ground truth instead: an unbiased path tracer (delta tracking, next-event
+    /// estimation with ratio tracking, all orders of scattering) over the density alone;
+    /// the input needs no photons or cache. Slow: use --spp 64 and up.
+    #[arg(long)]
+    reference: bool,
+    /// With --reference: most scattering events per path.
+    #[arg(long, default_value_t = ReferenceParams::DEFAULT_MAX_DEPTH, requires = "reference")]
+    max_depth: u32,
+    /// With --reference: the lights (default: what the file records, else one sun from above).
+    #[command(flatten)]
+    lights: LightArgs,
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
@@ -66,17 +82,6 @@ fn main() -> ExitCode {
     run(move || vdbmarch(args))
 }
 
-fn read_cache_grid(file: &VdbFile, name: &str) -> Result<Option<Volume<Vec3>>, Failure> {
-    if !file.has_grid(name) {
-        return Ok(None);
-    }
-    let info = file.grid(name).map_err(|e| Failure::input(e, file.label()))?;
-    if info.kind != GridKind::Vec3 {
-        return Err(Failure::input(format!("grid '{name}' is not a vec3 grid"), file.label()));
-    }
-    file.read_vec3(name).map(Some).map_err(|e| Failure::input(e, file.label()))
-}
-
 fn vdbmarch(args: Args) -> Result<(), Failure> {
     let log = args.common.log("vdbmarch");
     let input = Input::from_arg(args.input.as_deref())?;
@@ -88,40 +93,7 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     }
     let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
     let (_, density) = read_density(&file, args.grid.as_deref())?;
-    let cache = IlluminationCache { li_single: read_cache_grid(&file, "Li_single")?, li_multiple: read_cache_grid(&file, "Li_multiple")? };
-    if cache.li_single.is_none() && cache.li_multiple.is_none() {
-        log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
-    }
-    let meta = PipelineMeta::of(&file);
-    let voxel = density.transform().voxel_size();
-    let params = MarchParams {
-        medium: args.medium.resolve(&meta, &log, Some("the cache was baked with"))?,
-        camera: args.camera.resolve(&meta, density.world_bounds(), &log, Some("the cache was baked for"))?,
-        step: args.step.unwrap_or(voxel.length() / 3.0),
-        spp: args.spp,
-        background: args.background,
-        offset_noise: args.offset_noise,
-        noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),
-        noise_octaves: 3,
-        min_transmittance: args.min_transmittance,
-        seed: args.seed.or(meta.seed()).unwrap_or(0),
-        aovs: args.aovs,
-    };
-    params.validate().map_err(Failure::usage)?;
-    let device = args.common.compute_device(&log)?;
-    let image = log
-        .stage(
-            "march",
-            || match device.gpu() {
-                Some(ctx) => render_gpu(ctx, &density, &cache, &params),
-                None => render_cpu(&density, &cache, &params),
-            },
-            |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
-        )
-        .map_err(|e| match e {
-            MarchError::Param(_) => Failure::usage(e),
-            MarchError::Gpu(_) => Failure::runtime(e, "GPU ray marcher"),
-        })?;
+    let image = if args.reference { reference(&args, &file, &density, &log)? } else { march(&args, &file, &density, &log)? };
     if image.nonfinite > 0 {
         log.warn(format!("{} pixels came out non-finite and were set to zero", image.nonfinite));
     }
@@ -133,4 +105,87 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     }
     log.finish();
     Ok(())
+}
+
+fn march_failure(e: MarchError, what: &str) -> Failure {
+    match e {
+        MarchError::Param(_) => Failure::usage(e),
+        MarchError::Gpu(_) => Failure::runtime(e, what),
+    }
+}
+
+/// The path-traced ground truth: medium, lights and camera from flags, else the file.
+fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<Image, Failure> {
+    let meta = PipelineMeta::of(file);
+    let march_only = [
+        (args.step.is_some(), "--step"),
+        (args.offset_noise != 0.0, "--offset-noise"),
+        (args.noise_scale.is_some(), "--noise-scale"),
+    ];
+    for (given, flag) in march_only {
+        if given {
+            log.warn(format!("{flag} is for ray marching; the reference path tracer ignores it"));
+        }
+    }
+    let params = ReferenceParams {
+        medium: args.medium.resolve(&meta, log, None)?,
+        lights: args.lights.resolve(&meta, log, None)?,
+        camera: args.camera.resolve(&meta, density.world_bounds(), log, None)?,
+        spp: args.spp,
+        max_depth: args.max_depth,
+        background: args.background,
+        seed: args.seed.or(meta.seed()).unwrap_or(0),
+        aovs: args.aovs,
+    };
+    params.validate().map_err(Failure::usage)?;
+    let device = args.common.compute_device(log)?;
+    let pixels = params.camera.width() as u64 * params.camera.height() as u64;
+    let bar = log.progress("paths", pixels);
+    let image = log.stage(
+        "path trace",
+        || match device.gpu() {
+            Some(ctx) => render_reference_gpu(ctx, density, &params, reference_tile_pixels(), &|n| bar.inc(n)),
+            None => render_reference_cpu(density, &params, &|n| bar.inc(n)),
+        },
+        |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
+    );
+    bar.finish();
+    image.map_err(|e| march_failure(e, "reference path tracer"))
+}
+
+/// The marched image from the illumination cache.
+fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<Image, Failure> {
+    if args.lights.given().is_some() {
+        log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
+    }
+    let cache = IlluminationCache { li_single: read_vec3_grid(file, "Li_single")?, li_multiple: read_vec3_grid(file, "Li_multiple")? };
+    if cache.li_single.is_none() && cache.li_multiple.is_none() {
+        log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
+    }
+    let meta = PipelineMeta::of(file);
+    let voxel = density.transform().voxel_size();
+    let params = MarchParams {
+        medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
+        camera: args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?,
+        step: args.step.unwrap_or(voxel.length() / 3.0),
+        spp: args.spp,
+        background: args.background,
+        offset_noise: args.offset_noise,
+        noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),
+        noise_octaves: 3,
+        min_transmittance: args.min_transmittance,
+        seed: args.seed.or(meta.seed()).unwrap_or(0),
+        aovs: args.aovs,
+    };
+    params.validate().map_err(Failure::usage)?;
+    let device = args.common.compute_device(log)?;
+    log.stage(
+        "march",
+        || match device.gpu() {
+            Some(ctx) => render_gpu(ctx, density, &cache, &params),
+            None => render_cpu(density, &cache, &params),
+        },
+        |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
+    )
+    .map_err(|e| march_failure(e, "GPU ray marcher"))
 }

@@ -25,4 +25,4 @@ pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
-pub use vdbio::{read_density, read_vdb, write_vdb};
+pub use vdbio::{read_density, read_vdb, read_vec3_grid, write_vdb};

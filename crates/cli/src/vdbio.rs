@@ -45,6 +45,18 @@ pub fn read_density(file: &VdbFile, grid: Option<&str>) -> Result<(String, Volum
     Ok((name, volume))
 }
 
+/// A vec3 grid (e.g. `Li_single`), or `None` when the file has no grid of that name.
+pub fn read_vec3_grid(file: &VdbFile, name: &str) -> Result<Option<Volume<glam::Vec3>>, Failure> {
+    if !file.has_grid(name) {
+        return Ok(None);
+    }
+    let info = file.grid(name).map_err(|e| Failure::input(e, file.label()))?;
+    if info.kind != GridKind::Vec3 {
+        return Err(Failure::input(format!("grid '{name}' is not a vec3 grid"), file.label()));
+    }
+    file.read_vec3(name).map(Some).map_err(|e| Failure::input(e, file.label()))
+}
+
 /// Writes the output VDB to a file (atomically) or stdout.
 pub fn write_vdb(file: &VdbFile, args: &VdbOutputArgs) -> Result<(), Failure> {
     let output = Output::from_arg(args.output.as_deref())?;

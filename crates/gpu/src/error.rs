@@ -33,6 +33,10 @@ pub enum GpuError {
     #[error("{what} needs {size} bytes, above the device limit {limit} ({limit_name})")]
     TooLarge { what: String, size: u64, limit: u64, limit_name: &'static str },
 
+    /// Work the adapter would get wrong rather than fail at, refused before it runs.
+    #[error("{0}")]
+    BeyondAdapter(String),
+
     #[error("volume does not fit the GPU layout: {0}")]
     VolumeLayout(String),
 

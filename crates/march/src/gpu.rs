@@ -16,7 +16,7 @@ pub const NOISE_WGSL: &str = include_str!("../../../shaders/noise.wgsl");
 /// The march kernel, `shaders/march.wgsl`.
 pub const MARCH_WGSL: &str = include_str!("../../../shaders/march.wgsl");
 
-const WORKGROUP_SIZE: u32 = 64;
+pub(crate) const WORKGROUP_SIZE: u32 = 64;
 /// Most pixels one dispatch marches (128 MiB of results): large images go in tiles, so the
 /// result buffer stays within every device's storage-binding limit, read-back memory stays
 /// bounded, and no single dispatch runs long enough to trip a desktop GPU's watchdog.
@@ -85,10 +85,10 @@ struct GpuMarchParams {
     _pad: u32,
 }
 
-/// WGSL `PixelOut`.
+/// WGSL `PixelOut` (march.wgsl and reference.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct GpuPixel {
+pub(crate) struct GpuPixel {
     single: [f32; 3],
     transmittance: f32,
     multiple: [f32; 3],
@@ -120,8 +120,31 @@ pub fn render_gpu_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
+    if ctx.info.is_software {
+        let steps = longest_march(density, params);
+        if steps > SOFTWARE_MAX_STEPS {
+            return Err(MarchError::Gpu(GpuError::BeyondAdapter(format!(
+                "a pixel's march of up to {steps} steps ({} spp) is more than a software Vulkan adapter runs whole \
+                 (llvmpipe ends loops after 65535 iterations, nested ones included, without an error); \
+                 use --device cpu or a longer --step",
+                params.spp
+            ))));
+        }
+    }
     let pixels = march_pixels(ctx, density, cache, params, options)?;
     Ok(assemble(params, &pixels))
+}
+
+/// Most march steps per pixel a software adapter takes whole: llvmpipe (lavapipe) ends any
+/// loop after 65535 iterations per invocation, nested loops included, without an error, and
+/// a march step costs several; measured on lavapipe: 10,000 steps exact, 15,000 truncated.
+const SOFTWARE_MAX_STEPS: u64 = 8_000;
+
+/// An upper bound on the steps one pixel marches: spp times the grid's diagonal over the step.
+fn longest_march(density: &Volume<f32>, params: &MarchParams) -> u64 {
+    let Some((lo, hi)) = density.world_bounds() else { return 0 };
+    let per_ray = ((hi - lo).length() / params.step).ceil() + 1.0;
+    (per_ray * f64::from(params.spp)).min(u64::MAX as f64) as u64
 }
 
 fn march_pixels(
@@ -194,17 +217,10 @@ fn march_pixels(
         _pad: 0,
     };
     let majorant_buffer = majorant_buffer(ctx, &majorant)?;
-    let limits = ctx.limits();
-    let binding_pixels = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / size_of::<GpuPixel>() as u64;
-    let tile = pixel_count.min(options.max_tile_pixels).min(binding_pixels).max(1);
-    let out = ctx.storage_buffer_zeroed("march pixels", tile * size_of::<GpuPixel>() as u64)?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-
-    let mut result = Vec::with_capacity(pixel_count as usize);
-    let mut first = 0u64;
-    while first < pixel_count {
-        let count = tile.min(pixel_count - first);
-        let tile_uniforms = GpuMarchParams { first_pixel: first as u32, tile_pixels: count as u32, ..uniforms };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels: options.max_tile_pixels };
+    tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
+        let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
         let mut group_entries = single.bind_group_entries(0).to_vec();
         group_entries.extend(multiple.bind_group_entries(4));
@@ -213,20 +229,60 @@ fn march_pixels(
             wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
         ]);
-        let group = ctx.scoped("march bind group", || {
+        ctx.scoped("march bind group", || {
             ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("march"), layout: &layout, entries: &group_entries })
-        })?;
-        ctx.dispatch_1d("march", &pipeline, &[&volume_group, &group], count, WORKGROUP_SIZE)?;
-        let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
-        result.extend(pixels[..count as usize].iter().map(|p| RayResult {
-            single: Vec3::from(p.single),
-            multiple: Vec3::from(p.multiple),
-            transmittance: p.transmittance,
-            depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
-        }));
-        first += count;
+        })
+    })
+}
+
+/// A per-pixel kernel (one invocation per pixel writing a WGSL `PixelOut`) run over an image
+/// in tiles of consecutive pixels: the result buffer stays within every device's
+/// storage-binding limit, read-back memory stays bounded, and no single dispatch runs long
+/// enough to trip a desktop GPU's watchdog.
+pub(crate) struct PixelTiles<'a> {
+    pub pipeline: &'a wgpu::ComputePipeline,
+    /// Group 0: the density volume.
+    pub volume_group: &'a wgpu::BindGroup,
+    pub pixel_count: u64,
+    pub max_tile_pixels: u64,
+}
+
+impl PixelTiles<'_> {
+    /// `group(first, count, pass, out)` makes group 1 for pass `pass` (of `passes` dispatches
+    /// per tile, each seeing what the previous left in `out`) over the tile of `count` pixels
+    /// from `first`, written to `out` from its start; `progress` hears each finished tile's
+    /// pixel count.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        passes: u32,
+        progress: &dyn Fn(u64),
+        group: impl Fn(u32, u32, u32, &wgpu::Buffer) -> Result<wgpu::BindGroup, GpuError>,
+    ) -> Result<Vec<RayResult>, GpuError> {
+        let limits = ctx.limits();
+        let binding_pixels = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size) / size_of::<GpuPixel>() as u64;
+        let tile = self.pixel_count.min(self.max_tile_pixels).min(binding_pixels).max(1);
+        let out = ctx.storage_buffer_zeroed("pixels", tile * size_of::<GpuPixel>() as u64)?;
+        let mut result = Vec::with_capacity(self.pixel_count as usize);
+        let mut first = 0u64;
+        while first < self.pixel_count {
+            let count = tile.min(self.pixel_count - first);
+            for pass in 0..passes {
+                let group = group(first as u32, count as u32, pass, &out)?;
+                ctx.dispatch_1d("pixels", self.pipeline, &[self.volume_group, &group], count, WORKGROUP_SIZE)?;
+            }
+            let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
+            result.extend(pixels[..count as usize].iter().map(|p| RayResult {
+                single: Vec3::from(p.single),
+                multiple: Vec3::from(p.multiple),
+                transmittance: p.transmittance,
+                depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
+            }));
+            progress(count);
+            first += count;
+        }
+        Ok(result)
     }
-    Ok(result)
 }
 
 #[cfg(test)]

@@ -16,6 +16,10 @@
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
+//! `vdbmarch --reference` renders the same image by an unbiased path tracer over the
+//! density alone ([`render_reference_cpu`], [`ReferenceParams`]; see `reference.rs`): the
+//! ground truth every accuracy figure is measured against.
+//!
 //! # Backends
 //!
 //! Both read the same [`MarchParams`], compute one [`RayResult`] per pixel and hand them to
@@ -41,10 +45,12 @@
 mod cpu;
 mod gpu;
 mod image;
+mod reference;
 
 pub use cpu::{render_cpu, RayResult};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
+pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_gpu, ReferenceParams, REFERENCE_WGSL};
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.

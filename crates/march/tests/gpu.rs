@@ -227,3 +227,27 @@ fn wgsl_noise_matches_the_cpu() {
     eprintln!("noise.wgsl vs CPU over {} points: hashes bit-exact, max |perlin| diff {worst_perlin:e}, max |fbm3_vec| diff {worst_fbm:e}", points.len());
     assert!(worst_perlin < 2e-6 && worst_fbm < 2e-6, "perlin {worst_perlin}, fbm {worst_fbm}");
 }
+
+#[test]
+fn marches_longer_than_a_software_adapter_takes_are_refused() {
+    // llvmpipe (lavapipe) silently ends a loop after 65535 iterations per invocation: a
+    // 100k-step ray came back as background. Within the limit the ray is whole; past it a
+    // software adapter refuses with a clear error instead of a wrong image.
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    p.camera = nimbus_optics::Camera::new(DVec3::new(0.0, -5.0, 0.0), DVec3::ZERO, DVec3::Z, 1.0, 1, 1).unwrap();
+    p.step = 3.2 / 4_000.0;
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    assert!((cpu.rgba[0] - gpu.rgba[0]).abs().max_element() <= 1e-3 * cpu.rgba[0].max_element(), "{} vs {}", cpu.rgba[0], gpu.rgba[0]);
+    p.step = 3.2 / 100_000.0;
+    match render_gpu_with(ctx, &v, &cache, &p, &EXACT) {
+        Err(e) if ctx.info.is_software => assert!(e.to_string().contains("--device cpu"), "{e}"),
+        Err(e) => panic!("a hardware adapter should take it: {e}"),
+        Ok(image) => {
+            assert!(!ctx.info.is_software, "a software adapter should refuse");
+            let cpu = render_cpu(&v, &cache, &p).unwrap();
+            assert!((cpu.rgba[0] - image.rgba[0]).abs().max_element() <= 1e-3 * cpu.rgba[0].max_element());
+        }
+    }
+}

@@ -1,0 +1,122 @@
+//! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
+
+use bytemuck::{Pod, Zeroable};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuVolume, GpuVolumeOptions};
+use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_volume::{MajorantGrid, Volume};
+
+use super::ReferenceParams;
+use crate::gpu::PixelTiles;
+use crate::{GpuMarchOptions, Image, MarchError};
+
+/// The reference kernel, `shaders/reference.wgsl`.
+pub const REFERENCE_WGSL: &str = include_str!("../../../../shaders/reference.wgsl");
+
+/// WGSL `ReferenceUniforms`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuReferenceParams {
+    camera: GpuCamera,
+    medium: GpuMedium,
+    grid: GpuMajorantInfo,
+    background: [f32; 3],
+    spp: u32,
+    seed: [u32; 2],
+    max_depth: u32,
+    light_count: u32,
+    width: u32,
+    first_pixel: u32,
+    tile_pixels: u32,
+    first_sample: u32,
+    sample_count: u32,
+    _pad: [u32; 3],
+}
+
+/// Samples per pixel per dispatch (see reference.wgsl: lavapipe's loop limit).
+const SAMPLES_PER_DISPATCH: u32 = 4;
+
+/// Renders the reference on the GPU (tiles of at most `max_tile_pixels`: keep them small
+/// for high spp on a desktop GPU, whose watchdog ends long dispatches); `progress` hears each
+/// finished tile's pixel count.
+pub fn render_reference_gpu(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    params: &ReferenceParams,
+    max_tile_pixels: u64,
+    progress: &dyn Fn(u64),
+) -> Result<Image, MarchError> {
+    params.validate()?;
+    let camera = &params.camera;
+    let pixel_count = camera.width() as u64 * camera.height() as u64;
+    // Every position on the GPU is relative to the eye.
+    let origin = camera.eye();
+    let majorant = MajorantGrid::build(density);
+    let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
+    volume.set_world_origin(ctx, origin);
+    let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+    let layout = ctx.bind_group_layout("reference", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false)])?;
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{REFERENCE_WGSL}"));
+    let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
+    let volume_group = volume.bind_group(ctx, &volume_layout)?;
+
+    let mut lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
+    let light_count = lights.len() as u32;
+    if lights.is_empty() {
+        lights.push(GpuLight::zeroed()); // a binding may not be empty
+    }
+    let light_buffer = ctx.storage_buffer("reference lights", &lights)?;
+    let majorant_buffer = majorant_buffer(ctx, &majorant)?;
+    let uniforms = GpuReferenceParams {
+        camera: GpuCamera::new(camera, origin),
+        medium: GpuMedium::from(&params.medium),
+        grid: GpuMajorantInfo::new(&majorant, density.background()),
+        background: params.background.to_array(),
+        spp: params.spp,
+        seed: split_u64(params.seed),
+        max_depth: params.max_depth,
+        light_count,
+        width: camera.width(),
+        first_pixel: 0,
+        tile_pixels: 0,
+        first_sample: 0,
+        sample_count: SAMPLES_PER_DISPATCH,
+        _pad: [0; 3],
+    };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
+    let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
+    let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
+        let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };
+        let uniform_buffer = ctx.uniform_buffer("reference params", &tile)?;
+        let entries = [
+            wgpu::BindGroupEntry { binding: 0, resource: uniform_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: light_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 2, resource: majorant_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
+        ];
+        ctx.scoped("reference bind group", || {
+            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("reference"), layout: &layout, entries: &entries })
+        })
+    })?;
+    Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
+}
+
+/// Pixels per dispatch that keep a reference dispatch short on any device: a quarter of a
+/// 1024 x 1024 image at 4 paths per pixel.
+pub fn reference_tile_pixels() -> u64 {
+    (GpuMarchOptions::DEFAULT_MAX_TILE_PIXELS / 16).max(1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::reference::{RATIO_ROULETTE, REFERENCE_DOMAIN, ROULETTE_FROM_DEPTH};
+
+    #[test]
+    fn layout_and_constants_match_the_wgsl() {
+        assert_eq!(size_of::<GpuReferenceParams>() % 16, 0);
+        assert!(REFERENCE_WGSL.contains(&format!("REFERENCE_DOMAIN: u32 = 0x{REFERENCE_DOMAIN:08x}u")));
+        assert!(REFERENCE_WGSL.contains(&format!("ROULETTE_FROM_DEPTH: u32 = {ROULETTE_FROM_DEPTH}u")));
+        assert!(REFERENCE_WGSL.contains(&format!("RATIO_ROULETTE: f32 = {RATIO_ROULETTE}")));
+    }
+}

@@ -1,0 +1,202 @@
+//! The reference path tracer (`vdbmarch --reference`) against closed forms and against the
+//! cached chain.
+
+use glam::{DVec3, IVec3, Vec3};
+use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
+use nimbus_optics::{Camera, Light, Medium};
+use nimbus_photon::PhotonMap;
+use nimbus_volume::{Transform, Volume};
+
+const VOXEL: f64 = 0.05;
+
+fn no_progress(_: u64) {}
+
+/// A soft ball with a denser lobe (as in single_scattering.rs).
+fn ball() -> Volume<f32> {
+    let mut v = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0);
+    let r = 14;
+    for x in -r..=r {
+        for y in -r..=r {
+            for z in -r..=r {
+                let p = IVec3::new(x, y, z).as_dvec3() * VOXEL;
+                let ball = (1.0 - p.length() / (r as f64 * VOXEL)).max(0.0);
+                let lobe = (-(p - DVec3::new(0.2, 0.0, 0.15)).length_squared() / 0.02).exp();
+                let d = 3.0 * ball + 6.0 * lobe * ball.min(1.0);
+                if d > 0.0 {
+                    v.set(IVec3::new(x, y, z), d as f32);
+                }
+            }
+        }
+    }
+    v
+}
+
+fn params(medium: Medium, lights: Vec<Light>, camera: Camera, spp: u32) -> ReferenceParams {
+    ReferenceParams { medium, lights, camera, spp, max_depth: ReferenceParams::DEFAULT_MAX_DEPTH, background: Vec3::ZERO, seed: 7, aovs: true }
+}
+
+fn mean(values: impl Iterator<Item = Vec3>) -> Vec3 {
+    let (sum, n) = values.fold((Vec3::ZERO, 0), |(s, n), v| (s + v, n + 1));
+    sum / n as f32
+}
+
+#[test]
+fn slab_transmittance_matches_the_closed_form() {
+    // Unit density |z| <= 10 voxels (the trilinear ramps add half a voxel each side), seen
+    // face-on through a 2 degree lens: tau = extinction * 21 voxels.
+    let mut slab = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0f32);
+    for x in -40..=40 {
+        for y in -40..=40 {
+            for z in -10..=10 {
+                slab.set(IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    let medium = Medium { extinction: 1.0, albedo: Vec3::splat(0.5), g: 0.0 };
+    let camera = Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 2.0, 8, 8).unwrap();
+    let mut p = params(medium, vec![Light::default_sun()], camera, 64);
+    p.background = Vec3::new(1.0, 2.0, 3.0);
+    let image = render_reference_cpu(&slab, &p, &no_progress).unwrap();
+    let expected = (-1.0 * 21.0 * VOXEL).exp();
+    let n = (8 * 8 * 64) as f64;
+    let got = image.aovs.as_ref().unwrap().transmittance.iter().map(|&t| t as f64).sum::<f64>() / 64.0;
+    // Ratio tracking against a tight majorant is a Bernoulli trial in the slab's interior:
+    // the binomial standard error bounds the estimate.
+    let sigma = (expected * (1.0 - expected) / n).sqrt();
+    assert!((got - expected).abs() < 4.0 * sigma, "transmittance {got}, closed form {expected} (sigma {sigma})");
+    // Alpha is 1 - T and the background shows through T.
+    let px = image.rgba[27];
+    let t = image.aovs.as_ref().unwrap().transmittance[27];
+    assert!((px.w - (1.0 - t)).abs() < 1e-6);
+    assert!(px.z >= 3.0 * t - 1e-5);
+}
+
+#[test]
+fn single_scattering_matches_the_cached_chain() {
+    let density = ball();
+    let medium = Medium { extinction: 2.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.4 };
+    let sun = Light::sun(Vec3::new(0.4, 0.2, -0.9).normalize(), Vec3::splat(3.0)).unwrap();
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
+    let cache_params = CacheParams {
+        medium,
+        lights: vec![sun],
+        camera,
+        step: 0.5,
+        cache_scale: 1.0,
+        single: true,
+        multiple: false,
+        gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
+        min_transmittance: 0.0,
+    };
+    let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
+    let march = MarchParams {
+        medium,
+        camera,
+        step: VOXEL / 4.0,
+        spp: 4,
+        background: Vec3::ZERO,
+        offset_noise: 0.0,
+        noise_scale: 1.0,
+        noise_octaves: 1,
+        min_transmittance: 0.0,
+        seed: 3,
+        aovs: true,
+    };
+    let chain = render_cpu(&density, &cache, &march).unwrap();
+    let reference = render_reference_cpu(&density, &params(medium, vec![sun], camera, 256), &no_progress).unwrap();
+    let (c, r) = (chain.aovs.as_ref().unwrap(), reference.aovs.as_ref().unwrap());
+    let (mc, mr) = (mean(c.single.iter().copied()), mean(r.single.iter().copied()));
+    let ratio = mr / mc;
+    eprintln!("single scattering, image mean: reference {mr} / chain {mc} = {ratio}");
+    assert!(mc.x > 0.0);
+    // 320 pixels x 256 paths: the mean's Monte Carlo error is well under 1%.
+    assert!((ratio - Vec3::ONE).abs().max_element() < 0.02, "reference / chain = {ratio}");
+    // Transmittance (alpha) agrees too: the chain marches it, the reference ratio-tracks it.
+    let (tc, tr) = (c.transmittance.iter().sum::<f32>() / 320.0, r.transmittance.iter().sum::<f32>() / 320.0);
+    assert!((tc - tr).abs() < 0.01, "mean transmittance: chain {tc}, reference {tr}");
+    assert!(r.multiple.iter().any(|m| m.x > 0.0), "albedo 0.9 scatters more than once");
+}
+
+#[test]
+fn max_depth_one_and_albedo_zero_leave_no_multiple_scattering() {
+    let density = ball();
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 8, 6).unwrap();
+    let medium = Medium { extinction: 2.0, albedo: Vec3::splat(0.95), g: 0.0 };
+    let mut p = params(medium, vec![Light::default_sun()], camera, 8);
+    p.max_depth = 1;
+    let image = render_reference_cpu(&density, &p, &no_progress).unwrap();
+    let a = image.aovs.as_ref().unwrap();
+    assert!(a.multiple.iter().all(|m| *m == Vec3::ZERO));
+    assert!(a.single.iter().any(|s| s.x > 0.0));
+
+    let black = Medium { albedo: Vec3::ZERO, ..medium };
+    let image = render_reference_cpu(&density, &params(black, vec![Light::default_sun()], camera, 8), &no_progress).unwrap();
+    assert!(image.rgba.iter().all(|c| c.truncate() == Vec3::ZERO));
+    assert!(image.rgba.iter().any(|c| c.w > 0.5), "an absorbing ball still blocks the background");
+}
+
+fn relative_rmse(image: &Image, reference: &Image) -> f64 {
+    let sq: f64 = image.rgba.iter().zip(&reference.rgba).map(|(a, b)| ((a.truncate() - b.truncate()).length_squared()) as f64).sum();
+    let level: f64 = reference.rgba.iter().map(|b| b.truncate().length() as f64).sum::<f64>() / reference.rgba.len() as f64;
+    (sq / image.rgba.len() as f64).sqrt() / level
+}
+
+#[test]
+fn error_halves_when_paths_quadruple_and_renders_repeat() {
+    let density = ball();
+    let medium = Medium { extinction: 3.0, albedo: Vec3::splat(0.9), g: 0.3 };
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
+    let sun = vec![Light::sun(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(2.0)).unwrap()];
+    let converged = render_reference_cpu(&density, &ReferenceParams { seed: 99, ..params(medium, sun.clone(), camera, 4096) }, &no_progress).unwrap();
+    let errors: Vec<f64> = [16, 64, 256]
+        .iter()
+        .map(|&spp| relative_rmse(&render_reference_cpu(&density, &params(medium, sun.clone(), camera, spp), &no_progress).unwrap(), &converged))
+        .collect();
+    eprintln!("relative RMSE at 16/64/256 spp: {errors:?}");
+    for pair in errors.windows(2) {
+        let ratio = pair[0] / pair[1];
+        // 1/sqrt(spp): 2 per quadrupling (the 4096-spp stand-in's own noise shrinks the last ratio a little).
+        assert!((1.6..2.5).contains(&ratio), "error ratio {ratio} for 4x paths: {errors:?}");
+    }
+    let again = render_reference_cpu(&density, &params(medium, sun, camera, 16), &no_progress).unwrap();
+    assert_eq!(relative_rmse(&again, &converged), errors[0], "same seed, same image");
+}
+
+#[test]
+fn gpu_and_cpu_agree_in_distribution() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let density = ball();
+    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.85, 0.8), g: 0.3 };
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
+    let lights = vec![
+        Light::sun(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(2.0)).unwrap(),
+        Light::point(DVec3::new(0.5, -1.0, 1.0), Vec3::splat(0.5)).unwrap(),
+    ];
+    let p = params(medium, lights, camera, 256);
+    let cpu = render_reference_cpu(&density, &p, &no_progress).unwrap();
+    // Tiles of 50 pixels: the tile loop and progress run too.
+    let done = std::sync::atomic::AtomicU64::new(0);
+    let gpu = render_reference_gpu(ctx, &density, &p, 50, &|n| {
+        done.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+    })
+    .unwrap();
+    assert_eq!(done.into_inner(), 108);
+    let (c, g) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+    for (name, a, b) in [("single", &c.single, &g.single), ("multiple", &c.multiple, &g.multiple)] {
+        let (ma, mb) = (mean(a.iter().copied()), mean(b.iter().copied()));
+        eprintln!("{name}: cpu {ma} gpu {mb}");
+        assert!(ma.x > 0.0);
+        // 108 pixels x 256 paths each: image means within 3%.
+        assert!(((mb - ma) / ma).abs().max_element() < 0.03, "{name}: cpu {ma}, gpu {mb}");
+    }
+    let (ta, tb) = (c.transmittance.iter().sum::<f32>() / 108.0, g.transmittance.iter().sum::<f32>() / 108.0);
+    assert!((ta - tb).abs() < 0.01, "transmittance: cpu {ta}, gpu {tb}");
+    // Both draw the same streams, so most pixels agree to f32 rounding; a path that turns
+    // otherwise at an f32/f64 decision changes its pixel. (Before samples went in separate
+    // dispatches, lavapipe's 65535-iteration loop cap truncated whole SIMD groups of pixels
+    // to about half their value: this catches that.)
+    let close = cpu.rgba.iter().zip(&gpu.rgba).filter(|(a, b)| (**a - **b).abs().max_element() <= 1e-3 * a.max_element().max(1e-3)).count();
+    eprintln!("{close} of 108 pixels equal to 1e-3");
+    assert!(close >= 80, "only {close} of 108 pixels agree to 1e-3");
+}
