@@ -1,0 +1,378 @@
+//! The scenes, the ladder of quality settings, and running the tools.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+
+use crate::image::{compare, read};
+use crate::Args;
+
+/// A bundled scene: the flags the demo renders it with.
+struct Scene {
+    name: &'static str,
+    particles: &'static str,
+    density: &'static [&'static str],
+    /// Medium and lights (vdbphoton records them; the reference takes them directly).
+    optics: &'static [&'static str],
+    camera: &'static [&'static str],
+    voxel: f64,
+}
+
+const SCENES: [Scene; 2] = [
+    Scene {
+        name: "cloud",
+        particles: "data/cloud.ply",
+        density: &["--voxel-size", "2"],
+        optics: &["--extinction", "30", "--albedo", "0.95", "--g", "0.6", "--sun", "dir=0.5,0.3,-0.8,irradiance=4"],
+        camera: &["--eye", "170,-300,160", "--look-at", "170,180,10"],
+        voxel: 2.0,
+    },
+    Scene {
+        name: "plume",
+        particles: "data/plume.ply",
+        density: &["--voxel-size", "1"],
+        optics: &["--extinction", "40", "--albedo", "0.8", "--g", "0.3", "--sun", "dir=-0.7,0.5,-0.5,irradiance=5"],
+        camera: &[],
+        voxel: 1.0,
+    },
+];
+
+/// One rung of the ladder.
+#[derive(Clone, Debug)]
+pub struct Rung {
+    pub name: String,
+    pub photons: u64,
+    pub distance: &'static str,
+    pub neighbours: u32,
+    pub cache_scale: f64,
+    /// March step over the default (a third of a voxel diagonal).
+    pub step_factor: f64,
+    pub spp: u32,
+}
+
+impl Rung {
+    fn new(name: &str, photons: u64, distance: &'static str, neighbours: u32, cache_scale: f64, step_factor: f64, spp: u32) -> Rung {
+        Rung { name: name.into(), photons, distance, neighbours, cache_scale, step_factor, spp }
+    }
+}
+
+/// The presets (`--quality`): what the tools do with each.
+pub fn presets() -> [Rung; 3] {
+    [
+        Rung::new("draft", 50_000, "delta", 32, 4.0, 2.0, 1),
+        Rung::new("preview", 200_000, "delta", 64, 2.0, 1.0, 1),
+        Rung::new("final", 800_000, "delta", 128, 1.0, 0.5, 4),
+    ]
+}
+
+/// The ladder: the presets, and one setting at a time varied around `preview` (the tools'
+/// defaults), including the paper's distance modes at a quarter of the photons (they cost
+/// more per photon: compare them at equal time on the plot).
+fn ladder(quick: bool) -> Vec<Rung> {
+    let p = Rung::new("", 200_000, "delta", 64, 2.0, 1.0, 1);
+    let vary = |name: &str, f: &dyn Fn(&mut Rung)| {
+        let mut r = p.clone();
+        f(&mut r);
+        r.name = name.into();
+        r
+    };
+    let mut rungs: Vec<Rung> = presets().into();
+    if quick {
+        rungs.truncate(2);
+        return rungs;
+    }
+    rungs.extend([
+        vary("photons 50k", &|r| r.photons = 50_000),
+        vary("photons 800k", &|r| r.photons = 800_000),
+        vary("exponential 50k", &|r| {
+            r.photons = 50_000;
+            r.distance = "exponential"
+        }),
+        vary("simpson 50k", &|r| {
+            r.photons = 50_000;
+            r.distance = "simpson"
+        }),
+        vary("delta 50k", &|r| r.photons = 50_000),
+        vary("neighbours 16", &|r| r.neighbours = 16),
+        vary("neighbours 256", &|r| r.neighbours = 256),
+        vary("cache scale 1", &|r| r.cache_scale = 1.0),
+        vary("cache scale 4", &|r| r.cache_scale = 4.0),
+        vary("step x2", &|r| r.step_factor = 2.0),
+        vary("step x0.5", &|r| r.step_factor = 0.5),
+        vary("spp 4", &|r| r.spp = 4),
+    ]);
+    // "delta 50k" repeats "photons 50k"; keep one.
+    rungs.retain(|r| r.name != "delta 50k");
+    rungs
+}
+
+/// One measured rung.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub scene: &'static str,
+    pub rung: Rung,
+    pub photon_s: f64,
+    pub cache_s: f64,
+    pub march_s: f64,
+    pub relative_rmse: f64,
+    /// The reference's own noise taken out in quadrature (its RMSE estimated from the
+    /// spp/4 render: e(spp/4)^2 = 5 sigma(spp)^2 for independent 1/sqrt(spp) noise).
+    pub corrected_rmse: f64,
+    pub mean_ratio: f64,
+    pub pareto: bool,
+}
+
+impl Row {
+    pub fn total_s(&self) -> f64 {
+        self.photon_s + self.cache_s + self.march_s
+    }
+}
+
+/// Runs a tool, returning its wall-clock seconds; its stderr goes to `log`.
+fn run_tool(bin: &Path, tool: &str, args: &[String], log: &Path) -> Result<f64> {
+    let start = Instant::now();
+    let stderr = std::fs::File::create(log)?;
+    let status = Command::new(bin.join(tool))
+        .args(args)
+        .stderr(stderr)
+        .status()
+        .with_context(|| format!("running {} (build the tools first: make build)", bin.join(tool).display()))?;
+    let seconds = start.elapsed().as_secs_f64();
+    if !status.success() {
+        bail!("{tool} {} failed ({status}); see {}", args.join(" "), log.display());
+    }
+    Ok(seconds)
+}
+
+fn strings(a: &[&str]) -> Vec<String> {
+    a.iter().map(|s| s.to_string()).collect()
+}
+
+fn is_fresh(output: &Path, inputs: &[&Path]) -> bool {
+    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    match modified(output) {
+        Some(out) => inputs.iter().all(|i| modified(i).is_some_and(|t| t <= out)),
+        None => false,
+    }
+}
+
+/// Runs the ladder on every scene asked for.
+pub fn run(args: &Args) -> Result<Vec<Row>> {
+    let mut rows = Vec::new();
+    for scene in SCENES.iter().filter(|s| args.scenes.is_empty() || args.scenes.iter().any(|n| n == s.name)) {
+        rows.extend(run_scene(args, scene)?);
+    }
+    mark_pareto(&mut rows);
+    print_table(&rows);
+    Ok(rows)
+}
+
+fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
+    let dir = args.out.join(scene.name);
+    std::fs::create_dir_all(&dir)?;
+    let path = |name: &str| -> PathBuf { dir.join(name) };
+    let size = strings(&["--width", &args.width.to_string(), "--height", &args.height.to_string()]);
+    let camera: Vec<String> = strings(scene.camera).into_iter().chain(size.clone()).collect();
+
+    // The density, once.
+    let density = path("density.vdb");
+    if !is_fresh(&density, &[Path::new(scene.particles)]) {
+        let mut a = vec![scene.particles.to_string()];
+        a.extend(strings(scene.density));
+        a.extend(["-o".into(), density.display().to_string()]);
+        let s = run_tool(&args.bin, "particles2vdb", &a, &path("density.log"))?;
+        eprintln!("{}: density in {s:.1} s", scene.name);
+    }
+
+    // The reference, cached under its command line.
+    let reference = path("reference.exr");
+    let mut ref_args = vec!["--reference".to_string(), density.display().to_string()];
+    ref_args.extend(strings(scene.optics));
+    ref_args.extend(camera.clone());
+    let key = |spp: u32| format!("{} --spp {spp}", ref_args.join(" "));
+    let key_file = path("reference.key");
+    let cached = is_fresh(&reference, &[&density]) && std::fs::read_to_string(&key_file).ok().as_deref() == Some(&key(args.reference_spp));
+    if !cached {
+        let mut a = ref_args.clone();
+        a.extend(["--spp".into(), args.reference_spp.to_string(), "-o".into(), reference.display().to_string()]);
+        eprintln!("{}: rendering the reference ({}x{}, {} spp)...", scene.name, args.width, args.height, args.reference_spp);
+        let s = run_tool(&args.bin, "vdbmarch", &a, &path("reference.log"))?;
+        std::fs::write(&key_file, key(args.reference_spp))?;
+        eprintln!("{}: reference in {s:.1} s", scene.name);
+    }
+    let reference_image = read(&reference)?;
+
+    // The reference converges: at spp/16 and spp/4 (other seeds) against itself.
+    let mut errors = Vec::new();
+    for div in [16, 4] {
+        let spp = (args.reference_spp / div).max(1);
+        let out = path(&format!("reference-{spp}.exr"));
+        let mut a = ref_args.clone();
+        a.extend(["--spp".into(), spp.to_string(), "--seed".into(), (1000 + div).to_string(), "-o".into(), out.display().to_string()]);
+        let s = run_tool(&args.bin, "vdbmarch", &a, &path("reference-low.log"))?;
+        let e = compare(&read(&out)?, &reference_image);
+        eprintln!("{}: reference at {spp} spp: {s:.1} s, relative RMSE {:.4} against {} spp", scene.name, e.relative_rmse, args.reference_spp);
+        errors.push(e.relative_rmse);
+    }
+    let reference_noise = errors[1] / 5f64.sqrt();
+    eprintln!("{}: the reference's own relative RMSE is about {reference_noise:.4}", scene.name);
+    eprintln!(
+        "{}: quadrupling paths divides the reference's error by {:.2} (1/sqrt(spp): 2; the {}-spp stand-in's own noise lowers it)",
+        scene.name,
+        errors[0] / errors[1],
+        args.reference_spp
+    );
+
+    // The ladder, each stage run once per distinct input.
+    let mut photon_runs: HashMap<(u64, &str), (PathBuf, f64)> = HashMap::new();
+    let mut cache_runs: HashMap<String, (PathBuf, f64)> = HashMap::new();
+    let mut rows = Vec::new();
+    let default_step = scene.voxel * 3f64.sqrt() / 3.0;
+    for rung in ladder(args.quick) {
+        let pkey = (rung.photons, rung.distance);
+        if !photon_runs.contains_key(&pkey) {
+            let out = path(&format!("photons-{}-{}.vdb", rung.photons, rung.distance));
+            let mut a = vec![density.display().to_string()];
+            a.extend(strings(scene.optics));
+            a.extend(["--photons".into(), rung.photons.to_string(), "--distance".into(), rung.distance.into()]);
+            a.extend(["-o".into(), out.display().to_string()]);
+            let s = run_tool(&args.bin, "vdbphoton", &a, &path("vdbphoton.log"))?;
+            photon_runs.insert(pkey, (out, s));
+        }
+        let (photons, photon_s) = photon_runs[&pkey].clone();
+        let ckey = format!("{}-{}-{}-{}", rung.photons, rung.distance, rung.neighbours, rung.cache_scale);
+        if !cache_runs.contains_key(&ckey) {
+            let out = path(&format!("cache-{ckey}.vdb"));
+            let mut a = vec![photons.display().to_string()];
+            a.extend(camera.clone());
+            a.extend(["--gather-neighbours".into(), rung.neighbours.to_string(), "--cache-scale".into(), rung.cache_scale.to_string()]);
+            a.extend(["-o".into(), out.display().to_string()]);
+            let s = run_tool(&args.bin, "vdbcache", &a, &path("vdbcache.log"))?;
+            cache_runs.insert(ckey.clone(), (out, s));
+        }
+        let (cache, cache_s) = cache_runs[&ckey].clone();
+        let image = path(&format!("image-{}.exr", rung.name.replace(' ', "-")));
+        let a = vec![
+            cache.display().to_string(),
+            "--step".into(),
+            (default_step * rung.step_factor).to_string(),
+            "--spp".into(),
+            rung.spp.to_string(),
+            "-o".into(),
+            image.display().to_string(),
+        ];
+        let march_s = run_tool(&args.bin, "vdbmarch", &a, &path("vdbmarch.log"))?;
+        let e = compare(&read(&image)?, &reference_image);
+        let corrected_rmse = (e.relative_rmse.powi(2) - reference_noise.powi(2)).max(0.0).sqrt();
+        let row = Row {
+            scene: scene.name,
+            rung,
+            photon_s,
+            cache_s,
+            march_s,
+            relative_rmse: e.relative_rmse,
+            corrected_rmse,
+            mean_ratio: e.mean_ratio,
+            pareto: false,
+        };
+        eprintln!("{}: {:<16} {:>7.2} s  rel. RMSE {:.4} ({:.4} less the reference's noise)  mean ratio {:.3}", scene.name, row.rung.name, row.total_s(), row.relative_rmse, row.corrected_rmse, row.mean_ratio);
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Marks, per scene, the rungs no other rung beats in both total time and error.
+fn mark_pareto(rows: &mut [Row]) {
+    let snapshot = rows.to_vec();
+    for row in rows.iter_mut() {
+        row.pareto = !snapshot.iter().any(|o| {
+            o.scene == row.scene
+                && o.total_s() <= row.total_s()
+                && o.relative_rmse <= row.relative_rmse
+                && (o.total_s() < row.total_s() || o.relative_rmse < row.relative_rmse)
+        });
+    }
+}
+
+const HEADER: &str = "scene,rung,photons,distance,neighbours,cache_scale,step_factor,spp,photon_s,cache_s,march_s,total_s,relative_rmse,corrected_rmse,mean_ratio,pareto";
+
+pub fn to_csv(rows: &[Row]) -> String {
+    let mut out = format!("{HEADER}\n");
+    for r in rows {
+        let g = &r.rung;
+        out += &format!(
+            "{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{}\n",
+            r.scene,
+            g.name,
+            g.photons,
+            g.distance,
+            g.neighbours,
+            g.cache_scale,
+            g.step_factor,
+            g.spp,
+            r.photon_s,
+            r.cache_s,
+            r.march_s,
+            r.total_s(),
+            r.relative_rmse,
+            r.corrected_rmse,
+            r.mean_ratio,
+            r.pareto
+        );
+    }
+    out
+}
+
+fn print_table(rows: &[Row]) {
+    println!("| scene | rung | photons | distance | K | cache scale | step | spp | vdbphoton s | vdbcache s | vdbmarch s | total s | rel. RMSE | less ref. noise | mean ratio | Pareto |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for r in rows {
+        let g = &r.rung;
+        println!(
+            "| {} | {} | {} | {} | {} | {} | x{} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.4} | {:.4} | {:.3} | {} |",
+            r.scene,
+            g.name,
+            g.photons,
+            g.distance,
+            g.neighbours,
+            g.cache_scale,
+            g.step_factor,
+            g.spp,
+            r.photon_s,
+            r.cache_s,
+            r.march_s,
+            r.total_s(),
+            r.relative_rmse,
+            r.corrected_rmse,
+            r.mean_ratio,
+            if r.pareto { "*" } else { "" }
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(scene: &'static str, t: f64, e: f64) -> Row {
+        Row { scene, rung: presets()[0].clone(), photon_s: t, cache_s: 0.0, march_s: 0.0, relative_rmse: e, corrected_rmse: e, mean_ratio: 1.0, pareto: false }
+    }
+
+    #[test]
+    fn the_pareto_front_keeps_only_undominated_rungs_per_scene() {
+        let mut rows = vec![row("a", 1.0, 0.5), row("a", 2.0, 0.2), row("a", 3.0, 0.3), row("a", 2.0, 0.2), row("b", 9.0, 0.9)];
+        mark_pareto(&mut rows);
+        let marks: Vec<bool> = rows.iter().map(|r| r.pareto).collect();
+        assert_eq!(marks, [true, true, false, true, true]);
+    }
+
+    #[test]
+    fn csv_has_one_line_per_row_and_the_header() {
+        let csv = to_csv(&[row("a", 1.0, 0.5)]);
+        assert_eq!(csv.lines().count(), 2);
+        assert_eq!(csv.lines().next().unwrap().split(',').count(), csv.lines().nth(1).unwrap().split(',').count());
+    }
+}

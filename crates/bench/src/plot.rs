@@ -1,0 +1,68 @@
+//! The error-versus-time plot: every rung per scene, the Pareto front joined.
+
+use std::path::Path;
+
+use anyhow::{anyhow, Context, Result};
+use plotters::prelude::*;
+use plotters::style::{register_font, FontStyle};
+
+use crate::ladder::Row;
+
+const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+const SIZE: (u32, u32) = (1000, 640);
+
+pub fn error_vs_time(rows: &[Row], png: &Path) -> Result<()> {
+    let rows: Vec<&Row> = rows.iter().filter(|r| r.relative_rmse.is_finite() && r.total_s() > 0.0).collect();
+    if rows.is_empty() {
+        return Err(anyhow!("nothing to plot"));
+    }
+    // ab_glyph draws text from a font we hand it: DejaVu Sans (Debian's fonts-dejavu-core).
+    let font: &'static [u8] = Box::leak(std::fs::read(FONT).with_context(|| format!("reading {FONT} (apt install fonts-dejavu-core)"))?.into_boxed_slice());
+    register_font("sans-serif", FontStyle::Normal, font).map_err(|_| anyhow!("{FONT} is not a usable font"))?;
+
+    let (t0, t1) = rows.iter().fold((f64::MAX, 0.0f64), |(a, b), r| (a.min(r.total_s()), b.max(r.total_s())));
+    let (e0, e1) = rows.iter().fold((f64::MAX, 0.0f64), |(a, b), r| (a.min(r.relative_rmse), b.max(r.relative_rmse)));
+    let mut buffer = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, SIZE).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption("nimbus: error against the path-traced reference vs run time", ("sans-serif", 22))
+            .margin(16)
+            .x_label_area_size(44)
+            .y_label_area_size(64)
+            .build_cartesian_2d((t0 / 1.3..t1 * 1.3).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("vdbphoton + vdbcache + vdbmarch, seconds")
+            .y_desc("relative RMSE (2x2 blocks)")
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene).collect();
+        scenes.dedup();
+        for (i, scene) in scenes.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            let mine: Vec<&&Row> = rows.iter().filter(|r| r.scene == *scene).collect();
+            chart
+                .draw_series(mine.iter().map(|r| Circle::new((r.total_s(), r.relative_rmse), 4, colour.filled())))?
+                .label(*scene)
+                .legend(move |(x, y)| Circle::new((x, y), 4, colour.filled()));
+            chart.draw_series(mine.iter().map(|r| {
+                Text::new(r.rung.name.clone(), (r.total_s() * 1.04, r.relative_rmse), ("sans-serif", 11).into_font().color(&colour))
+            }))?;
+            let mut front: Vec<(f64, f64)> = mine.iter().filter(|r| r.pareto).map(|r| (r.total_s(), r.relative_rmse)).collect();
+            front.sort_by(|a, b| a.0.total_cmp(&b.0));
+            chart.draw_series(LineSeries::new(front, colour.stroke_width(2)))?;
+        }
+        chart.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).label_font(("sans-serif", 14)).draw()?;
+        root.present()?;
+    }
+    let mut out = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut out, SIZE.0, SIZE.1);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.write_header()?.write_image_data(&buffer)?;
+    }
+    std::fs::write(png, out).with_context(|| format!("writing {}", png.display()))
+}
