@@ -10,3 +10,9 @@ run cargo run --locked --release -p nimbus-density --example accuracy
 run cargo bench --locked -p nimbus-photon --bench trace
 run cargo run --locked --release -p nimbus-photon --example figure2
 run cargo bench --locked -p nimbus-march --bench render
+# vdbmarch on the Cloud1-class and smoke-like caches (made by the release tools).
+run scripts/bench-scenes.sh
+run cargo bench --locked -p nimbus-march --bench scenes
+# Run time against error for the whole chain, against the path-traced reference:
+# out/bench/pareto.csv and out/bench/pareto.png.
+run target/release/nimbus-bench --bin target/release

@@ -6,6 +6,7 @@ packages=(
   libopenvdb-dev libboost-dev libclang-dev   # the OpenVDB bridge: headers, bindgen's libclang
   mesa-vulkan-drivers libvulkan1             # lavapipe: the software Vulkan adapter GPU tests run on
   libopenvdb-tools python3-openvdb openexr   # independent readers the tests check our files with
+  fonts-dejavu-core                          # the font nimbus-bench labels its plot with
   g++ pkg-config make
 )
 missing=()

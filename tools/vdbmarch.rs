@@ -12,7 +12,7 @@ use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
 use nimbus_cli::{
-    parse_rgb, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
+    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
     PipelineMeta,
 };
 use nimbus_march::{reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams};
@@ -55,9 +55,13 @@ struct Args {
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
-    /// Jittered samples per pixel.
-    #[arg(long, default_value_t = 1)]
-    spp: u32,
+    /// Jittered samples per pixel (default 1, or the --quality preset's; paths per pixel
+    /// with --reference).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Preset: draft, preview or final (march step and spp; flags override).
+    #[arg(long, value_enum)]
+    quality: Option<Quality>,
     /// Background radiance R,G,B (or one grey value) seen through the volume.
     #[arg(long, value_parser = parse_rgb, default_value = "0")]
     background: Vec3,
@@ -121,6 +125,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         (args.step.is_some(), "--step"),
         (args.offset_noise != 0.0, "--offset-noise"),
         (args.noise_scale.is_some(), "--noise-scale"),
+        (args.quality.is_some(), "--quality"),
     ];
     for (given, flag) in march_only {
         if given {
@@ -131,7 +136,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         medium: args.medium.resolve(&meta, log, None)?,
         lights: args.lights.resolve(&meta, log, None)?,
         camera: args.camera.resolve(&meta, density.world_bounds(), log, None)?,
-        spp: args.spp,
+        spp: args.spp.unwrap_or(1),
         max_depth: args.max_depth,
         background: args.background,
         seed: args.seed.or(meta.seed()).unwrap_or(0),
@@ -164,11 +169,12 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     }
     let meta = PipelineMeta::of(file);
     let voxel = density.transform().voxel_size();
+    let preset = args.quality.map(Quality::settings);
     let params = MarchParams {
         medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
         camera: args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?,
-        step: args.step.unwrap_or(voxel.length() / 3.0),
-        spp: args.spp,
+        step: args.step.unwrap_or(voxel.length() / 3.0 * preset.map_or(1.0, |q| q.step_factor)),
+        spp: args.spp.or(preset.map(|q| q.spp)).unwrap_or(1),
         background: args.background,
         offset_noise: args.offset_noise,
         noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cli::{read_density, read_vdb, run, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
+use nimbus_cli::{read_density, read_vdb, run, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs};
 use nimbus_photon::{trace_cpu, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
@@ -23,15 +23,19 @@ struct Args {
     medium: MediumArgs,
     #[command(flatten)]
     lights: LightArgs,
-    /// Free-path sampling: simpson (Eq. 2), exponential (Eq. 1, biased), delta (unbiased).
-    #[arg(long, default_value = "simpson")]
-    distance: DistanceSampling,
+    /// Free-path sampling: simpson (Eq. 2; the default), exponential (Eq. 1, biased), delta
+    /// (unbiased; what --quality picks).
+    #[arg(long)]
+    distance: Option<DistanceSampling>,
     /// Simpson step, as a fraction of the smallest voxel edge.
     #[arg(long, default_value_t = 0.5)]
     step: f64,
-    /// Photons to store.
-    #[arg(long, default_value_t = 200_000)]
-    photons: u64,
+    /// Photons to store (default 200000, or the --quality preset's).
+    #[arg(long)]
+    photons: Option<u64>,
+    /// Preset: draft, preview or final (photon count and distance mode; flags override).
+    #[arg(long, value_enum)]
+    quality: Option<Quality>,
     /// Stop emitting after this many photons even if fewer were stored.
     #[arg(long, default_value_t = 50_000_000)]
     max_emitted: u64,
@@ -57,12 +61,17 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let (grid, density) = read_density(&file, args.grid.as_deref())?;
     log.verbose(format!("density grid '{grid}': {} active voxels in {} bricks", density.active_voxel_count(), density.brick_count()));
     let meta = PipelineMeta::of(&file);
+    let preset = args.quality.map(Quality::settings);
     let params = PhotonParams {
         medium: args.medium.resolve(&meta, &log, None)?,
         lights: args.lights.resolve(&meta, &log, None)?,
-        distance: args.distance,
+        distance: match (args.distance, preset) {
+            (Some(d), _) => d,
+            (None, Some(q)) => q.distance.parse().map_err(Failure::usage)?,
+            (None, None) => DistanceSampling::Simpson,
+        },
         step: args.step,
-        photons: args.photons,
+        photons: args.photons.or(preset.map(|q| q.photons)).unwrap_or(200_000),
         max_emitted: args.max_emitted,
         max_interactions: args.max_interactions,
         seed: args.seed.or(meta.seed()).unwrap_or(0),

@@ -7,6 +7,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 
+use nimbus_cli::Quality;
+
 use crate::image::{compare, read};
 use crate::Args;
 
@@ -59,27 +61,29 @@ impl Rung {
     }
 }
 
-/// The presets (`--quality`): what the tools do with each.
-pub fn presets() -> [Rung; 3] {
-    [
-        Rung::new("draft", 50_000, "delta", 32, 4.0, 2.0, 1),
-        Rung::new("preview", 200_000, "delta", 64, 2.0, 1.0, 1),
-        Rung::new("final", 800_000, "delta", 128, 1.0, 0.5, 4),
-    ]
+/// The presets (`--quality`), as the tools apply them.
+pub fn presets() -> Vec<Rung> {
+    Quality::ALL
+        .iter()
+        .map(|q| {
+            let s = q.settings();
+            Rung::new(q.name(), s.photons, s.distance, s.gather_neighbours, s.cache_scale, s.step_factor, s.spp)
+        })
+        .collect()
 }
 
 /// The ladder: the presets, and one setting at a time varied around `preview` (the tools'
 /// defaults), including the paper's distance modes at a quarter of the photons (they cost
 /// more per photon: compare them at equal time on the plot).
 fn ladder(quick: bool) -> Vec<Rung> {
-    let p = Rung::new("", 200_000, "delta", 64, 2.0, 1.0, 1);
+    let p = presets()[1].clone();
     let vary = |name: &str, f: &dyn Fn(&mut Rung)| {
         let mut r = p.clone();
         f(&mut r);
         r.name = name.into();
         r
     };
-    let mut rungs: Vec<Rung> = presets().into();
+    let mut rungs = presets();
     if quick {
         rungs.truncate(2);
         return rungs;

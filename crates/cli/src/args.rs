@@ -206,3 +206,54 @@ pub fn parse_dvec3(s: &str) -> Result<DVec3, String> {
         _ => Err(format!("'{s}': expected three finite numbers X,Y,Z")),
     }
 }
+
+/// `--quality`: presets over the settings that trade run time for error, chosen from
+/// `make bench`'s Pareto front (README, "Quality presets"). Explicit flags override them; with
+/// no `--quality` each tool keeps its own defaults (design.md).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quality {
+    /// Fast look-development renders.
+    Draft,
+    /// The everyday setting.
+    Preview,
+    /// Finished frames.
+    Final,
+}
+
+/// What a [`Quality`] sets, tool by tool.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QualitySettings {
+    /// vdbphoton `--photons`.
+    pub photons: u64,
+    /// vdbphoton `--distance` (delta: the same photon distribution as simpson, measured,
+    /// at a fraction of the time).
+    pub distance: &'static str,
+    /// vdbcache `--gather-neighbours`.
+    pub gather_neighbours: u32,
+    /// vdbcache `--cache-scale`.
+    pub cache_scale: f64,
+    /// vdbmarch `--step` as a multiple of its default (a third of a voxel diagonal).
+    pub step_factor: f64,
+    /// vdbmarch `--spp`.
+    pub spp: u32,
+}
+
+impl Quality {
+    pub const ALL: [Quality; 3] = [Quality::Draft, Quality::Preview, Quality::Final];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Draft => "draft",
+            Quality::Preview => "preview",
+            Quality::Final => "final",
+        }
+    }
+
+    pub fn settings(self) -> QualitySettings {
+        match self {
+            Quality::Draft => QualitySettings { photons: 50_000, distance: "delta", gather_neighbours: 32, cache_scale: 4.0, step_factor: 2.0, spp: 1 },
+            Quality::Preview => QualitySettings { photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 2.0, step_factor: 1.0, spp: 1 },
+            Quality::Final => QualitySettings { photons: 800_000, distance: "delta", gather_neighbours: 128, cache_scale: 1.0, step_factor: 0.5, spp: 4 },
+        }
+    }
+}

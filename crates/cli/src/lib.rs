@@ -20,7 +20,7 @@ mod log;
 pub mod meta;
 mod vdbio;
 
-pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, VdbOutputArgs};
+pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
 pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
