@@ -2,14 +2,17 @@
 """Peers' time versus error on one scene, as CSV on stdout (issue #7's bench calls this).
 
     compare.py scene.vdb --reference ref.exr [scene flags as vdbmarch's] \
-        [--spp 4,16,64,256] [--vdb-render-steps 1,0.5,0.25]
+        [--spp 4,16,64,256] [--vdb-render 1:1,0.5:2,0.25:4] [--vdbmarch PATH]
 
 For each spp it renders the scene with Mitsuba 3 (mitsuba_render.py) and scores the image
 against the reference (normally `vdbmarch --reference --aovs` at high spp): relative RMSE
 over pixels with reference alpha > 0.01 after 2x2 block averaging, relative to the mean of
 those pixels, and the mean-radiance ratio (nimbus_scene.compare). With --vdb-render-steps it
-adds vdb_render rows (single scattering only), scored against the reference's `single`
-layer. Scene flags not given come from the VDB's nimbus:* metadata, as for vdbmarch.
+With --vdb-render STEP:SUPERSAMPLE,... it adds vdb_render rows (single scattering only,
+isotropic: meaningful for g = 0), scored against the reference's `single` layer. With
+--vdbmarch it adds `vdbmarch --reference` rows at the same spp ladder (seed 1000 + spp, so
+they are independent of a reference rendered with the default seed), timed in the same run.
+Scene flags not given come from the VDB's nimbus:* metadata, as for vdbmarch.
 
 Columns: renderer,setting,render_seconds,wall_seconds,rel_rmse,mean_ratio,against
 (render_seconds excludes process start and scene loading; wall_seconds is the whole run).
@@ -17,6 +20,7 @@ Columns: renderer,setting,render_seconds,wall_seconds,rel_rmse,mean_ratio,agains
 import argparse
 import csv
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -46,7 +50,7 @@ def run(cmd):
     p = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if p.returncode != 0:
-        sys.exit(f"error: {os.path.basename(cmd[1])} failed: {p.stderr.strip()[-800:]}")
+        ns.fail(f"{os.path.basename(cmd[1])} failed: {p.stderr.strip()[-800:]}", 1)
     kv = dict(tok.split("=", 1) for tok in p.stdout.split() if "=" in tok)
     return float(kv["render_seconds"]), wall
 
@@ -57,8 +61,10 @@ def main():
     ap.add_argument("--reference", required=True, help="reference EXR (vdbmarch --reference [--aovs])")
     ap.add_argument("--spp", default="4,16,64,256", help="Mitsuba spp ladder")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--vdb-render-steps", default="", help="vdb_render step ladder in voxels (empty: skip)")
-    ap.add_argument("--supersample", type=int, default=4, help="vdb_render rays per pixel side")
+    ap.add_argument("--vdb-render", default="",
+                    help="vdb_render ladder STEP:SUPERSAMPLE,... (step in voxels, rays per pixel side)")
+    ap.add_argument("--vdbmarch", help="vdbmarch binary: add nimbus reference rows at each spp")
+    ap.add_argument("--device", default="cpu", help="vdbmarch --device for those rows")
     ap.add_argument("--keep", help="directory to keep the rendered EXRs in")
     args = ap.parse_args()
 
@@ -78,17 +84,32 @@ def main():
             out.writerow(["mitsuba3-scalar_rgb", f"spp={spp}", f"{secs:.3f}", f"{wall:.3f}",
                           f"{rmse:.5f}", f"{ratio:.5f}", "all"])
             sys.stdout.flush()
-        steps = [float(s) for s in args.vdb_render_steps.split(",") if s]
-        if steps:
+        if args.vdbmarch:
+            march_flags = ns.vdbmarch_flags(ns.resolve_scene(args))
+            for spp in [int(s) for s in args.spp.split(",") if s]:
+                exr = os.path.join(where, f"vdbmarch_{spp}spp.exr")
+                t0 = time.perf_counter()
+                p = subprocess.run([args.vdbmarch, "--reference", args.input, "-o", exr, "--spp", str(spp),
+                                    "--seed", str(1000 + spp), "--device", args.device, "-v"] + march_flags,
+                                   capture_output=True, text=True)
+                wall = time.perf_counter() - t0
+                if p.returncode != 0:
+                    ns.fail(f"vdbmarch failed: {p.stderr.strip()[-800:]}", 1)
+                m = re.search(r"path trace\s+([0-9.]+) s", p.stderr)
+                secs = float(m.group(1)) if m else float("nan")
+                rmse, ratio = ns.compare(ns.read_exr(exr), reference)
+                out.writerow([f"vdbmarch-reference-{args.device}", f"spp={spp}", f"{secs:.3f}", f"{wall:.3f}",
+                              f"{rmse:.5f}", f"{ratio:.5f}", "all"])
+                sys.stdout.flush()
+        ladder = [tuple(x.split(":")) for x in args.vdb_render.split(",") if x]
+        if ladder:
             single = ns.read_exr(args.reference, layer="single")
-            single[..., 3] = reference[..., 3]
-        for step in steps:
-            exr = os.path.join(where, f"vdb_render_step{step:g}.exr")
+        for step, ss in ladder:
+            exr = os.path.join(where, f"vdb_render_step{step}_ss{ss}.exr")
             secs, wall = run([py, os.path.join(HERE, "vdb_render.py"), args.input, "-o", exr,
-                              "--step", str(step), "--shadow-step", str(step),
-                              "--supersample", str(args.supersample)] + flags)
+                              "--step", step, "--shadow-step", step, "--supersample", ss] + flags)
             rmse, ratio = ns.compare(ns.read_exr(exr), single)
-            out.writerow(["vdb_render", f"step={step:g},ss={args.supersample}", f"{secs:.3f}",
+            out.writerow(["vdb_render", f"step={step},ss={ss}", f"{secs:.3f}",
                           f"{wall:.3f}", f"{rmse:.5f}", f"{ratio:.5f}", "single"])
             sys.stdout.flush()
 

@@ -17,6 +17,12 @@ DEFAULT_FOV = 40.0                 # horizontal, degrees (design.md section 4)
 DEFAULT_SIZE = (960, 540)
 
 
+def fail(message, code=2):
+    """design.md section 7: one `error: ...` line on stderr; exit 2 for bad usage or input."""
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
 class Density:
     """The `density` grid's active bounding box as a dense array plus the index->world map.
 
@@ -69,16 +75,19 @@ def read_vdb(path, grid_name=None):
     """(Density, file metadata dict). `grid_name` defaults to what the file records under
     `nimbus:density_grid`, else `density` (as the nimbus tools do)."""
     import pyopenvdb as vdb
-    meta = vdb.readMetadata(path)
-    name = grid_name or meta.get("nimbus:density_grid") or "density"
-    grid = vdb.read(path, name)
+    try:
+        meta = vdb.readMetadata(path)
+        name = grid_name or meta.get("nimbus:density_grid") or "density"
+        grid = vdb.read(path, name)
+    except Exception as e:  # pyopenvdb raises KeyError/IOError/RuntimeError with a message
+        fail(f"cannot read {grid_name or 'the density grid'}: {e} ({path})")
     if not isinstance(grid, vdb.FloatGrid):
-        sys.exit(f"error: grid {name} is not a float grid ({path})")
+        fail(f"grid {name} is not a float grid ({path})")
     if not grid.transform.isLinear:
-        sys.exit(f"error: grid {name} has a non-affine transform ({path})")
-    (lo, hi) = grid.evalActiveVoxelBoundingBox()
+        fail(f"grid {name} has a non-affine transform ({path})")
     if grid.activeVoxelCount() == 0:
-        sys.exit(f"error: grid {name} has no active voxels ({path})")
+        fail(f"grid {name} has no active voxels ({path})")
+    (lo, hi) = grid.evalActiveVoxelBoundingBox()
     lo = np.array(lo)
     dims = np.array(hi) - lo + 1
     values = np.zeros(tuple(int(d) for d in dims), dtype=np.float32)
@@ -96,11 +105,14 @@ def read_vdb(path, grid_name=None):
 # ---- parameters -------------------------------------------------------------------------
 
 def _vec(text, n=3, what="value"):
-    parts = [float(x) for x in str(text).split(",")]
+    try:
+        parts = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        fail(f"{what} must be {n} numbers, got {text}")
     if n == 3 and len(parts) == 1:
         parts = parts * 3
     if len(parts) != n or not all(math.isfinite(x) for x in parts):
-        sys.exit(f"error: {what} must be {n} finite numbers, got {text}")
+        fail(f"{what} must be {n} finite numbers, got {text}")
     return tuple(parts)
 
 
@@ -124,7 +136,7 @@ def parse_sun(text):
     d = np.array(_vec(kv.get("dir", "0,0,-1"), what="sun dir"))
     n = np.linalg.norm(d)
     if n == 0:
-        sys.exit(f"error: sun dir must be non-zero ({text})")
+        fail(f"sun dir must be non-zero ({text})")
     return {"dir": tuple(d / n), "irradiance": _vec(kv.get("irradiance", "1"), what="irradiance")}
 
 
@@ -180,7 +192,7 @@ def resolve_scene(args):
     if eye is None:
         # vdbmarch's default frames the bounds from -Y; peers need it given explicitly to be
         # sure of matching, so refuse rather than guess a different framing.
-        sys.exit("error: no camera: give --eye/--look-at or a file with nimbus:camera metadata")
+        fail("no camera: give --eye/--look-at or a file with nimbus:camera metadata")
     return {
         "density": density, "extinction": ext, "albedo": albedo, "g": g, "suns": suns,
         "eye": eye, "look_at": look_at, "up": up, "fov": fov, "width": width, "height": height,
@@ -204,7 +216,7 @@ def vdbmarch_flags(scene):
 
 def read_exr(path, layer=None):
     """(H,W,4) float array RGBA of an EXR; `layer` picks `layer.R` etc (nimbus --aovs).
-    Missing A reads as 1."""
+    A layer without its own A takes the image's A (the coverage); no A at all reads as 1."""
     import OpenEXR
     with OpenEXR.File(path, separate_channels=True) as f:
         ch = f.channels()
@@ -212,9 +224,9 @@ def read_exr(path, layer=None):
         names = [pre + c for c in "RGB"]
         missing = [n for n in names if n not in ch]
         if missing:
-            sys.exit(f"error: {path} has no channels {missing} (has {sorted(ch)})")
+            fail(f"{path} has no channels {missing} (has {sorted(ch)})")
         rgb = [np.asarray(ch[n].pixels, dtype=np.float64) for n in names]
-        a = ch.get(pre + "A") or ch.get("A")
+        a = ch.get(pre + "A", ch.get("A"))
         alpha = np.asarray(a.pixels, dtype=np.float64) if a is not None else np.ones_like(rgb[0])
     return np.stack(rgb + [alpha], axis=-1)
 

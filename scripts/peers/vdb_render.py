@@ -54,10 +54,10 @@ def main():
     d = scene["density"]
     voxel = np.linalg.norm(d.index_to_world[:3, :3], axis=0)
     if not np.allclose(voxel, voxel[0], rtol=1e-6):
-        sys.exit(f"error: vdb_render needs cubic voxels, got sizes {voxel} ({args.input})")
+        ns.fail(f"vdb_render needs cubic voxels, got sizes {voxel} ({args.input})")
     voxel = voxel[0]
     if len(scene["suns"]) != 1:
-        sys.exit("error: vdb_render takes exactly one light")
+        ns.fail("vdb_render takes exactly one light")
     sun = scene["suns"][0]
     if any(b > 0 for b in scene["background"]):
         print("warning: vdb_render has no background; ignoring --background", file=sys.stderr)
@@ -91,7 +91,7 @@ def main():
         run = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0
         if run.returncode != 0:
-            sys.exit(f"error: vdb_render failed ({run.returncode}): {run.stderr.strip()[-500:]}")
+            ns.fail(f"vdb_render failed ({run.returncode}): {run.stderr.strip()[-500:]}", 1)
         # -v prints "ray-tracing <name>..." then "...completed in T sec"
         m = re.search(r"ray-tracing.*?\n.*?completed in ([0-9.eE+-]+) sec", run.stdout + run.stderr)
         trace = float(m.group(1)) if m else float("nan")
