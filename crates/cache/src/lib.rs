@@ -83,6 +83,21 @@ pub enum CacheError {
 }
 
 impl CacheParams {
+    /// The Simpson step toward the lights in world units.
+    pub fn single_step(&self, density: &Volume<f32>) -> f64 {
+        self.step * density.transform().voxel_size().min_element()
+    }
+
+    /// Whether single scattering is asked for and can be non-zero.
+    pub fn bakes_single(&self) -> bool {
+        self.single && !self.medium.is_non_scattering() && !self.lights.is_empty()
+    }
+
+    /// Whether multiple scattering is asked for and has photons to gather.
+    pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
+        self.multiple && !self.medium.is_non_scattering() && !photons.is_empty()
+    }
+
     pub fn validate(&self) -> Result<(), CacheError> {
         self.medium.validate().map_err(|e| CacheError::Param(e.to_string()))?;
         let positive = |name: &str, v: f64| {
