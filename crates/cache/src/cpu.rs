@@ -70,11 +70,19 @@ pub fn mean_density_in_ball(density: &Volume<f32>, x: DVec3, radius: f64) -> f64
     sum / (BALL_SHELLS.len() * BALL_DIRECTIONS.len()) as f64
 }
 
+/// A ball whose mean density is below this fraction of the volume's largest barely touches
+/// the medium: the ratio estimator would divide its photons by a near-zero mean (a 42-point
+/// quadrature under-resolves a sliver of medium) and send the cache voxel, and through
+/// interpolation its denser neighbours, to huge values. Such a ball counts as empty.
+pub const EMPTY_BALL_FRACTION: f64 = 1e-3;
+
 /// The photons' radiance estimate at `x` toward `w_out`, divided by the mean sigma_s over the
-/// same ball; returns it and how many photons it used.
+/// same ball (zero where that mean density is below `empty_below`); returns it and how many
+/// photons it used.
 #[allow(clippy::too_many_arguments)]
 pub fn li_multiple(
     density: &Volume<f32>,
+    empty_below: f64,
     optics: &Medium,
     photons: &PhotonMap,
     bins: &PhotonBins,
@@ -107,8 +115,12 @@ pub fn li_multiple(
     if used == 0 || radius <= 0.0 {
         return (Vec3::ZERO, used);
     }
+    let mean_density = mean_density_in_ball(density, x, radius);
+    if mean_density < empty_below {
+        return (Vec3::ZERO, used);
+    }
     let volume = 4.0 / 3.0 * PI * radius * radius * radius;
-    let mean_sigma_s = optics.sigma_s(mean_density_in_ball(density, x, radius) as f32);
+    let mean_sigma_s = optics.sigma_s(mean_density as f32);
     let ratio = |a: f32, s: f32| if s > 0.0 { a / s } else { 0.0 };
     let estimate = sum / volume as f32;
     (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
@@ -143,8 +155,9 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     let li_multiple = params.bakes_multiple(photons).then(|| {
         let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
         let gathered = AtomicU64::new(0);
+        let empty_below = empty_ball_density(&majorant);
         let volume = bake(&|x, w_out, scratch| {
-            let (li, used) = li_multiple(density, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
+            let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
             gathered.fetch_add(used as u64, Ordering::Relaxed);
             li
         });
@@ -162,6 +175,11 @@ pub(crate) fn gather_cell(photons: &PhotonMap, gather: Gather) -> f64 {
         Gather::Radius(r) => r,
         Gather::Neighbours { k, max_radius } => typical_radius(photons, k).min(max_radius),
     }
+}
+
+/// Mean density below which a gather ball counts as empty ([`EMPTY_BALL_FRACTION`]).
+pub(crate) fn empty_ball_density(majorant: &MajorantGrid) -> f64 {
+    EMPTY_BALL_FRACTION * majorant.max().max(0.0) as f64
 }
 
 /// Radius of a ball holding about `k` photons if they filled their bounding box evenly.

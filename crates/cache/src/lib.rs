@@ -19,10 +19,12 @@
 
 mod bins;
 mod cpu;
+mod gpu;
 mod plan;
 
 pub use bins::PhotonBins;
 pub use cpu::bake_cpu;
+pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use plan::{cache_transform, CachePlan};
 
 use nimbus_optics::{Camera, Light, Medium};
@@ -80,6 +82,8 @@ pub struct BakeStats {
 pub enum CacheError {
     #[error("invalid parameter: {0}")]
     Param(String),
+    #[error(transparent)]
+    Gpu(#[from] nimbus_gpu::GpuError),
 }
 
 impl CacheParams {
