@@ -7,13 +7,17 @@
 //!     CARGO_TARGET_DIR=... cargo bench -p nimbus-cache --bench bake [-- quick]
 //!
 //! Times are end to end (plan, bins, uploads, kernels, read-back, volume assembly), median
-//! of 3; photon tracing is not included. The cache lattice is 1.2x coarser than the
+//! of 3 (`quick`: one run, fewer photons); photon tracing is not included. References are
+//! evaluated at 2000 voxels spread over the baked ones. The cache lattice is 1.2x coarser than the
 //! density's, which makes the deck's cache 283 x 301 x 35, the paper's Table 3a size.
 
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, BakeStats, CacheParams, Gather, IlluminationCache};
+use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, PhotonBins, EMPTY_BALL_FRACTION};
+use nimbus_tracking::DensityMedium;
+use nimbus_volume::MajorantGrid;
+use rayon::prelude::*;
 use nimbus_optics::noise::fbm3;
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
@@ -92,33 +96,45 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
 
 type Bake = (IlluminationCache, BakeStats);
 
-fn median_of_3(mut f: impl FnMut() -> Bake) -> (Duration, Bake) {
+/// Median time of `runs` runs, and the last run's result.
+fn median_of(runs: usize, mut f: impl FnMut() -> Bake) -> (Duration, Bake) {
     let mut times = Vec::new();
     let mut last = None;
-    for _ in 0..3 {
+    for _ in 0..runs {
         let start = Instant::now();
         last = Some(f());
         times.push(start.elapsed());
     }
     times.sort();
-    (times[1], last.unwrap())
+    (times[runs / 2], last.unwrap())
 }
 
-/// Mean |a - reference| over the reference's voxels relative to the reference's mean, and
-/// the largest relative to its peak (red channel).
-fn error(a: &Volume<Vec3>, reference: &Volume<Vec3>) -> (f64, f64) {
-    let (mut sum_diff, mut sum_ref, mut worst, mut peak) = (0.0, 0.0, 0.0f64, 0.0f64);
-    for brick in reference.bricks() {
+/// Every n-th baked voxel, about `count` of them: where the references are evaluated (a
+/// whole fine bake would take longer than everything else together).
+fn sample_voxels(grid: &Volume<Vec3>, count: usize) -> Vec<IVec3> {
+    let mut all = Vec::new();
+    for brick in grid.bricks() {
         for offset in 0..BRICK_VOXELS {
             let ijk = brick.origin + brick_local(offset);
-            if reference.is_active(ijk) {
-                let (r, v) = (brick.values[offset].x as f64, a.get(ijk).x as f64);
-                sum_diff += (v - r).abs();
-                sum_ref += r;
-                worst = worst.max((v - r).abs());
-                peak = peak.max(r);
+            if grid.is_active(ijk) {
+                all.push(ijk);
             }
         }
+    }
+    let every = (all.len() / count).max(1);
+    all.into_iter().step_by(every).collect()
+}
+
+/// Mean |a - reference| at `voxels` relative to the reference's mean there, and the largest
+/// relative to its peak (red channel).
+fn error(a: &Volume<Vec3>, voxels: &[IVec3], reference: &[Vec3]) -> (f64, f64) {
+    let (mut sum_diff, mut sum_ref, mut worst, mut peak) = (0.0, 0.0, 0.0f64, 0.0f64);
+    for (ijk, r) in voxels.iter().zip(reference) {
+        let (r, v) = (r.x as f64, a.get(*ijk).x as f64);
+        sum_diff += (v - r).abs();
+        sum_ref += r;
+        worst = worst.max((v - r).abs());
+        peak = peak.max(r);
     }
     (sum_diff / sum_ref.max(1e-30), worst / peak.max(1e-30))
 }
@@ -129,28 +145,43 @@ fn trace(v: &Volume<f32>, p: &CacheParams, photons: u64, seed: u64) -> PhotonMap
 }
 
 /// Times `params` on each backend and prints a row per backend with its error against
-/// `reference` (read from the baked cache by `grid`).
+/// `reference(world position, w_out)` at sampled voxels of the grid `grid` picks.
+#[allow(clippy::too_many_arguments)]
 fn rows(
+    runs: usize,
     name: &str,
     part: &str,
     v: &Volume<f32>,
     map: &PhotonMap,
     params: &CacheParams,
-    reference: &Volume<Vec3>,
     grid: fn(&IlluminationCache) -> &Volume<Vec3>,
+    reference: &(dyn Fn(DVec3, Vec3) -> Vec3 + Sync),
 ) {
     let ctx = nimbus_gpu::test_context();
+    let start = Instant::now();
     let mut results: Vec<(&str, Duration, Bake)> = vec![{
-        let (t, b) = median_of_3(|| bake_cpu(v, map, params).unwrap());
+        let (t, b) = median_of(runs, || bake_cpu(v, map, params).unwrap());
         ("cpu", t, b)
     }];
+    eprintln!("  {name} {part}: cpu done after {:.1} s", start.elapsed().as_secs_f64());
     if let Some(ctx) = ctx {
-        let (t, b) = median_of_3(|| bake_gpu(ctx, v, map, params).unwrap());
+        let (t, b) = median_of(runs, || bake_gpu(ctx, v, map, params).unwrap());
         results.push(("gpu", t, b));
     }
+    eprintln!("  {name} {part}: gpu done after {:.1} s", start.elapsed().as_secs_f64());
+    let baked = grid(&results[0].2 .0);
+    let voxels = sample_voxels(baked, 2000);
+    let truth: Vec<Vec3> = voxels
+        .par_iter()
+        .map(|ijk| {
+            let x = baked.transform().to_world(ijk.as_dvec3());
+            reference(x, toward_eye(&params.camera, x))
+        })
+        .collect();
+    eprintln!("  {name} {part}: reference done after {:.1} s", start.elapsed().as_secs_f64());
     let cpu_time = results[0].1.as_secs_f64();
     for (backend, t, (cache, stats)) in &results {
-        let (mean, max) = error(grid(cache), reference);
+        let (mean, max) = error(grid(cache), &voxels, &truth);
         let t = t.as_secs_f64();
         println!("| {name} | {} | {part} | {backend} | {t:.3} | {:.2} | {mean:.2e} | {max:.2e} |", stats.baked, t / cpu_time);
     }
@@ -158,7 +189,7 @@ fn rows(
 
 fn main() {
     let quick = std::env::args().any(|a| a == "quick");
-    let photons: u64 = if quick { 50_000 } else { 200_000 };
+    let (photons, runs): (u64, usize) = if quick { (25_000, 1) } else { (100_000, 3) };
     println!("| scene | voxels baked | part | backend | median s | vs cpu | mean err | max err / peak |");
     println!("|---|---|---|---|---|---|---|---|");
     let scenes: Vec<(&str, Volume<f32>, f32)> = vec![("cloud 339x361x42", cloud_deck(), 30.0), ("plume 96x96x192", plume(), 60.0)];
@@ -166,15 +197,28 @@ fn main() {
         let base = params(&v, extinction);
         let none = PhotonMap::default();
         let single = CacheParams { single: true, multiple: false, ..base.clone() };
-        let fine = CacheParams { step: single.step / 4.0, ..single.clone() };
-        let reference = bake_cpu(&v, &none, &fine).unwrap().0.li_single.unwrap();
-        rows(name, "single (step 1 voxel; ref step/4)", &v, &none, &single, &reference, |c| c.li_single.as_ref().unwrap());
+        let majorant = MajorantGrid::build(&v);
+        let medium = DensityMedium { density: &v, majorant: &majorant, extinction };
+        let fine_step = single.single_step(&v) / 4.0;
+        rows(runs, name, "single (step 1 voxel; ref step/4)", &v, &none, &single, |c| c.li_single.as_ref().unwrap(), &|x, w_out| {
+            li_single(medium, &single.medium, &single.lights, x, w_out, fine_step, single.min_transmittance)
+        });
 
         let multiple = CacheParams { single: false, multiple: true, ..base.clone() };
+        let start = Instant::now();
         let map = trace(&v, &multiple, photons, 1);
-        let reference = bake_cpu(&v, &trace(&v, &multiple, 4 * photons, 2), &multiple).unwrap().0.li_multiple.unwrap();
-        let part = format!("multiple ({}k photons, k 64; ref 4x photons)", photons / 1000);
-        rows(name, &part, &v, &map, &multiple, &reference, |c| c.li_multiple.as_ref().unwrap());
+        let fine_map = trace(&v, &multiple, 4 * photons, 2);
+        eprintln!("  {name}: photons traced in {:.1} s", start.elapsed().as_secs_f64());
+        // 4x the photons and 4x the neighbours: balls of about the same size (the same blur)
+        // with half the noise, so the error column is mostly the baked estimate's noise.
+        let Gather::Neighbours { k, max_radius } = multiple.gather else { unreachable!() };
+        let fine_gather = Gather::Neighbours { k: 4 * k, max_radius };
+        let fine_bins = PhotonBins::new(&fine_map.positions, gather_cell(&fine_map, fine_gather));
+        let empty_below = EMPTY_BALL_FRACTION * majorant.max() as f64;
+        let part = format!("multiple ({}k photons, k 64; ref 4x photons, k 256)", photons / 1000);
+        rows(runs, name, &part, &v, &map, &multiple, |c| c.li_multiple.as_ref().unwrap(), &|x, w_out| {
+            li_multiple(&v, empty_below, &multiple.medium, &fine_map, &fine_bins, fine_gather, x, w_out, &mut Vec::new()).0
+        });
     }
     if let Some(ctx) = nimbus_gpu::test_context() {
         println!("GPU: {}; CPU: {} rayon threads", ctx.info, rayon::current_num_threads());

@@ -170,7 +170,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
 
 /// Cell size of the photon bins: the gather radius, or for k nearest the radius that holds k
 /// photons on average over the photons' box (at most the largest radius).
-pub(crate) fn gather_cell(photons: &PhotonMap, gather: Gather) -> f64 {
+pub fn gather_cell(photons: &PhotonMap, gather: Gather) -> f64 {
     match gather {
         Gather::Radius(r) => r,
         Gather::Neighbours { k, max_radius } => typical_radius(photons, k).min(max_radius),

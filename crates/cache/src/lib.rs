@@ -23,7 +23,7 @@ mod gpu;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::bake_cpu;
+pub use cpu::{bake_cpu, gather_cell, li_multiple, li_single, mean_density_in_ball, toward_eye, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use plan::{cache_transform, CachePlan};
 
