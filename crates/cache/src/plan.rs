@@ -61,7 +61,8 @@ impl CachePlan {
                 for offset in 0..BRICK_VOXELS {
                     let c = (origin + brick_local(offset)).as_dvec3();
                     let centre = c * scale;
-                    if !(majorant.max_in_box(centre - scale, centre + scale) > 0.0) {
+                    let holds_density = majorant.max_in_box(centre - scale, centre + scale) > 0.0;
+                    if !holds_density {
                         stats.culled_empty += 1;
                     } else if !camera.sees_sphere(transform.to_world(c), footprint) {
                         stats.culled_view += 1;
