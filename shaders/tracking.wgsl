@@ -224,10 +224,23 @@ fn track_solve_quadratic_step(l: f32, m: f32, r: f32, h: f32, remaining: f32) ->
 // Where a free path ends: t >= 0, or -1 when it escapes.
 const TRACK_ESCAPED: f32 = -1.0;
 
-// MediumRay::sample_simpson: the distance where the composite-Simpson optical depth (panels
-// at most `step` long, split at voxel boundaries) reaches tau_target. t from 0 to infinity.
-fn track_sample_simpson(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step: f32) -> f32 {
-    var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, TRACK_FAR);
+// Where a composite-Simpson walk (MediumRay::simpson_panels: panels at most `step` long,
+// split at voxel boundaries) over t in [0, t_max] stopped: the panel in which the optical
+// depth reached `tau_target` (crossed), or the whole ray's optical depth when it never did.
+struct TrackSimpsonStop {
+    crossed: bool,
+    // Optical depth before the crossing panel, or over the whole ray.
+    tau: f32,
+    // The crossing panel: start, length and sigma_t at its start, middle and end.
+    t0: f32,
+    h: f32,
+    left: f32,
+    mid: f32,
+    right: f32,
+}
+
+fn track_simpson_until(r: TrackRay, g: MajorantGridInfo, t_max: f32, tau_target: f32, step: f32) -> TrackSimpsonStop {
+    var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, t_max);
     var tau = 0.0;
     loop {
         let seg = majorant_walk_next(&walk, g);
@@ -273,7 +286,7 @@ fn track_sample_simpson(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step:
                     let right = track_sigma_t(r, t1);
                     let integral = hh / 6.0 * (left + 4.0 * mid + right);
                     if (tau + integral >= tau_target && integral > 0.0) {
-                        return t0 + track_solve_quadratic_step(left, mid, right, hh, tau_target - tau);
+                        return TrackSimpsonStop(true, tau, t0, hh, left, mid, right);
                     }
                     tau = tau + integral;
                     left = right;
@@ -287,7 +300,30 @@ fn track_sample_simpson(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step:
             }
         }
     }
+    return TrackSimpsonStop(false, tau, 0.0, 0.0, 0.0, 0.0, 0.0);
+}
+
+// MediumRay::sample_simpson: the distance where the composite-Simpson optical depth reaches
+// tau_target, exactly within the crossing panel by the quadratic through its samples.
+// t from 0 to infinity.
+fn track_sample_simpson(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step: f32) -> f32 {
+    let s = track_simpson_until(r, g, TRACK_FAR, tau_target, step);
+    if (s.crossed) {
+        return s.t0 + track_solve_quadratic_step(s.left, s.mid, s.right, s.h, tau_target - s.tau);
+    }
     return TRACK_ESCAPED;
+}
+
+// MediumRay::transmittance over t in [0, t_max]: exp(-optical depth) by composite Simpson,
+// 0 once it falls below `cutoff` (the walk stops there: shadow rays into dense cores end early).
+fn track_transmittance(r: TrackRay, g: MajorantGridInfo, t_max: f32, step: f32, cutoff: f32) -> f32 {
+    // The CPU clamps the cutoff at 1e-300; f32 stops at the smallest normal.
+    let tau_cut = -log(max(cutoff, 1.0e-37));
+    let s = track_simpson_until(r, g, min(t_max, TRACK_FAR), tau_cut, step);
+    if (s.crossed) {
+        return 0.0;
+    }
+    return exp(-s.tau);
 }
 
 // MediumRay::sample_exponential: sigma_t frozen at the first non-empty point (stepping by

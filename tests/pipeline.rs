@@ -199,9 +199,18 @@ fn the_gpu_backend_runs_in_the_chain() {
     }
     assert!(out.status.success(), "{err}");
     assert!(err.contains("stored 2000"), "{err}");
+    // The cache baked on the GPU matches the CPU's: the images marched from each agree.
+    let (c, c_gpu) = (dir.join("c.vdb"), dir.join("c-gpu.vdb"));
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--width", "24", "--height", "16", "--device", "cpu"]).arg("-o").arg(&c));
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--width", "24", "--height", "16", "--device", "gpu"]).arg("-o").arg(&c_gpu));
+    let (cpu_cache_exr, gpu_cache_exr) = (dir.join("cpu-cache.exr"), dir.join("gpu-cache.exr"));
+    run(Command::new(bin("vdbmarch")).arg(&c).args(["--device", "cpu"]).arg("-o").arg(&cpu_cache_exr));
+    run(Command::new(bin("vdbmarch")).arg(&c_gpu).args(["--device", "cpu"]).arg("-o").arg(&gpu_cache_exr));
+    let (cpu, gpu) = (read_rgba(&cpu_cache_exr), read_rgba(&gpu_cache_exr));
+    let peak = cpu.iter().flatten().fold(0.0f32, |m, v| m.max(*v));
+    let worst = cpu.iter().flatten().zip(gpu.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1e-4 * peak, "images from the CPU and GPU caches differ by {worst} (peak {peak})");
     // The rest of the chain on the GPU too: the image matches the CPU's to float tolerance.
-    let c = dir.join("c.vdb");
-    run(Command::new(bin("vdbcache")).arg(&p).args(["--width", "24", "--height", "16"]).arg("-o").arg(&c));
     let (cpu_exr, gpu_exr) = (dir.join("cpu.exr"), dir.join("gpu.exr"));
     run(Command::new(bin("vdbmarch")).arg(&c).args(["--device", "cpu"]).arg("-o").arg(&cpu_exr));
     run(Command::new(bin("vdbmarch")).arg(&c).args(["--device", "gpu"]).arg("-o").arg(&gpu_exr));

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather};
 use nimbus_cli::{read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
@@ -112,13 +112,13 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first)");
     }
     let device = args.common.compute_device(&log)?;
-    if device.gpu().is_some() {
-        log.warn("the GPU cache baker is not wired into vdbcache yet; running on the CPU");
-    }
     let (cache, stats) = log
         .stage(
             "bake",
-            || bake_cpu(&density, &photons, &params),
+            || match device.gpu() {
+                Some(ctx) => bake_gpu(ctx, &density, &photons, &params),
+                None => bake_cpu(&density, &photons, &params),
+            },
             |r| {
                 r.as_ref()
                     .map(|(_, s)| {
@@ -130,7 +130,10 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                     .unwrap_or_default()
             },
         )
-        .map_err(Failure::usage)?;
+        .map_err(|e| match e {
+            CacheError::Param(_) => Failure::usage(e),
+            CacheError::Gpu(_) => Failure::runtime(e, "GPU cache baker"),
+        })?;
     if stats.nonfinite > 0 {
         log.warn(format!("{} cache voxels came out non-finite and were set to zero", stats.nonfinite));
     }

@@ -59,6 +59,36 @@ impl PhotonBins {
         bins
     }
 
+    /// World position of the grid's lowest corner; positions are kept relative to it.
+    pub fn origin(&self) -> DVec3 {
+        self.origin
+    }
+
+    /// Cell edge (world units).
+    pub fn cell(&self) -> f64 {
+        self.cell
+    }
+
+    /// Cells per axis; cell (x, y, z) is number (x * dims.y + y) * dims.z + z.
+    pub fn dims(&self) -> IVec3 {
+        self.dims
+    }
+
+    /// Where each cell's run starts in [`PhotonBins::order`]; one more entry than cells.
+    pub fn starts(&self) -> &[u32] {
+        &self.starts
+    }
+
+    /// Photon indices sorted by cell.
+    pub fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    /// Photon positions relative to [`PhotonBins::origin`], by photon index.
+    pub fn local_positions(&self) -> &[Vec3] {
+        &self.local
+    }
+
     fn cell_of(&self, p: DVec3) -> IVec3 {
         ((p - self.origin) / self.cell).floor().as_ivec3().clamp(IVec3::ZERO, self.dims - 1)
     }

@@ -3,11 +3,13 @@
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use rayon::prelude::*;
+
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{DensityMedium, MediumRay};
-use nimbus_volume::{brick_local, MajorantGrid, Transform, Volume, BRICK_VOXELS};
+use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, PhotonBins};
 
@@ -30,7 +32,7 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DV
 }
 
 /// Directions of the ball quadrature: the 6 axes and the 8 diagonals.
-const BALL_DIRECTIONS: [[f64; 3]; 14] = {
+pub(crate) const BALL_DIRECTIONS: [[f64; 3]; 14] = {
     const D: f64 = 0.577_350_269_189_625_8;
     [
         [1.0, 0.0, 0.0],
@@ -52,7 +54,7 @@ const BALL_DIRECTIONS: [[f64; 3]; 14] = {
 
 /// Radii (in units of the ball's radius) splitting the ball into three shells of equal
 /// volume, each taken at its volume midpoint: (1/6)^(1/3), (1/2)^(1/3), (5/6)^(1/3).
-const BALL_SHELLS: [f64; 3] = [0.550_321_208_149_104_4, 0.793_700_525_984_099_7, 0.941_036_415_534_214_6];
+pub(crate) const BALL_SHELLS: [f64; 3] = [0.550_321_208_149_104_4, 0.793_700_525_984_099_7, 0.941_036_415_534_214_6];
 
 /// Mean density over the ball of `radius` around world point `x`: 14 directions on 3
 /// equal-volume shells, equally weighted. The ratio estimator divides by this, so it must see
@@ -68,11 +70,19 @@ pub fn mean_density_in_ball(density: &Volume<f32>, x: DVec3, radius: f64) -> f64
     sum / (BALL_SHELLS.len() * BALL_DIRECTIONS.len()) as f64
 }
 
+/// A ball whose mean density is below this fraction of the volume's largest barely touches
+/// the medium: the ratio estimator would divide its photons by a near-zero mean (a 42-point
+/// quadrature under-resolves a sliver of medium) and send the cache voxel, and through
+/// interpolation its denser neighbours, to huge values. Such a ball counts as empty.
+pub const EMPTY_BALL_FRACTION: f64 = 1e-3;
+
 /// The photons' radiance estimate at `x` toward `w_out`, divided by the mean sigma_s over the
-/// same ball; returns it and how many photons it used.
+/// same ball (zero where that mean density is below `empty_below`); returns it and how many
+/// photons it used.
 #[allow(clippy::too_many_arguments)]
 pub fn li_multiple(
     density: &Volume<f32>,
+    empty_below: f64,
     optics: &Medium,
     photons: &PhotonMap,
     bins: &PhotonBins,
@@ -105,8 +115,12 @@ pub fn li_multiple(
     if used == 0 || radius <= 0.0 {
         return (Vec3::ZERO, used);
     }
+    let mean_density = mean_density_in_ball(density, x, radius);
+    if mean_density < empty_below {
+        return (Vec3::ZERO, used);
+    }
     let volume = 4.0 / 3.0 * PI * radius * radius * radius;
-    let mean_sigma_s = optics.sigma_s(mean_density_in_ball(density, x, radius) as f32);
+    let mean_sigma_s = optics.sigma_s(mean_density as f32);
     let ratio = |a: f32, s: f32| if s > 0.0 { a / s } else { 0.0 };
     let estimate = sum / volume as f32;
     (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
@@ -124,32 +138,48 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
     let mut stats = plan.stats.clone();
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
-    let step = params.step * density.transform().voxel_size().min_element();
-    let scatters = !params.medium.is_non_scattering();
+    let step = params.single_step(density);
+    let positions = plan.voxel_positions();
+    let camera = &params.camera;
 
-    let nonfinite = AtomicU64::new(0);
-    let bake = |f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| bake_plan(&plan, &params.camera, &nonfinite, f);
-    let li_single = (params.single && scatters && !params.lights.is_empty()).then(|| {
+    let mut nonfinite = 0;
+    let mut bake = |f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+        let values: Vec<Vec3> = positions.par_iter().map_init(Vec::new, |scratch, &x| f(x, toward_eye(camera, x), scratch)).collect();
+        let (volume, bad) = plan.volume_of(&values);
+        nonfinite += bad;
+        volume
+    };
+    let li_single = params.bakes_single().then(|| {
         bake(&|x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
     });
-    let li_multiple = (params.multiple && scatters && !photons.is_empty()).then(|| {
-        let cell = match params.gather {
-            Gather::Radius(r) => r,
-            // Cells of about the radius that holds k photons on average over the photons' box.
-            Gather::Neighbours { k, max_radius } => typical_radius(photons, k).min(max_radius),
-        };
-        let bins = PhotonBins::new(&photons.positions, cell);
+    let li_multiple = params.bakes_multiple(photons).then(|| {
+        let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
         let gathered = AtomicU64::new(0);
+        let empty_below = empty_ball_density(&majorant);
         let volume = bake(&|x, w_out, scratch| {
-            let (li, used) = li_multiple(density, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
+            let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
             gathered.fetch_add(used as u64, Ordering::Relaxed);
             li
         });
         stats.photons_gathered = gathered.into_inner();
         volume
     });
-    stats.nonfinite = nonfinite.into_inner();
+    stats.nonfinite = nonfinite;
     Ok((IlluminationCache { li_single, li_multiple }, stats))
+}
+
+/// Cell size of the photon bins: the gather radius, or for k nearest the radius that holds k
+/// photons on average over the photons' box (at most the largest radius).
+pub fn gather_cell(photons: &PhotonMap, gather: Gather) -> f64 {
+    match gather {
+        Gather::Radius(r) => r,
+        Gather::Neighbours { k, max_radius } => typical_radius(photons, k).min(max_radius),
+    }
+}
+
+/// Mean density below which a gather ball counts as empty ([`EMPTY_BALL_FRACTION`]).
+pub(crate) fn empty_ball_density(majorant: &MajorantGrid) -> f64 {
+    EMPTY_BALL_FRACTION * majorant.max().max(0.0) as f64
 }
 
 /// Radius of a ball holding about `k` photons if they filled their bounding box evenly.
@@ -157,27 +187,4 @@ fn typical_radius(photons: &PhotonMap, k: u32) -> f64 {
     let (lo, hi) = photons.positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), &p| (a.min(p), b.max(p)));
     let volume = (hi - lo).max(DVec3::splat(1e-6)).element_product();
     (k as f64 * volume / (photons.len() as f64 * 4.0 / 3.0 * PI)).cbrt()
-}
-
-/// Evaluates `f(world position, w_out, scratch)` at every planned cache voxel, w_out toward
-/// the camera's eye. A non-finite result is stored as zero and counted, never written.
-fn bake_plan(plan: &CachePlan, camera: &Camera, nonfinite: &AtomicU64, f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)) -> Volume<Vec3> {
-    let transform: Transform = plan.transform;
-    Volume::from_brick_fn(transform, Vec3::ZERO, &plan.origins(), |origin, values| {
-        let mask = *plan.mask_of(origin).expect("planned brick");
-        let mut scratch = Vec::new();
-        for offset in 0..BRICK_VOXELS {
-            if mask[offset >> 6] & (1 << (offset & 63)) != 0 {
-                let x = transform.to_world((origin + brick_local(offset)).as_dvec3());
-                let li = f(x, toward_eye(camera, x), &mut scratch);
-                values[offset] = if li.is_finite() {
-                    li
-                } else {
-                    nonfinite.fetch_add(1, Ordering::Relaxed);
-                    Vec3::ZERO
-                };
-            }
-        }
-        mask
-    })
 }

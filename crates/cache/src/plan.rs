@@ -1,10 +1,11 @@
 //! Which cache voxels to bake: shared by the CPU and GPU backends.
 
-use glam::{DAffine3, DVec3, IVec3};
+use glam::{DAffine3, DVec3, IVec3, Vec3};
 use nimbus_optics::Camera;
 use nimbus_volume::{brick_local, brick_origin, BrickMask, MajorantGrid, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::BakeStats;
 
@@ -60,7 +61,8 @@ impl CachePlan {
                 for offset in 0..BRICK_VOXELS {
                     let c = (origin + brick_local(offset)).as_dvec3();
                     let centre = c * scale;
-                    if !(majorant.max_in_box(centre - scale, centre + scale) > 0.0) {
+                    let holds_density = majorant.max_in_box(centre - scale, centre + scale) > 0.0;
+                    if !holds_density {
                         stats.culled_empty += 1;
                     } else if !camera.sees_sphere(transform.to_world(c), footprint) {
                         stats.culled_view += 1;
@@ -87,13 +89,69 @@ impl CachePlan {
     }
 
     pub fn mask_of(&self, origin: IVec3) -> Option<&BrickMask> {
-        self.bricks
-            .binary_search_by_key(&(origin.x, origin.y, origin.z), |(o, _)| (o.x, o.y, o.z))
-            .ok()
-            .map(|i| &self.bricks[i].1)
+        self.brick_index(origin).map(|i| &self.bricks[i].1)
+    }
+
+    fn brick_index(&self, origin: IVec3) -> Option<usize> {
+        self.bricks.binary_search_by_key(&(origin.x, origin.y, origin.z), |(o, _)| (o.x, o.y, o.z)).ok()
     }
 
     pub fn origins(&self) -> Vec<IVec3> {
         self.bricks.iter().map(|b| b.0).collect()
     }
+
+    /// World positions of the planned voxels: brick by brick in `bricks` order, offsets
+    /// ascending within a brick. Both backends evaluate this list; [`CachePlan::volume_of`]
+    /// puts the results back.
+    pub fn voxel_positions(&self) -> Vec<DVec3> {
+        let mut out = Vec::with_capacity(self.stats.baked as usize);
+        for (origin, mask) in &self.bricks {
+            for offset in 0..BRICK_VOXELS {
+                if mask_has(mask, offset) {
+                    out.push(self.transform.to_world((*origin + brick_local(offset)).as_dvec3()));
+                }
+            }
+        }
+        out
+    }
+
+    /// The cache volume holding `values[i]` at the i-th of [`CachePlan::voxel_positions`],
+    /// and how many values were non-finite: those are stored as zero, never written.
+    pub fn volume_of(&self, values: &[Vec3]) -> (Volume<Vec3>, u64) {
+        assert_eq!(values.len() as u64, self.stats.baked, "one value per planned voxel");
+        // Where each brick's run of values starts.
+        let first: Vec<usize> = self
+            .bricks
+            .iter()
+            .scan(0usize, |next, (_, mask)| {
+                let start = *next;
+                *next += mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+                Some(start)
+            })
+            .collect();
+        let nonfinite = AtomicU64::new(0);
+        let volume = Volume::from_brick_fn(self.transform, Vec3::ZERO, &self.origins(), |origin, brick| {
+            let b = self.brick_index(origin).expect("planned brick");
+            let mask = self.bricks[b].1;
+            let mut i = first[b];
+            for (offset, slot) in brick.iter_mut().enumerate() {
+                if mask_has(&mask, offset) {
+                    let li = values[i];
+                    i += 1;
+                    *slot = if li.is_finite() {
+                        li
+                    } else {
+                        nonfinite.fetch_add(1, Ordering::Relaxed);
+                        Vec3::ZERO
+                    };
+                }
+            }
+            mask
+        });
+        (volume, nonfinite.into_inner())
+    }
+}
+
+fn mask_has(mask: &BrickMask, offset: usize) -> bool {
+    mask[offset >> 6] & (1 << (offset & 63)) != 0
 }

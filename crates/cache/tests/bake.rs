@@ -1,5 +1,5 @@
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_volume::{Transform, Volume};
@@ -175,12 +175,23 @@ fn stress_cases_bake_finite_values() {
     let no_photons = PhotonMap::default();
     let inside = Camera::new(DVec3::new(0.05, 0.02, 0.01), DVec3::new(1.0, 0.3, 0.0), DVec3::Z, 90.0, 32, 32).unwrap();
     let cases: Vec<(&str, CacheParams, &PhotonMap)> = vec![
-        ("camera inside", CacheParams { multiple: true, ..params(inside.clone()) }, &photons),
+        ("camera inside", CacheParams { multiple: true, ..params(inside) }, &photons),
         ("grazing sun", CacheParams { lights: vec![Light::sun(Vec3::new(1.0, 0.0, -1e-4), Vec3::ONE).unwrap()], ..params(side_camera(&v)) }, &photons),
         ("zero photons", CacheParams { multiple: true, ..params(side_camera(&v)) }, &no_photons),
         ("extinction 1e6", CacheParams { medium: Medium { extinction: 1e6, ..Medium::default() }, multiple: true, ..params(side_camera(&v)) }, &photons),
     ];
+    let gpu = nimbus_gpu::test_context();
     for (name, p, map) in cases {
+        // The GPU backend (when there is an adapter) must hold up the same way.
+        if let Some(ctx) = gpu {
+            let (cache, stats) = bake_gpu(ctx, &v, map, &p).unwrap_or_else(|e| panic!("{name} on the GPU: {e}"));
+            assert_eq!(stats.nonfinite, 0, "{name} on the GPU");
+            for grid in [&cache.li_single, &cache.li_multiple].into_iter().flatten() {
+                for brick in grid.bricks() {
+                    assert!(brick.values.iter().all(|li| li.is_finite() && li.min_element() >= 0.0), "{name} on the GPU");
+                }
+            }
+        }
         let (cache, stats) = bake_cpu(&v, map, &p).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(stats.nonfinite, 0, "{name}");
         for grid in [&cache.li_single, &cache.li_multiple].into_iter().flatten() {

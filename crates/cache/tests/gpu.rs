@@ -1,0 +1,121 @@
+//! The GPU backend against the CPU one on lavapipe (or any adapter): the same plan, the same
+//! voxels, values to float tolerance.
+
+use glam::{DVec3, IVec3, Vec3};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache};
+use nimbus_optics::{Camera, Light, Medium};
+use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
+use nimbus_volume::{Transform, Volume};
+
+/// A lumpy ball, 25 voxels across, at a large world offset (f32 positions stay relative).
+fn lumpy_ball() -> Volume<f32> {
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::new(1e4, -3e3, 50.0)), 0.0);
+    for x in -12..=12 {
+        for y in -12..=12 {
+            for z in -12..=12 {
+                let c = IVec3::new(x, y, z);
+                let r = c.as_vec3().length() / 12.0;
+                let d = (1.0 - r).max(0.0) * 4.0 + 0.3 * ((x as f32) * 0.7).sin().abs() * (r < 1.0) as i32 as f32;
+                if d > 0.0 {
+                    v.set(c, d);
+                }
+            }
+        }
+    }
+    v
+}
+
+fn params(v: &Volume<f32>) -> CacheParams {
+    let (lo, hi) = v.world_bounds().unwrap();
+    let centre = 0.5 * (lo + hi);
+    CacheParams {
+        medium: Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.3 },
+        lights: vec![
+            Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),
+            Light::point(centre + DVec3::new(0.3, -2.0, 1.5), Vec3::splat(2.0)).unwrap(),
+        ],
+        camera: Camera::default_for_bounds(lo, hi).unwrap(),
+        step: 0.5,
+        cache_scale: 1.5,
+        single: true,
+        multiple: true,
+        gather: Gather::Neighbours { k: 32, max_radius: 0.6 },
+        min_transmittance: 1e-4,
+    }
+}
+
+fn photons(v: &Volume<f32>, p: &CacheParams) -> PhotonMap {
+    let tp = PhotonParams { medium: p.medium, lights: p.lights.clone(), photons: 20_000, seed: 3, ..PhotonParams::default() };
+    trace_cpu(v, &tp).unwrap().0
+}
+
+/// Largest difference over the voxels of `a`, and the peak of `a`; both grids hold the same voxels.
+fn compare(a: &Volume<Vec3>, b: &Volume<Vec3>) -> (f32, f32, usize) {
+    assert_eq!(a.active_voxel_count(), b.active_voxel_count());
+    let (mut worst, mut peak, mut n) = (0.0f32, 0.0f32, 0);
+    for brick in a.bricks() {
+        for (offset, va) in brick.values.iter().enumerate() {
+            let ijk = brick.origin + nimbus_volume::brick_local(offset);
+            if !a.is_active(ijk) {
+                continue;
+            }
+            assert!(b.is_active(ijk), "{ijk} baked on one backend only");
+
+            worst = worst.max((*va - b.get(ijk)).abs().max_element());
+            peak = peak.max(va.max_element());
+            n += 1;
+        }
+    }
+    (worst, peak, n)
+}
+
+fn both(v: &Volume<f32>, map: &PhotonMap, p: &CacheParams) -> Option<(IlluminationCache, IlluminationCache)> {
+    let ctx = nimbus_gpu::test_context()?;
+    let (cpu, cpu_stats) = bake_cpu(v, map, p).unwrap();
+    let (gpu, gpu_stats) = bake_gpu(ctx, v, map, p).unwrap();
+    assert_eq!(gpu_stats.baked, cpu_stats.baked);
+    assert_eq!(gpu_stats.nonfinite, 0);
+    // The same photons in (nearly) every ball: a k-th-nearest tie broken differently by f32
+    // rounding may swap one.
+    let (a, b) = (cpu_stats.photons_gathered as f64, gpu_stats.photons_gathered as f64);
+    assert!((a - b).abs() <= 1e-3 * a.max(1.0), "photons gathered: CPU {a}, GPU {b}");
+    Some((cpu, gpu))
+}
+
+#[test]
+fn single_and_multiple_scattering_agree_with_the_cpu() {
+    let v = lumpy_ball();
+    let p = params(&v);
+    let map = photons(&v, &p);
+    let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
+    let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
+    eprintln!("single: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(n > 1000 && peak > 0.0);
+    assert!(worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
+    eprintln!("multiple (k nearest): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(peak > 0.0);
+    assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+}
+
+#[test]
+fn a_fixed_radius_gather_agrees_with_the_cpu() {
+    let v = lumpy_ball();
+    let p = CacheParams { single: false, gather: Gather::Radius(0.25), ..params(&v) };
+    let map = photons(&v, &p);
+    let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
+    assert!(cpu.li_single.is_none() && gpu.li_single.is_none());
+    let (worst, peak, _) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
+    eprintln!("multiple (radius): worst {worst:.3e} of peak {peak:.3e}");
+    assert!(peak > 0.0);
+    assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+}
+
+#[test]
+fn too_many_neighbours_is_an_error_not_a_panic() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let p = CacheParams { gather: Gather::Neighbours { k: 10_000, max_radius: 0.6 }, ..params(&v) };
+    let map = photons(&v, &p);
+    assert!(bake_gpu(ctx, &v, &map, &p).is_err());
+}

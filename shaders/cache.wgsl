@@ -1,0 +1,329 @@
+// vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
+//
+// Composed as volume.wgsl (density = default volume, group 0, sampled exactly) + optics.wgsl
+// + tracking.wgsl + the host-generated constants (CACHE_MAX_NEIGHBOURS, BALL_SHELLS,
+// BALL_DIRECTIONS, from crates/cache/src/cpu.rs) + this file. Mirrors crates/cache/src/cpu.rs:
+// - bake_single: li_single, one Simpson shadow ray per light (track_transmittance);
+// - bake_multiple: li_multiple, the photons' radiance estimate over the k nearest (the same
+//   shell-by-shell bounded search over the same counting-sort bins as PhotonBins::nearest,
+//   with the same max-heap order) or within a fixed radius, divided by the mean sigma_s over
+//   the ball (the same 42-point quadrature).
+// Positions are f32 relative to the host's origin, which is the photon bins' origin when
+// there are photons, so bin-local positions are the very f32 values the CPU compares.
+
+struct CacheUniforms {
+    medium: Medium,
+    grid: MajorantGridInfo,
+    eye: vec3<f32>,
+    // Simpson step toward the lights, world units.
+    step: f32,
+    bins_dims: vec3<i32>,
+    bins_cell: f32,
+    // First voxel of this dispatch and how many.
+    first: u32,
+    count: u32,
+    light_count: u32,
+    // Shadow rays stop below this transmittance.
+    cutoff: f32,
+    // Neighbours wanted (GATHER_NEAREST).
+    k: u32,
+    // Fixed radius, or the largest adaptive one; and its square rounded from f64 as the CPU does.
+    radius: f32,
+    radius_sq: f32,
+    gather_mode: u32,
+    // Shells the nearest-photon search may visit (PhotonBins::nearest's max_shell).
+    max_shell: i32,
+    // Mean density below which a ball counts as empty (cpu.rs EMPTY_BALL_FRACTION).
+    empty_below: f32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+// Photons sorted by bin; `index` is the photon's number in the map (the CPU's tie-break).
+struct CachePhoton {
+    position: vec3<f32>,
+    index: u32,
+    power: vec3<f32>,
+    _pad0: u32,
+    dir: vec3<f32>,
+    _pad1: u32,
+}
+
+struct CacheOut {
+    li: vec3<f32>,
+    // Photons the estimate used.
+    used: u32,
+}
+
+const GATHER_NEAREST: u32 = 0u;
+const GATHER_RADIUS: u32 = 1u;
+
+@group(1) @binding(0) var<uniform> params: CacheUniforms;
+@group(1) @binding(1) var<storage, read> majorant_values: array<f32>;
+@group(1) @binding(2) var<storage, read> lights: array<Light>;
+@group(1) @binding(3) var<storage, read> points: array<vec4<f32>>;
+@group(1) @binding(4) var<storage, read> bin_starts: array<u32>;
+@group(1) @binding(5) var<storage, read> photons: array<CachePhoton>;
+@group(1) @binding(6) var<storage, read_write> out: array<CacheOut>;
+
+fn majorant_fetch(index: u32) -> f32 {
+    return majorant_values[index];
+}
+
+// Unit direction toward the eye (zero at the eye, as normalize_or_zero).
+fn toward_eye(x: vec3<f32>) -> vec3<f32> {
+    let d = params.eye - x;
+    let l = length(d);
+    if (l > 0.0) {
+        return d / l;
+    }
+    return vec3<f32>(0.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Single scattering: sum over lights of p(w_light, w_out) E T_light(x).
+
+fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
+    let o = volume_world_to_index(x);
+    var sum = vec3<f32>(0.0);
+    for (var i = 0u; i < params.light_count; i = i + 1u) {
+        let inc = light_incident(lights[i], x);
+        if (all(inc.irradiance == vec3<f32>(0.0))) {
+            continue;
+        }
+        let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
+        let ray = TrackRay(o, d, params.medium.extinction);
+        let tr = track_transmittance(ray, params.grid, inc.distance, params.step, params.cutoff);
+        sum = sum + inc.irradiance * tr * hg_eval(params.medium.g, dot(-inc.to_light, w_out));
+    }
+    return sum;
+}
+
+// ---------------------------------------------------------------------------------------
+// Multiple scattering.
+
+// The k nearest so far: a binary max-heap on (squared distance, photon index), the order of
+// the CPU's BinaryHeap<(f32 bits, index)>. heap_j holds slots of `photons`.
+var<private> heap_d: array<f32, CACHE_MAX_NEIGHBOURS>;
+var<private> heap_j: array<u32, CACHE_MAX_NEIGHBOURS>;
+
+fn heap_above(a: u32, b: u32) -> bool {
+    let da = heap_d[a];
+    let db = heap_d[b];
+    return da > db || (da == db && photons[heap_j[a]].index > photons[heap_j[b]].index);
+}
+
+fn heap_swap(a: u32, b: u32) {
+    let d = heap_d[a];
+    let j = heap_j[a];
+    heap_d[a] = heap_d[b];
+    heap_j[a] = heap_j[b];
+    heap_d[b] = d;
+    heap_j[b] = j;
+}
+
+fn heap_push(len: u32, d: f32, j: u32) {
+    heap_d[len] = d;
+    heap_j[len] = j;
+    var i = len;
+    while (i > 0u) {
+        let parent = (i - 1u) / 2u;
+        if (!heap_above(i, parent)) {
+            break;
+        }
+        heap_swap(i, parent);
+        i = parent;
+    }
+}
+
+fn heap_replace_top(len: u32, d: f32, j: u32) {
+    heap_d[0] = d;
+    heap_j[0] = j;
+    var i = 0u;
+    loop {
+        let l = 2u * i + 1u;
+        let r = l + 1u;
+        var m = i;
+        if (l < len && heap_above(l, m)) {
+            m = l;
+        }
+        if (r < len && heap_above(r, m)) {
+            m = r;
+        }
+        if (m == i) {
+            break;
+        }
+        heap_swap(i, m);
+        i = m;
+    }
+}
+
+fn bin_id(c: vec3<i32>) -> u32 {
+    let d = params.bins_dims;
+    return u32((c.x * d.y + c.y) * d.z + c.z);
+}
+
+// Offers the photons in slots [a, b) to the heap of `len` entries; returns the new length.
+fn offer_run(a: u32, b: u32, q: vec3<f32>, len_in: u32) -> u32 {
+    var len = len_in;
+    for (var j = a; j < b; j = j + 1u) {
+        let e = photons[j].position - q;
+        let d2 = dot(e, e);
+        if (d2 > params.radius_sq) {
+            continue;
+        }
+        if (len < params.k) {
+            heap_push(len, d2, j);
+            len = len + 1u;
+        } else if (d2 < heap_d[0]) {
+            heap_replace_top(len, d2, j);
+        }
+    }
+    return len;
+}
+
+struct Gathered {
+    sum: vec3<f32>,
+    used: u32,
+    radius: f32,
+}
+
+fn photon_term(j: u32, w_out: vec3<f32>) -> vec3<f32> {
+    let p = photons[j];
+    return p.power * hg_eval(params.medium.g, dot(p.dir, w_out));
+}
+
+// PhotonBins::nearest: shells of cells outward from q's cell, stopping once the next shell
+// cannot hold anything nearer than the current k-th. The shell's cells are visited as rows
+// along z (contiguous in the bins) rather than by testing every cell of its cube.
+fn gather_nearest(q: vec3<f32>, w_out: vec3<f32>) -> Gathered {
+    let cell = params.bins_cell;
+    let dims = params.bins_dims;
+    let centre = vec3<i32>(floor(q / cell));
+    var len = 0u;
+    for (var shell = 0; shell <= params.max_shell; shell = shell + 1) {
+        let reach = f32(max(shell - 1, 0)) * cell;
+        if (reach * reach > params.radius_sq || (len == params.k && reach * reach > heap_d[0])) {
+            break;
+        }
+        let lo = centre - vec3<i32>(shell);
+        let hi = centre + vec3<i32>(shell);
+        let clo = max(lo, vec3<i32>(0));
+        let chi = min(hi, dims - vec3<i32>(1));
+        for (var x = clo.x; x <= chi.x; x = x + 1) {
+            for (var y = clo.y; y <= chi.y; y = y + 1) {
+                if (x == lo.x || x == hi.x || y == lo.y || y == hi.y) {
+                    if (clo.z <= chi.z) {
+                        len = offer_run(bin_starts[bin_id(vec3<i32>(x, y, clo.z))], bin_starts[bin_id(vec3<i32>(x, y, chi.z)) + 1u], q, len);
+                    }
+                } else {
+                    // Inside the cube's x-y extent only the two z faces are on the shell.
+                    if (lo.z >= 0 && lo.z < dims.z) {
+                        let id = bin_id(vec3<i32>(x, y, lo.z));
+                        len = offer_run(bin_starts[id], bin_starts[id + 1u], q, len);
+                    }
+                    if (hi.z != lo.z && hi.z >= 0 && hi.z < dims.z) {
+                        let id = bin_id(vec3<i32>(x, y, hi.z));
+                        len = offer_run(bin_starts[id], bin_starts[id + 1u], q, len);
+                    }
+                }
+            }
+        }
+    }
+    var g = Gathered(vec3<f32>(0.0), len, params.radius);
+    for (var i = 0u; i < len; i = i + 1u) {
+        g.sum = g.sum + photon_term(heap_j[i], w_out);
+    }
+    // Fewer than k photons within reach: the ball is the whole reach.
+    if (len == params.k) {
+        g.radius = sqrt(heap_d[0]);
+    }
+    return g;
+}
+
+// PhotonBins::for_each_within: every photon within the fixed radius.
+fn gather_within(q: vec3<f32>, w_out: vec3<f32>) -> Gathered {
+    let cell = params.bins_cell;
+    let r = params.radius;
+    let lo = max(vec3<i32>(floor((q - vec3<f32>(r)) / cell)), vec3<i32>(0));
+    let hi = min(vec3<i32>(floor((q + vec3<f32>(r)) / cell)), params.bins_dims - vec3<i32>(1));
+    var g = Gathered(vec3<f32>(0.0), 0u, r);
+    if (lo.z > hi.z) {
+        return g;
+    }
+    for (var x = lo.x; x <= hi.x; x = x + 1) {
+        for (var y = lo.y; y <= hi.y; y = y + 1) {
+            let a = bin_starts[bin_id(vec3<i32>(x, y, lo.z))];
+            let b = bin_starts[bin_id(vec3<i32>(x, y, hi.z)) + 1u];
+            for (var j = a; j < b; j = j + 1u) {
+                let e = photons[j].position - q;
+                if (dot(e, e) <= params.radius_sq) {
+                    g.sum = g.sum + photon_term(j, w_out);
+                    g.used = g.used + 1u;
+                }
+            }
+        }
+    }
+    return g;
+}
+
+// mean_density_in_ball: 14 directions on 3 equal-volume shells, equally weighted.
+fn mean_density_in_ball(x: vec3<f32>, radius: f32) -> f32 {
+    var sum = 0.0;
+    for (var s = 0u; s < 3u; s = s + 1u) {
+        for (var d = 0u; d < 14u; d = d + 1u) {
+            let p = x + BALL_DIRECTIONS[d] * (BALL_SHELLS[s] * radius);
+            sum = sum + max(volume_sample_index(volume_world_to_index(p)), 0.0);
+        }
+    }
+    return sum / 42.0;
+}
+
+fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
+    var g: Gathered;
+    if (params.gather_mode == GATHER_RADIUS) {
+        g = gather_within(x, w_out);
+    } else {
+        g = gather_nearest(x, w_out);
+    }
+    if (g.used == 0u || g.radius <= 0.0) {
+        return CacheOut(vec3<f32>(0.0), g.used);
+    }
+    let mean_density = mean_density_in_ball(x, g.radius);
+    if (mean_density < params.empty_below) {
+        return CacheOut(vec3<f32>(0.0), g.used);
+    }
+    let volume = 4.0 / 3.0 * OPTICS_PI * g.radius * g.radius * g.radius;
+    let mean_sigma_s = medium_sigma_s(params.medium, mean_density);
+    let estimate = g.sum / volume;
+    let li = select(vec3<f32>(0.0), estimate / mean_sigma_s, mean_sigma_s > vec3<f32>(0.0));
+    return CacheOut(li, g.used);
+}
+
+// ---------------------------------------------------------------------------------------
+
+const WORKGROUP_SIZE: u32 = 64u;
+
+@compute @workgroup_size(64)
+fn bake_single(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_index) local: u32) {
+    let i = dispatch_linear_index(wg, nwg, local, WORKGROUP_SIZE);
+    if (i >= params.count) {
+        return;
+    }
+    let v = params.first + i;
+    let x = points[v].xyz;
+    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u);
+}
+
+@compute @workgroup_size(64)
+fn bake_multiple(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) local: u32) {
+    let i = dispatch_linear_index(wg, nwg, local, WORKGROUP_SIZE);
+    if (i >= params.count) {
+        return;
+    }
+    let v = params.first + i;
+    let x = points[v].xyz;
+    out[v] = li_multiple(x, toward_eye(x));
+}
