@@ -185,6 +185,30 @@ fn metadata_carries_parameters_down_the_chain() {
 }
 
 #[test]
+fn quality_presets_set_the_tools_and_flags_override_them() {
+    let dir = scratch("quality");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let (d, p, c, e) = (dir.join("d.vdb"), dir.join("p.vdb"), dir.join("c.vdb"), dir.join("i.exr"));
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
+    // draft: 50000 photons by delta tracking; --photons overrides the count only.
+    run(Command::new(bin("vdbphoton")).arg(&d).args(["--quality", "draft", "--photons", "3000"]).arg("-o").arg(&p));
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "draft", "--width", "16", "--height", "12"]).arg("-o").arg(&c));
+    let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "final", "-v"]).arg("-o").arg(&e));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(log.contains("16x12 pixels, 4 spp"), "final marches 4 spp: {log}");
+    if let Ok(out) = Command::new("vdb_print").args(["-l", "-m"]).arg(&c).output() {
+        let listing = String::from_utf8_lossy(&out.stdout);
+        for expected in ["distance=delta", "photons=3000", "cache_scale=4", "gather=neighbours:32:"] {
+            assert!(listing.contains(expected), "{expected} missing from {listing}");
+        }
+    }
+    let bad = Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "ultra"]).arg("-o").arg(dir.join("x.exr")).output().unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
 fn the_gpu_backend_runs_in_the_chain() {
     let dir = scratch("gpu");
     let ply = dir.join("ball.ply");

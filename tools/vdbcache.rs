@@ -6,7 +6,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather};
-use nimbus_cli::{read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, VdbOutputArgs};
+use nimbus_cli::{
+    read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
+};
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
 
@@ -30,12 +32,17 @@ struct Args {
     /// panels also split at voxel boundaries, so the trilinear density is integrated exactly).
     #[arg(long, default_value_t = 1.0)]
     step: f64,
-    /// Cache voxel edge in density voxels: illumination is smoother than density.
-    #[arg(long, default_value_t = 2.0)]
-    cache_scale: f64,
-    /// Photons per multiple-scattering estimate (adaptive radius).
-    #[arg(long, default_value_t = 64, conflicts_with = "radius")]
-    gather_neighbours: u32,
+    /// Cache voxel edge in density voxels: illumination is smoother than density (default 2,
+    /// or the --quality preset's).
+    #[arg(long)]
+    cache_scale: Option<f64>,
+    /// Photons per multiple-scattering estimate, adaptive radius (default 64, or the
+    /// --quality preset's).
+    #[arg(long, conflicts_with = "radius")]
+    gather_neighbours: Option<u32>,
+    /// Preset: draft, preview or final (cache scale and gather neighbours; flags override).
+    #[arg(long, value_enum)]
+    quality: Option<Quality>,
     /// Fixed gather radius (world units) instead of --gather-neighbours.
     #[arg(long)]
     radius: Option<f64>,
@@ -93,17 +100,21 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let meta = PipelineMeta::of(&file);
     let traced = (!photons.is_empty()).then_some("the photons were traced with");
     let voxel = density.transform().voxel_size().min_element();
+    let preset = args.quality.map(Quality::settings);
     let params = CacheParams {
         medium: args.medium.resolve(&meta, &log, traced)?,
         lights: args.lights.resolve(&meta, &log, traced)?,
         camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
         step: args.step,
-        cache_scale: args.cache_scale,
+        cache_scale: args.cache_scale.or(preset.map(|q| q.cache_scale)).unwrap_or(2.0),
         single: !args.no_single,
         multiple: !args.no_multiple,
         gather: match args.radius {
             Some(r) => Gather::Radius(r),
-            None => Gather::Neighbours { k: args.gather_neighbours, max_radius: args.max_radius * voxel },
+            None => Gather::Neighbours {
+                k: args.gather_neighbours.or(preset.map(|q| q.gather_neighbours)).unwrap_or(64),
+                max_radius: args.max_radius * voxel,
+            },
         },
         min_transmittance: args.min_transmittance,
     };
