@@ -136,6 +136,7 @@ fn main() {
         let start = Instant::now();
         let reference = render_cpu(&scene.density, &scene.cache, &fine).unwrap();
         eprintln!("{}: reference (1024x576, 4 spp, step/2) in {:.1} s", scene.name, start.elapsed().as_secs_f64());
+        // Mean over pixels of R + G + B, as `mean` below.
         let ref_mean = reference.mean_rgb().element_sum() as f64;
         for &(w, h) in &sizes {
             for spp in if (w, h) == (4096, 2304) { vec![1] } else { vec![1, 4] } {
@@ -155,7 +156,7 @@ fn main() {
                         scene.name,
                         time.as_secs_f64(),
                         err,
-                        mean / (ref_mean / reference.rgba.len() as f64)
+                        mean / ref_mean
                     );
                 }
             }
