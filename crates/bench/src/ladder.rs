@@ -301,59 +301,62 @@ fn mark_pareto(rows: &mut [Row]) {
     }
 }
 
-const HEADER: &str = "scene,rung,photons,distance,neighbours,cache_scale,step_factor,spp,photon_s,cache_s,march_s,total_s,relative_rmse,corrected_rmse,mean_ratio,pareto";
+/// The table's columns: (CSV name, Markdown heading).
+const COLUMNS: [(&str, &str); 16] = [
+    ("scene", "scene"),
+    ("rung", "rung"),
+    ("photons", "photons"),
+    ("distance", "distance"),
+    ("neighbours", "K"),
+    ("cache_scale", "cache scale"),
+    ("step_factor", "step x"),
+    ("spp", "spp"),
+    ("photon_s", "vdbphoton s"),
+    ("cache_s", "vdbcache s"),
+    ("march_s", "vdbmarch s"),
+    ("total_s", "total s"),
+    ("relative_rmse", "rel. RMSE"),
+    ("corrected_rmse", "less ref. noise"),
+    ("mean_ratio", "mean ratio"),
+    ("pareto", "Pareto"),
+];
+
+/// A row's values in [`COLUMNS`] order.
+fn fields(r: &Row) -> Vec<String> {
+    let g = &r.rung;
+    vec![
+        r.scene.to_string(),
+        g.name.clone(),
+        g.photons.to_string(),
+        g.distance.to_string(),
+        g.neighbours.to_string(),
+        g.cache_scale.to_string(),
+        g.step_factor.to_string(),
+        g.spp.to_string(),
+        format!("{:.2}", r.photon_s),
+        format!("{:.2}", r.cache_s),
+        format!("{:.2}", r.march_s),
+        format!("{:.2}", r.total_s()),
+        format!("{:.4}", r.relative_rmse),
+        format!("{:.4}", r.corrected_rmse),
+        format!("{:.4}", r.mean_ratio),
+        r.pareto.to_string(),
+    ]
+}
 
 pub fn to_csv(rows: &[Row]) -> String {
-    let mut out = format!("{HEADER}\n");
+    let mut out = COLUMNS.map(|c| c.0).join(",") + "\n";
     for r in rows {
-        let g = &r.rung;
-        out += &format!(
-            "{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.5},{:.5},{:.4},{}\n",
-            r.scene,
-            g.name,
-            g.photons,
-            g.distance,
-            g.neighbours,
-            g.cache_scale,
-            g.step_factor,
-            g.spp,
-            r.photon_s,
-            r.cache_s,
-            r.march_s,
-            r.total_s(),
-            r.relative_rmse,
-            r.corrected_rmse,
-            r.mean_ratio,
-            r.pareto
-        );
+        out += &(fields(r).join(",") + "\n");
     }
     out
 }
 
 fn print_table(rows: &[Row]) {
-    println!("| scene | rung | photons | distance | K | cache scale | step | spp | vdbphoton s | vdbcache s | vdbmarch s | total s | rel. RMSE | less ref. noise | mean ratio | Pareto |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| {} |", COLUMNS.map(|c| c.1).join(" | "));
+    println!("|{}", "---|".repeat(COLUMNS.len()));
     for r in rows {
-        let g = &r.rung;
-        println!(
-            "| {} | {} | {} | {} | {} | {} | x{} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.4} | {:.4} | {:.3} | {} |",
-            r.scene,
-            g.name,
-            g.photons,
-            g.distance,
-            g.neighbours,
-            g.cache_scale,
-            g.step_factor,
-            g.spp,
-            r.photon_s,
-            r.cache_s,
-            r.march_s,
-            r.total_s(),
-            r.relative_rmse,
-            r.corrected_rmse,
-            r.mean_ratio,
-            if r.pareto { "*" } else { "" }
-        );
+        println!("| {} |", fields(r).join(" | "));
     }
 }
 

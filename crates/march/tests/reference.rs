@@ -1,6 +1,8 @@
 //! The reference path tracer (`vdbmarch --reference`) against closed forms and against the
 //! cached chain.
 
+mod common;
+
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_cache::{bake_cpu, CacheParams, Gather};
 use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
@@ -12,24 +14,8 @@ const VOXEL: f64 = 0.05;
 
 fn no_progress(_: u64) {}
 
-/// A soft ball with a denser lobe (as in single_scattering.rs).
 fn ball() -> Volume<f32> {
-    let mut v = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0);
-    let r = 14;
-    for x in -r..=r {
-        for y in -r..=r {
-            for z in -r..=r {
-                let p = IVec3::new(x, y, z).as_dvec3() * VOXEL;
-                let ball = (1.0 - p.length() / (r as f64 * VOXEL)).max(0.0);
-                let lobe = (-(p - DVec3::new(0.2, 0.0, 0.15)).length_squared() / 0.02).exp();
-                let d = 3.0 * ball + 6.0 * lobe * ball.min(1.0);
-                if d > 0.0 {
-                    v.set(IVec3::new(x, y, z), d as f32);
-                }
-            }
-        }
-    }
-    v
+    common::soft_ball(VOXEL)
 }
 
 fn params(medium: Medium, lights: Vec<Light>, camera: Camera, spp: u32) -> ReferenceParams {

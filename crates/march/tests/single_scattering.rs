@@ -2,33 +2,19 @@
 //! vdbmarch) against a brute-force single-scattering render written independently here: at
 //! every fine step along a camera ray, a fine Riemann shadow ray toward the sun, no cache.
 
-use glam::{DVec3, IVec3, Vec3};
+mod common;
+
+use glam::{DVec3, Vec3};
 use nimbus_cache::{bake_cpu, CacheParams, Gather};
 use nimbus_march::{render_cpu, MarchParams};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
-use nimbus_volume::{Transform, Volume};
+use nimbus_volume::Volume;
 
 const VOXEL: f64 = 0.05;
 
-/// A soft ball with a denser lobe: smooth enough that cache interpolation error is small.
 fn volume() -> Volume<f32> {
-    let mut v = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0);
-    let r = 14;
-    for x in -r..=r {
-        for y in -r..=r {
-            for z in -r..=r {
-                let p = IVec3::new(x, y, z).as_dvec3() * VOXEL;
-                let ball = (1.0 - p.length() / (r as f64 * VOXEL)).max(0.0);
-                let lobe = (-(p - DVec3::new(0.2, 0.0, 0.15)).length_squared() / 0.02).exp();
-                let d = 3.0 * ball + 6.0 * lobe * ball.min(1.0);
-                if d > 0.0 {
-                    v.set(IVec3::new(x, y, z), d as f32);
-                }
-            }
-        }
-    }
-    v
+    common::soft_ball(VOXEL)
 }
 
 #[test]

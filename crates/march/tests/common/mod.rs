@@ -38,6 +38,27 @@ pub fn cloud(n: i32, peak: f32, centre: DVec3) -> Volume<f32> {
     v
 }
 
+/// A soft ball of radius 14 voxels of edge `voxel` around the origin, with a denser lobe
+/// off-centre: smooth enough that cache interpolation error stays small.
+pub fn soft_ball(voxel: f64) -> Volume<f32> {
+    let mut v = Volume::new(Transform::uniform(voxel, DVec3::ZERO), 0.0);
+    let r = 14;
+    for x in -r..=r {
+        for y in -r..=r {
+            for z in -r..=r {
+                let p = IVec3::new(x, y, z).as_dvec3() * voxel;
+                let ball = (1.0 - p.length() / (r as f64 * voxel)).max(0.0);
+                let lobe = (-(p - DVec3::new(0.2, 0.0, 0.15)).length_squared() / 0.02).exp();
+                let d = 3.0 * ball + 6.0 * lobe * ball.min(1.0);
+                if d > 0.0 {
+                    v.set(IVec3::new(x, y, z), d as f32);
+                }
+            }
+        }
+    }
+    v
+}
+
 /// A smoothly varying cache: Li_single on the density's lattice, Li_multiple on a lattice
 /// twice as coarse and offset, both covering the density and a margin.
 pub fn cache_for(density: &Volume<f32>) -> IlluminationCache {
