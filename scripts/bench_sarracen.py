@@ -59,6 +59,7 @@ def main():
     args = ap.parse_args()
 
     import sarracen
+    from sarracen.interpolate import interpolate_3d_grid
     from scipy.spatial import cKDTree
     import numba
 
@@ -78,7 +79,7 @@ def main():
     small = slice(0, min(n, 1000))
     sdf = sarracen.SarracenDataFrame({"x": xyz[small, 0], "y": xyz[small, 1], "z": xyz[small, 2], "h": np.full(small.stop, args.h0),
                                       "m": mass[small], "one": np.ones(small.stop)}, params={"hfact": 1.2})
-    sarracen.interpolate_3d_grid(sdf, "one", x_pixels=8, y_pixels=8, z_pixels=8, xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]),
+    interpolate_3d_grid(sdf, "one", x_pixels=8, y_pixels=8, z_pixels=8, xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]),
                                  zlim=(lo[2], hi[2]), dens_weight=True, normalize=False, backend="cpu")
     print(f"numba JIT warm-up {time.perf_counter() - t:.2f} s (not in the times below)")
 
@@ -93,7 +94,7 @@ def main():
             else:
                 d, _ = cKDTree(xyz).query(xyz, k=args.neighbours + 1, workers=-1)
                 h = d[:, -1] / 2.0
-            out = sarracen.interpolate_3d_grid(
+            out = interpolate_3d_grid(
                 sarracen.SarracenDataFrame({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "h": h, "m": mass, "one": np.ones(n)},
                                            params={"hfact": 1.2}),
                 "one", x_pixels=nx, y_pixels=ny, z_pixels=nz, xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]),

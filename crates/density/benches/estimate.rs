@@ -8,7 +8,8 @@
 //!
 //!     CARGO_TARGET_DIR=... cargo bench -p nimbus-density --bench estimate [-- quick] [-- cpu|gpu] [-- SCENE...]
 //!
-//! Environment: NEIGHBOURS=N sets N* (default 32), RUNS=R the runs per row (default 3).
+//! Environment: NEIGHBOURS=N sets N* (default 32), RUNS=R the CPU runs per row (default 3),
+//! GPU_RUNS=R the GPU's (default 1: on a software adapter one run takes tens of seconds).
 
 use std::time::Instant;
 
@@ -33,6 +34,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).filter(|a| a != "--bench").collect();
     let runs: usize = if args.iter().any(|a| a == "quick") { 1 } else { std::env::var("RUNS").ok().and_then(|r| r.parse().ok()).unwrap_or(3) };
+    let gpu_runs: usize = if args.iter().any(|a| a == "quick") { 1 } else { std::env::var("GPU_RUNS").ok().and_then(|r| r.parse().ok()).unwrap_or(1) };
     let neighbours: u32 = std::env::var("NEIGHBOURS").ok().and_then(|n| n.parse().ok()).unwrap_or(32);
     let only_cpu = args.iter().any(|a| a == "cpu");
     let only_gpu = args.iter().any(|a| a == "gpu");
@@ -51,7 +53,7 @@ fn main() {
     if scenes.is_empty() {
         scenes = vec![Scene::cloud1(), Scene::plume()];
     }
-    println!("{} threads; GPU: {}; N* = {neighbours}; median of {runs}", rayon::current_num_threads(), ctx.as_ref().map_or("none".into(), |c| c.info.to_string()));
+    println!("{} threads; GPU: {}; N* = {neighbours}; median of {runs} CPU / {gpu_runs} GPU runs", rayon::current_num_threads(), ctx.as_ref().map_or("none".into(), |c| c.info.to_string()));
     for scene in scenes {
         let particles = scene.particles(1);
         let base = DensityParams {
@@ -81,7 +83,7 @@ fn main() {
                 let mut walls = Vec::new();
                 let mut cpus = Vec::new();
                 let mut last = None;
-                for _ in 0..runs {
+                for _ in 0..if gpu.is_some() { gpu_runs } else { runs } {
                     let (c0, t0) = (cpu_seconds(), Instant::now());
                     let out = match gpu {
                         Some(ctx) => estimate_gpu(ctx, &particles, &params),

@@ -6,7 +6,8 @@
 //! prepare(particles, params)        backend-independent set-up              setup.rs
 //!        |  h0 (fixed or auto), grid, particles rebased to index space as f32,
 //!        |  counting sort into cells, bricks within kappa*h0 of a particle
-//! estimate_cpu                      rayon over bricks, splat passes         cpu.rs
+//! estimate_cpu | estimate_gpu       rayon splat per brick | wgpu gather per   cpu.rs, gpu.rs
+//!        |                          voxel (shaders/density.wgsl)
 //!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
 //! finish                            noise, threshold, volumes, stats        lib.rs, optics::noise
 //!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?, stats }
@@ -66,11 +67,17 @@
 //!
 //! # Backends
 //!
-//! [`prepare`] does everything that is not per grid point and returns [`Prepared`] (sorted
-//! f32 positions, masses, cell table, brick list): a GPU backend uploads it and runs the same
-//! passes per voxel with [`PointParams`] as its uniform block. The finishing step (noise,
-//! threshold, volumes, stats) takes per-brick arrays and is crate-private today: a GPU backend
-//! placed in this crate (behind a feature) reuses it as is. [`estimate_cpu`] is the CPU path.
+//! [`estimate_cpu`] and [`estimate_gpu`] take the same [`DensityParams`] and run the same
+//! pipeline: [`prepare`] (h0, grid, counting sort into cells, brick proposal), the method's
+//! passes on the backend, then one shared path for the results (world normalisation of the
+//! per-brick sums, the Table 2 occupancy) and the finishing step (noise, threshold, volumes,
+//! stats). The passes differ only in how they walk the (particle, voxel) pairs: the CPU splats
+//! per brick (above); the GPU (`shaders/density.wgsl`, one invocation per voxel and pass)
+//! gathers from the cells its support overlaps, since WGSL has no float atomics for a
+//! scatter. knn on the GPU keeps the N* nearest in a private sorted list up to N* = 64 and
+//! bisects on the bits of the squared distance with counting passes above that (exact, slower).
+//! Both use the [`kernel`] functions' f32 arithmetic, so they agree with each other and with a
+//! brute-force reference to float tolerance (tests/reference.rs).
 
 pub mod analytic;
 mod cpu;
