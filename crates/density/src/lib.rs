@@ -55,16 +55,19 @@
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
 //!   +0.5..4% on the analytic test scenes, see the accuracy example.
 //!
-//! # Measured (run examples/accuracy.rs to reproduce)
+//! # Measured (examples/accuracy.rs and benches/estimate.rs reproduce these)
 //!
 //! Relative L2 error against analytic densities: asl3 ~= knn at the same N* (the
 //! predictor-corrector is as good as the exact neighbour search), and both far better than usl
-//! with h0 off by 2x. At N* = 32 the adaptive estimates are noise-limited on smooth or thin
-//! structures (a thin shell, a plume: +30..38% over the best oracle-tuned usl), while N* = 128
-//! beats or nearly matches that usl on every scene (-12%, -4%, +10%) at ~4x the cost. h_min =
-//! 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel), 2 voxels
-//! blurs dense knots.
-//!
+//! with h0 off by 2x. The default N* = 32 (design.md) is the sharpest on dense knots (asl3
+//! 0.132 vs the best oracle-tuned usl 0.144) but noise-limited on smooth or thin structures,
+//! which the L2 norm weighs by their density: shell +38%, plume +31% over the best usl, and the
+//! Cloud1-class puffs 0.36 vs usl at auto h0 0.17. More neighbours trade time for that noise:
+//! asl3 at N* = 64 / 128 gives cloud1 0.256 / 0.185, plume 0.121 / 0.110 (best usl ~0.10..0.14)
+//! at 1.4x / 2.8x the CPU time; N* = 128 is within 5% of the best usl on knots and shell.
+//! h_min = 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel),
+//! 2 voxels blurs dense knots.
+
 //! # Backends
 //!
 //! [`estimate_cpu`] and [`estimate_gpu`] take the same [`DensityParams`] and run the same
