@@ -214,13 +214,28 @@ fn the_gpu_backend_runs_in_the_chain() {
     let ply = dir.join("ball.ply");
     write_particles(&ply, 2000);
     let (d, p) = (dir.join("d.vdb"), dir.join("p.vdb"));
-    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
-    let out = Command::new(bin("vdbphoton")).arg(&d).args(["--device", "gpu", "--photons", "2000", "-v"]).arg("-o").arg(&p).output().unwrap();
+    let out = Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--device", "gpu"]).arg("-o").arg(&d).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     if out.status.code() == Some(1) && err.contains("adapter") {
         eprintln!("SKIPPED: no GPU adapter, not even lavapipe (apt install mesa-vulkan-drivers): {err}");
         return;
     }
+    assert!(out.status.success(), "{err}");
+    // The GPU density matches the CPU's to float tolerance, voxel for voxel.
+    let d_cpu = dir.join("d_cpu.vdb");
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--device", "cpu"]).arg("-o").arg(&d_cpu));
+    let read = |path: &Path| nimbus_vdb::VdbFile::open(path).unwrap().read_float("density").unwrap();
+    let (gpu_density, cpu_density) = (read(&d), read(&d_cpu));
+    assert_eq!(gpu_density.active_voxel_count(), cpu_density.active_voxel_count());
+    let max = cpu_density.bricks().flat_map(|b| b.values.iter().copied()).fold(0.0f32, f32::max);
+    for brick in cpu_density.bricks() {
+        for (v, &rho) in brick.values.iter().enumerate() {
+            let ijk = brick.origin + nimbus_volume::brick_local(v);
+            assert!((gpu_density.get(ijk) - rho).abs() <= 1e-5 * max, "density at {ijk}: gpu {} cpu {rho}", gpu_density.get(ijk));
+        }
+    }
+    let out = Command::new(bin("vdbphoton")).arg(&d).args(["--device", "gpu", "--photons", "2000", "-v"]).arg("-o").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("stored 2000"), "{err}");
     // The cache baked on the GPU matches the CPU's: the images marched from each agree.

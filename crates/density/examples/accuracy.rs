@@ -1,43 +1,24 @@
 //! Accuracy and timing of the density methods against analytic densities.
 //!
-//!     cargo run --release -p nimbus-density --example accuracy [-- SCENE... | --timing]
+//!     cargo run --release -p nimbus-density --example accuracy [-- SCENE...]
 //!
 //! For each scene (knots, shell, plume, cloud1; default the first three) it samples particles
 //! from the analytic density, estimates the density on one fixed grid with each method, and
 //! prints the relative L2 error against the true density over every grid point
 //! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
 //! particles used (mean, std over occupied voxels) and the time. usl runs over an h0 sweep;
-//! asl3 over N* and h_min. `--timing` instead times each method on the Cloud1-class scene
-//! (500k particles, 339 x 42 x 361 voxels) and the plume (330k particles); environment
-//! METHOD=usl|asl2|asl3|knn picks one method, NEIGHBOURS=N sets N* (default 32).
+//! asl3 over N* and h_min. Backend timings (CPU and GPU, the benchmark scenes) are the
+//! `estimate` bench's table.
 
 use std::time::Instant;
 
-use glam::IVec3;
-use nimbus_density::analytic::Scene;
+use nimbus_density::analytic::{Scene, TrueGrid};
 use nimbus_density::*;
-use rayon::prelude::*;
 
-struct Truth {
-    grid: Grid,
-    values: Vec<f64>,
-    norm2: f64,
-}
-
-/// The true density at every grid point of the scene's default (asl3, h0 auto) grid.
-fn truth(scene: &Scene, particles: &ParticleSet) -> Truth {
+/// The true density on the scene's default (asl3, h0 auto) grid.
+fn truth(scene: &Scene, particles: &ParticleSet) -> TrueGrid {
     let params = DensityParams { resolution: Resolution::VoxelSize(scene.voxel_size), bounds: scene.bounds, ..Default::default() };
-    let grid = plan_grid(particles, &params).unwrap();
-    let d = grid.dims;
-    let values: Vec<f64> = (0..grid.voxel_count() as usize)
-        .into_par_iter()
-        .map(|n| {
-            let ijk = IVec3::new((n % d.x as usize) as i32, ((n / d.x as usize) % d.y as usize) as i32, (n / (d.x * d.y) as usize) as i32);
-            scene.true_density(voxel_world(&grid, ijk))
-        })
-        .collect();
-    let norm2 = values.iter().map(|v| v * v).sum();
-    Truth { grid, values, norm2 }
+    TrueGrid::new(scene, plan_grid(particles, &params).unwrap())
 }
 
 struct Row {
@@ -48,7 +29,7 @@ struct Row {
     seconds: f64,
 }
 
-fn run(particles: &ParticleSet, truth: &Truth, label: String, params: DensityParams) -> Row {
+fn run(particles: &ParticleSet, truth: &TrueGrid, label: String, params: DensityParams) -> Row {
     let params = DensityParams {
         resolution: Resolution::VoxelSize(truth.grid.voxel_size),
         bounds: Some(truth.grid.bounds),
@@ -58,19 +39,10 @@ fn run(particles: &ParticleSet, truth: &Truth, label: String, params: DensityPar
     let out = estimate_cpu(particles, &params).unwrap();
     let seconds = t.elapsed().as_secs_f64();
     assert_eq!(out.grid.dims, truth.grid.dims);
-    let d = truth.grid.dims;
-    let err2: f64 = (0..truth.values.len())
-        .into_par_iter()
-        .map(|n| {
-            let ijk = IVec3::new((n % d.x as usize) as i32, ((n / d.x as usize) % d.y as usize) as i32, (n / (d.x * d.y) as usize) as i32);
-            let e = out.density.get(ijk) as f64 - truth.values[n];
-            e * e
-        })
-        .sum();
     let total = particles.total_mass(1.0);
     Row {
         label,
-        l2: (err2 / truth.norm2).sqrt(),
+        l2: truth.rel_l2(&out.density),
         mass: out.stats.grid_mass / total,
         used: (out.stats.used_mean, out.stats.used_std),
         seconds,
@@ -145,69 +117,8 @@ fn accuracy(scene: Scene) {
     );
 }
 
-/// CPU seconds this process has used (user + system), from /proc: on a shared machine the
-/// wall clock says little, CPU time / threads is what a quiet machine would show.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i).and_then(|f| f.parse::<f64>().ok()).unwrap_or(0.0);
-    (ticks(11) + ticks(12)) / 100.0
-}
-
-fn timing(scene: Scene) {
-    let t = Instant::now();
-    let particles = scene.particles(1);
-    println!("\n{}: {} particles (sampled in {:.2} s), {} threads", scene.name, particles.len(), t.elapsed().as_secs_f64(), rayon::current_num_threads());
-    let only = std::env::var("METHOD").ok().and_then(|m| Method::from_name(&m));
-    for method in Method::ALL.into_iter().filter(|m| only.is_none_or(|o| o == *m)) {
-        let neighbours = std::env::var("NEIGHBOURS").ok().and_then(|n| n.parse().ok()).unwrap_or(32);
-        let params = DensityParams {
-            method,
-            neighbours,
-            resolution: Resolution::VoxelSize(scene.voxel_size),
-            bounds: scene.bounds,
-            ..Default::default()
-        };
-        // Best of three: the machine is shared.
-        let mut best: Option<DensityStats> = None;
-        let mut best_cpu = f64::INFINITY;
-        for _ in 0..3 {
-            let c0 = cpu_seconds();
-            let out = estimate_cpu(&particles, &params).unwrap();
-            best_cpu = best_cpu.min(cpu_seconds() - c0);
-            if best.as_ref().is_none_or(|b| out.stats.timings.total() < b.timings.total()) {
-                if best.is_none() {
-                    println!(
-                        "  grid {:?}, h0 {:.3}, bricks {} proposed / {} active, {} active voxels",
-                        out.grid.dims.to_array(), out.grid.h0, out.stats.bricks_proposed, out.stats.bricks_active, out.stats.active_voxels
-                    );
-                }
-                best = Some(out.stats);
-            }
-        }
-        let s = best.unwrap();
-        let t = &s.timings;
-        println!(
-            "  {:<5} total {:>6.3} s wall, {:>6.2} s CPU  (prepare {:.3}, estimate {:.3}, finish {:.3})  used {:.1}/{:.1}",
-            method.name(),
-            t.total().as_secs_f64(),
-            best_cpu,
-            t.prepare.as_secs_f64(),
-            t.estimate.as_secs_f64(),
-            t.finish.as_secs_f64(),
-            s.used_mean,
-            s.used_std
-        );
-    }
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    if args.iter().any(|a| a == "--timing") {
-        timing(Scene::cloud1());
-        timing(Scene::plume());
-        return;
-    }
     let names: Vec<&str> = if args.is_empty() { vec!["knots", "shell", "plume"] } else { args.iter().map(String::as_str).collect() };
     for name in names {
         match Scene::by_name(name) {

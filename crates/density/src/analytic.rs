@@ -12,10 +12,11 @@
 
 use std::f64::consts::PI;
 
-use glam::DVec3;
+use glam::{DVec3, IVec3};
+use nimbus_volume::Volume;
 use rayon::prelude::*;
 
-use crate::ParticleSet;
+use crate::{voxel_world, Grid, ParticleSet};
 
 /// SplitMix64 (Steele et al.): a tiny generator, seeded per particle by hashing (seed, index).
 #[derive(Clone, Copy, Debug)]
@@ -285,6 +286,42 @@ impl Scene {
             _ => None,
         }
     }
+}
+
+/// A scene's true density at every point of a grid, to score estimates against.
+pub struct TrueGrid {
+    pub grid: Grid,
+    /// x fastest, then y, then z.
+    pub values: Vec<f64>,
+    /// sum of values^2.
+    pub norm2: f64,
+}
+
+impl TrueGrid {
+    pub fn new(scene: &Scene, grid: Grid) -> TrueGrid {
+        let values: Vec<f64> = (0..grid.voxel_count() as usize).into_par_iter().map(|n| scene.true_density(voxel_world(&grid, index_of(&grid, n)))).collect();
+        let norm2 = values.iter().map(|v| v * v).sum();
+        TrueGrid { grid, values, norm2 }
+    }
+
+    /// Relative L2 error of an estimate on the same grid: sqrt(sum (rho - rho_true)^2 / sum
+    /// rho_true^2), over every grid point (inactive voxels count as 0).
+    pub fn rel_l2(&self, density: &Volume<f32>) -> f64 {
+        let err2: f64 = (0..self.values.len())
+            .into_par_iter()
+            .map(|n| {
+                let e = density.get(index_of(&self.grid, n)) as f64 - self.values[n];
+                e * e
+            })
+            .sum();
+        (err2 / self.norm2).sqrt()
+    }
+}
+
+fn index_of(grid: &Grid, n: usize) -> IVec3 {
+    let d = grid.dims.as_i64vec3();
+    let n = n as i64;
+    IVec3::new((n % d.x) as i32, ((n / d.x) % d.y) as i32, (n / (d.x * d.y)) as i32)
 }
 
 #[cfg(test)]

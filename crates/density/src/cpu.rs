@@ -18,19 +18,7 @@ use rayon::prelude::*;
 use crate::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
 use crate::params::Method;
 use crate::setup::Prepared;
-use crate::PointParams;
-
-/// One brick's results, before thresholding: densities (world units, unnormalised by noise
-/// already applied by the caller), smoothing lengths and used counts (index units / counts).
-pub(crate) struct BrickResult {
-    pub origin: IVec3,
-    pub rho: Box<[f32; BRICK_VOXELS]>,
-    pub h: Box<[f32; BRICK_VOXELS]>,
-    pub used: Box<[u32; BRICK_VOXELS]>,
-    /// Voxels whose footprint holds at least one particle (the paper's Table 2 population).
-    pub occupied: [u64; 8],
-    pub max_rho: f32,
-}
+use crate::{BrickResult, PointParams};
 
 /// Reused per-thread buffers.
 struct Scratch {
@@ -276,25 +264,7 @@ fn brick_impl(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, 
     let mut used = Box::new([0u32; BRICK_VOXELS]);
     splat_density(&s.parts, r_max, &s.radius2, &inv_h, origin, n, &mut rho, &mut used);
 
-    // Voxels whose footprint holds a particle (nearest grid point): the stats population.
-    let mut occupied = [0u64; 8];
-    for &(p, _) in &s.parts {
-        let nearest = (p + 0.5).floor().as_ivec3() - origin;
-        if nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(n).all() {
-            let v = brick_offset(nearest);
-            occupied[v >> 6] |= 1 << (v & 63);
-        }
-    }
-    // Normalise: W = shape / (pi h^3), h in world units.
-    let mut max_rho = 0.0f32;
-    for v in 0..BRICK_VOXELS {
-        rho[v] *= pp.world_norm(h[v]);
-        max_rho = max_rho.max(rho[v]);
-    }
-    if max_rho <= 0.0 {
-        return None;
-    }
-    Some(BrickResult { origin, rho, h, used, occupied, max_rho })
+    BrickResult::from_sums(origin, rho, h, used, pp)
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

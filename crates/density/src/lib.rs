@@ -6,7 +6,8 @@
 //! prepare(particles, params)        backend-independent set-up              setup.rs
 //!        |  h0 (fixed or auto), grid, particles rebased to index space as f32,
 //!        |  counting sort into cells, bricks within kappa*h0 of a particle
-//! estimate_cpu                      rayon over bricks, splat passes         cpu.rs
+//! estimate_cpu | estimate_gpu       rayon splat per brick | wgpu gather per   cpu.rs, gpu.rs
+//!        |                          voxel (shaders/density.wgsl)
 //!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
 //! finish                            noise, threshold, volumes, stats        lib.rs, optics::noise
 //!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?, stats }
@@ -54,26 +55,36 @@
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
 //!   +0.5..4% on the analytic test scenes, see the accuracy example.
 //!
-//! # Measured (run examples/accuracy.rs to reproduce)
+//! # Measured (examples/accuracy.rs and benches/estimate.rs reproduce these)
 //!
 //! Relative L2 error against analytic densities: asl3 ~= knn at the same N* (the
 //! predictor-corrector is as good as the exact neighbour search), and both far better than usl
-//! with h0 off by 2x. At N* = 32 the adaptive estimates are noise-limited on smooth or thin
-//! structures (a thin shell, a plume: +30..38% over the best oracle-tuned usl), while N* = 128
-//! beats or nearly matches that usl on every scene (-12%, -4%, +10%) at ~4x the cost. h_min =
-//! 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel), 2 voxels
-//! blurs dense knots.
-//!
+//! with h0 off by 2x. The default N* = 32 (design.md) is the sharpest on dense knots (asl3
+//! 0.132 vs the best oracle-tuned usl 0.144) but noise-limited on smooth or thin structures,
+//! which the L2 norm weighs by their density: shell +38%, plume +31% over the best usl, and the
+//! Cloud1-class puffs 0.36 vs usl at auto h0 0.17. More neighbours trade time for that noise:
+//! asl3 at N* = 64 / 128 gives cloud1 0.256 / 0.185, plume 0.121 / 0.110 (best usl ~0.10..0.14)
+//! at 1.4x / 2.8x the CPU time; N* = 128 is within 5% of the best usl on knots and shell.
+//! h_min = 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel),
+//! 2 voxels blurs dense knots.
+
 //! # Backends
 //!
-//! [`prepare`] does everything that is not per grid point and returns [`Prepared`] (sorted
-//! f32 positions, masses, cell table, brick list): a GPU backend uploads it and runs the same
-//! passes per voxel with [`PointParams`] as its uniform block. The finishing step (noise,
-//! threshold, volumes, stats) takes per-brick arrays and is crate-private today: a GPU backend
-//! placed in this crate (behind a feature) reuses it as is. [`estimate_cpu`] is the CPU path.
+//! [`estimate_cpu`] and [`estimate_gpu`] take the same [`DensityParams`] and run the same
+//! pipeline: [`prepare`] (h0, grid, counting sort into cells, brick proposal), the method's
+//! passes on the backend, then one shared path for the results (world normalisation of the
+//! per-brick sums, the Table 2 occupancy) and the finishing step (noise, threshold, volumes,
+//! stats). The passes differ only in how they walk the (particle, voxel) pairs: the CPU splats
+//! per brick (above); the GPU (`shaders/density.wgsl`, one invocation per voxel and pass)
+//! gathers from the cells its support overlaps, since WGSL has no float atomics for a
+//! scatter. knn on the GPU keeps the N* nearest in a private sorted list up to N* = 64 and
+//! bisects on the bits of the squared distance with counting passes above that (exact, slower).
+//! Both use the [`kernel`] functions' f32 arithmetic, so they agree with each other and with a
+//! brute-force reference to float tolerance (tests/reference.rs).
 
 pub mod analytic;
 mod cpu;
+mod gpu;
 pub mod kernel;
 mod params;
 mod particles;
@@ -82,7 +93,8 @@ mod setup;
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3};
-use nimbus_volume::{brick_local, BrickMask, Volume, BRICK_VOXELS};
+use nimbus_gpu::{GpuContext, GpuError};
+use nimbus_volume::{brick_local, brick_offset, BrickMask, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
@@ -101,6 +113,8 @@ pub enum DensityError {
     TooManyVoxels { dims: [f64; 3], max: u64 },
     #[error("cannot choose h0 automatically: the particles span no volume (give h0 or a voxel size)")]
     H0Undetermined,
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// The per-grid-point parameters in index (voxel) units: what the passes read, and the
@@ -183,9 +197,26 @@ pub struct DensityOutput {
     pub stats: DensityStats,
 }
 
-/// Estimates the density on the CPU: [`prepare`], the method's passes over bricks, then the
-/// finishing step (noise, threshold, volumes, stats).
+/// Estimates the density on the CPU (rayon over bricks, splat passes): [`prepare`], the
+/// method's passes, then the finishing step shared with [`estimate_gpu`].
 pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
+    estimate_with(particles, params, |prep, pp| Ok(cpu::estimate_bricks(prep, params.method, pp)))
+}
+
+/// Estimates the density on the GPU (one wgpu invocation per voxel and pass, gathering from
+/// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
+/// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
+pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
+    estimate_with(particles, params, |prep, pp| Ok(gpu::estimate_bricks(ctx, prep, params.method, pp)?))
+}
+
+/// The pipeline every backend runs: prepare, the backend's passes (per-brick sums), results
+/// (normalisation, occupancy) and finish (noise, threshold, volumes, stats).
+fn estimate_with(
+    particles: &ParticleSet,
+    params: &DensityParams,
+    passes: impl FnOnce(&Prepared, &PointParams) -> Result<Vec<BrickResult>, DensityError>,
+) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
     let prep = prepare(particles, params)?;
     if prep.positions.is_empty() {
@@ -193,15 +224,73 @@ pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<D
     }
     let t1 = Instant::now();
     let pp = PointParams::new(&prep.grid, params);
-    let bricks = cpu::estimate_bricks(&prep, params.method, &pp);
+    let mut bricks = passes(&prep, &pp)?;
     let t2 = Instant::now();
+    mark_occupied(&prep, &mut bricks);
     let mut out = finish(&prep, params, bricks);
     out.stats.timings = Timings { prepare: t1 - t0, estimate: t2 - t1, finish: t2.elapsed() };
     Ok(out)
 }
 
+/// One brick's results after a backend's passes: world densities, smoothing lengths (index
+/// units) and used counts per voxel, before noise and thresholding.
+pub(crate) struct BrickResult {
+    pub origin: IVec3,
+    pub rho: Box<[f32; BRICK_VOXELS]>,
+    pub h: Box<[f32; BRICK_VOXELS]>,
+    pub used: Box<[u32; BRICK_VOXELS]>,
+    /// Voxels whose footprint holds at least one particle (the paper's Table 2 population);
+    /// filled by [`mark_occupied`].
+    pub occupied: [u64; 8],
+    pub max_rho: f32,
+}
+
+impl BrickResult {
+    /// From a backend's raw sums `rho[v] = sum m * m4_shape(r / h[v])` (index units): applies
+    /// the world normalisation 1 / (pi h^3). `None` for a brick with no density.
+    pub(crate) fn from_sums(
+        origin: IVec3,
+        mut rho: Box<[f32; BRICK_VOXELS]>,
+        h: Box<[f32; BRICK_VOXELS]>,
+        used: Box<[u32; BRICK_VOXELS]>,
+        pp: &PointParams,
+    ) -> Option<BrickResult> {
+        let mut max_rho = 0.0f32;
+        for v in 0..BRICK_VOXELS {
+            if rho[v] > 0.0 {
+                rho[v] *= pp.world_norm(h[v]);
+                max_rho = max_rho.max(rho[v]);
+            }
+        }
+        (max_rho > 0.0).then_some(BrickResult { origin, rho, h, used, occupied: [0; 8], max_rho })
+    }
+}
+
+/// Marks the voxels whose footprint holds a particle (its nearest grid point). `bricks` are in
+/// proposal order, i.e. sorted by (z, y, x) origin.
+fn mark_occupied(prep: &Prepared, bricks: &mut [BrickResult]) {
+    let dims = prep.grid.dims;
+    let brick_dims = (dims + (BRICK_DIM - 1)) / BRICK_DIM;
+    let brick_id = |o: IVec3| ((o.z / BRICK_DIM * brick_dims.y + o.y / BRICK_DIM) * brick_dims.x + o.x / BRICK_DIM) as usize;
+    // Dense brick -> result table: one O(1) lookup per particle.
+    let mut slot = vec![u32::MAX; brick_dims.as_i64vec3().element_product() as usize];
+    for (i, b) in bricks.iter().enumerate() {
+        slot[brick_id(b.origin)] = i as u32;
+    }
+    for &p in &prep.positions {
+        let nearest = (p + 0.5).floor().as_ivec3();
+        if nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(dims).all() {
+            let s = slot[brick_id(nearest - nearest % BRICK_DIM)];
+            if s != u32::MAX {
+                let v = brick_offset(nearest % BRICK_DIM);
+                bricks[s as usize].occupied[v >> 6] |= 1 << (v & 63);
+            }
+        }
+    }
+}
+
 /// Noise, activity threshold, volumes and statistics from per-brick results.
-fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<cpu::BrickResult>) -> DensityOutput {
+fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>) -> DensityOutput {
     let grid = prep.grid;
     let noise = params.noise;
     if noise.amplitude != 0.0 {
@@ -220,7 +309,7 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<cpu::BrickRes
 
     let max_density = bricks.iter().map(|b| b.max_rho).fold(0.0f32, f32::max);
     let threshold = params.active_tolerance * max_density;
-    let active = |b: &cpu::BrickResult| -> BrickMask {
+    let active = |b: &BrickResult| -> BrickMask {
         let mut mask: BrickMask = [0; 8];
         for v in 0..BRICK_VOXELS {
             mask[v >> 6] |= ((b.rho[v] > threshold) as u64) << (v & 63);
@@ -230,7 +319,7 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<cpu::BrickRes
     // Bricks come out in proposal order, sorted by (z, y, x): found again by binary search.
     let origins: Vec<IVec3> = bricks.iter().map(|b| b.origin).collect();
     let find = |o: IVec3| &bricks[origins.binary_search_by_key(&(o.z, o.y, o.x), |b| (b.z, b.y, b.x)).unwrap()];
-    let volume = |value: &(dyn Fn(&cpu::BrickResult, usize) -> f32 + Sync)| {
+    let volume = |value: &(dyn Fn(&BrickResult, usize) -> f32 + Sync)| {
         Volume::from_brick_fn(grid.transform, 0.0f32, &origins, |origin, values| {
             let b = find(origin);
             let mask = active(b);

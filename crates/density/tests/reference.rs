@@ -75,20 +75,38 @@ fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
     ParticleSet { positions, masses }
 }
 
-fn check_method(method: Method, relax: f32, h0: H0) {
+#[derive(Clone, Copy, PartialEq)]
+enum Backend {
+    Cpu,
+    Gpu,
+}
+
+/// The estimate on `backend`; `None` (test skipped) for the GPU without an adapter.
+fn estimate(backend: Backend, particles: &ParticleSet, params: &DensityParams) -> Option<DensityOutput> {
+    match backend {
+        Backend::Cpu => Some(estimate_cpu(particles, params).unwrap()),
+        Backend::Gpu => Some(estimate_gpu(nimbus_gpu::test_context()?, particles, params).unwrap()),
+    }
+}
+
+fn check_method(backend: Backend, method: Method, relax: f32, h0: H0) {
+    check_method_with(backend, method, relax, h0, 24);
+}
+
+fn check_method_with(backend: Backend, method: Method, relax: f32, h0: H0, neighbours: u32) {
     let particles = random_clumpy(1500, 3);
     let params = DensityParams {
         method,
         h0,
         relax,
-        neighbours: 24,
+        neighbours,
         resolution: Resolution::VoxelSize(0.5),
         active_tolerance: 0.0,
         smoothing_length: true,
         neighbour_count: true,
         ..Default::default()
     };
-    let out = estimate_cpu(&particles, &params).unwrap();
+    let Some(out) = estimate(backend, &particles, &params) else { return };
     let grid = out.grid;
     let pp = PointParams::new(&grid, &params);
     let max = out.stats.max_density;
@@ -110,7 +128,11 @@ fn check_method(method: Method, relax: f32, h0: H0) {
                 if rho > 0.0 {
                     let fast_h = h_vol.get(ijk) / grid.voxel_size as f32;
                     assert!((fast_h - h).abs() <= 1e-5 * h, "{method:?} h at {ijk}: {fast_h} vs {h}");
-                    assert_eq!(n_vol.get(ijk), used as f32, "{method:?} count at {ijk}");
+                    // knn puts the N*-th nearest exactly on the support boundary (h = r_k /
+                    // kappa): whether it counts hangs on sqrt's last bit, which Vulkan lets a
+                    // GPU round differently (its density weight there is 0 either way).
+                    let slack = if backend == Backend::Gpu && method == Method::Knn { 1.0 } else { 0.0 };
+                    assert!((n_vol.get(ijk) - used as f32).abs() <= slack, "{method:?} count at {ijk}: {} vs {used}", n_vol.get(ijk));
                     compared += 1;
                 }
             }
@@ -121,32 +143,102 @@ fn check_method(method: Method, relax: f32, h0: H0) {
 
 #[test]
 fn usl_equals_brute_force() {
-    check_method(Method::Usl, 0.0, H0::Fixed(0.9));
+    check_method(Backend::Cpu, Method::Usl, 0.0, H0::Fixed(0.9));
 }
 
 #[test]
 fn asl2_equals_brute_force() {
-    check_method(Method::Asl2, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Asl2, 0.0, H0::Fixed(1.6));
 }
 
 #[test]
 fn asl3_equals_brute_force() {
-    check_method(Method::Asl3, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Asl3, 0.0, H0::Fixed(1.6));
 }
 
 #[test]
 fn asl3_relaxed_equals_brute_force() {
-    check_method(Method::Asl3, 0.5, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Asl3, 0.5, H0::Fixed(1.6));
 }
 
 #[test]
 fn knn_equals_brute_force() {
-    check_method(Method::Knn, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Knn, 0.0, H0::Fixed(1.6));
 }
 
 #[test]
 fn auto_h0_equals_brute_force() {
-    check_method(Method::Asl3, 0.0, H0::Auto);
+    check_method(Backend::Cpu, Method::Asl3, 0.0, H0::Auto);
+}
+
+#[test]
+fn gpu_usl_equals_brute_force() {
+    check_method(Backend::Gpu, Method::Usl, 0.0, H0::Fixed(0.9));
+}
+
+#[test]
+fn gpu_asl2_equals_brute_force() {
+    check_method(Backend::Gpu, Method::Asl2, 0.0, H0::Fixed(1.6));
+}
+
+#[test]
+fn gpu_asl3_equals_brute_force() {
+    check_method(Backend::Gpu, Method::Asl3, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Gpu, Method::Asl3, 0.5, H0::Fixed(1.6));
+}
+
+#[test]
+fn gpu_knn_equals_brute_force() {
+    // N* 24 keeps a private sorted list in the shader; 80 (above its KNN_MAX of 64) bisects.
+    check_method(Backend::Gpu, Method::Knn, 0.0, H0::Fixed(1.6));
+    check_method_with(Backend::Gpu, Method::Knn, 0.0, H0::Fixed(2.4), 80);
+}
+
+/// Both backends over every voxel of a clumpy set, with noise and the auxiliary grids: the
+/// same active voxels, counts and lengths, densities to float tolerance, the same stats.
+#[test]
+fn cpu_and_gpu_agree() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let particles = random_clumpy(3000, 7);
+    for method in Method::ALL {
+        let params = DensityParams {
+            method,
+            neighbours: 20,
+            resolution: Resolution::VoxelSize(0.4),
+            noise: NoiseParams { amplitude: 0.5, scale: 2.0, octaves: 3, seed: 4 },
+            smoothing_length: true,
+            neighbour_count: true,
+            ..Default::default()
+        };
+        let cpu = estimate_cpu(&particles, &params).unwrap();
+        let gpu = estimate_gpu(ctx, &particles, &params).unwrap();
+        assert_eq!(cpu.grid, gpu.grid);
+        let max = cpu.stats.max_density;
+        assert!((gpu.stats.max_density - max).abs() <= 1e-5 * max, "{method:?} max {} vs {max}", gpu.stats.max_density);
+        let (mut voxels, mut count_mismatch) = (0, 0);
+        for brick in cpu.density.bricks() {
+            for (v, &rho) in brick.values.iter().enumerate() {
+                let ijk = brick.origin + nimbus_volume::brick_local(v);
+                let g = gpu.density.get(ijk);
+                assert!((g - rho).abs() <= 1e-5 * max, "{method:?} at {ijk}: gpu {g} cpu {rho}");
+                if rho > 0.0 {
+                    voxels += 1;
+                    let (hc, hg) = (cpu.smoothing_length.as_ref().unwrap().get(ijk), gpu.smoothing_length.as_ref().unwrap().get(ijk));
+                    assert!((hc - hg).abs() <= 1e-5 * hc, "{method:?} h at {ijk}: gpu {hg} cpu {hc}");
+                    let (nc, ng) = (cpu.neighbour_count.as_ref().unwrap().get(ijk), gpu.neighbour_count.as_ref().unwrap().get(ijk));
+                    count_mismatch += (nc != ng) as u32;
+                }
+            }
+        }
+        // Counts are exact unless a particle sits within rounding of a support radius (the
+        // GPU's cube root is pow(x, 1/3), a few ulps off the CPU's cbrt).
+        assert!(count_mismatch <= voxels / 10_000, "{method:?}: {count_mismatch} of {voxels} counts differ");
+        assert!(voxels > 5000, "{method:?}: only {voxels} voxels");
+        let (a, b) = (&cpu.stats, &gpu.stats);
+        assert!((a.grid_mass - b.grid_mass).abs() <= 1e-5 * a.grid_mass, "{method:?} mass {} vs {}", a.grid_mass, b.grid_mass);
+        assert!((a.used_mean - b.used_mean).abs() <= 1e-3 * a.used_mean, "{method:?} used {} vs {}", a.used_mean, b.used_mean);
+        assert_eq!((a.used_points, a.bricks_proposed), (b.used_points, b.bricks_proposed));
+    }
 }
 
 #[test]

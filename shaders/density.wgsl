@@ -1,0 +1,304 @@
+// SPH density estimation on the GPU (nimbus-density, design.md section 8): one invocation per
+// voxel of the proposed bricks and per pass, each a gather over the particle cells its support
+// sphere overlaps. The host (crates/density/src/gpu.rs) sorts the particles into cells once
+// (counting sort) and runs, per method:
+//   usl   density
+//   asl2  predict, density
+//   asl3  predict, correct, density
+//   knn   knn, density
+// The per-point functions mirror crates/density/src/kernel.rs line by line, and distances are
+// formed as on the CPU ((voxel index as f32) - p, then (dx^2 + dy^2) + dz^2), so counts agree
+// with the CPU and the brute-force reference, and densities to summation order. Densities
+// leave unnormalised (sum m * m4_shape(r / h)): the host applies 1 / (pi h^3) in f64, as it
+// does for the CPU's sums. Standalone: no other WGSL module is needed.
+
+const WORKGROUP_SIZE: u32 = 64u;
+const KAPPA: f32 = 2.0;
+const BRICK_VOXELS: u32 = 512u;
+// knn keeps the KNN_MAX nearest in a private sorted list; a larger N* bisects on the f32 bit
+// pattern of the squared distance with counting passes instead (exact, slower). Twin of
+// KNN_MAX in gpu.rs.
+const KNN_MAX: u32 = 64u;
+// Widening of a cell range so rounding in (x - r) never drops a particle's cell; the exact
+// per-particle test decides.
+const CELL_SLACK: f32 = 1e-3;
+
+const METHOD_USL: u32 = 0u;
+const METHOD_ASL2: u32 = 1u;
+const METHOD_ASL3: u32 = 2u;
+const METHOD_KNN: u32 = 3u;
+
+struct DensityUniforms {
+    cell_origin: vec3<f32>,
+    cell_edge: f32,
+    cell_dims: vec3<i32>,
+    n_star: f32,
+    grid_dims: vec3<i32>,
+    h0: f32,
+    h_min: f32,
+    relax: f32,
+    // N* as an integer (the knn rank).
+    k: u32,
+    // Voxels in this chunk: bricks first_brick.. times 512.
+    voxel_count: u32,
+    first_brick: u32,
+    method: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> u: DensityUniforms;
+// Index-space position in xyz, mass in w; sorted by cell.
+@group(0) @binding(1) var<storage, read> particles: array<vec4<f32>>;
+// Cell c's particles are cell_start[c] .. cell_start[c + 1].
+@group(0) @binding(2) var<storage, read> cell_start: array<u32>;
+// Brick origins (xyz; w unused), in proposal order.
+@group(0) @binding(3) var<storage, read> bricks: array<vec4<i32>>;
+// Per voxel of the chunk: the count within kappa*h0 (0 = nothing to estimate), the smoothing
+// length (index units), the unnormalised density and the particles used.
+@group(0) @binding(4) var<storage, read_write> n0_out: array<u32>;
+@group(0) @binding(5) var<storage, read_write> h_out: array<f32>;
+@group(0) @binding(6) var<storage, read_write> rho_out: array<f32>;
+@group(0) @binding(7) var<storage, read_write> used_out: array<u32>;
+
+// ---- kernel.rs twins ----
+
+fn m4_shape(q: f32) -> f32 {
+    let a = max(2.0 - q, 0.0);
+    let b = max(1.0 - q, 0.0);
+    return 0.25 * a * a * a - b * b * b;
+}
+
+fn predict_h1(n0: u32, n_star: f32, h0: f32) -> f32 {
+    if (n0 == 0u) {
+        return h0;
+    }
+    return min(h0 * pow(n_star / f32(n0), 1.0 / 3.0), h0);
+}
+
+fn correct_h(n0: u32, n1: u32, n_star: f32, h0: f32, h1: f32, relax: f32) -> f32 {
+    let n0f = f32(n0);
+    let n1f = f32(n1);
+    if (n1f < n_star) {
+        if (n0 == n1) {
+            return h0;
+        }
+        let h0c = h0 * h0 * h0;
+        let h1c = h1 * h1 * h1;
+        return pow((n_star - n1f) * (h0c - h1c) / (n0f - n1f) + h1c, 1.0 / 3.0);
+    } else if (n1f > n_star) {
+        let alpha = 1.0 - relax * n1f / n0f;
+        return alpha * h1 * pow(n_star / n1f, 1.0 / 3.0);
+    }
+    return h1;
+}
+
+fn clamp_h(h: f32, h_min: f32, h0: f32) -> f32 {
+    return min(max(h, h_min), h0);
+}
+
+// ---- the gather ----
+
+fn cell_of(p: vec3<f32>) -> vec3<i32> {
+    return clamp(vec3<i32>(floor((p - u.cell_origin) / u.cell_edge)), vec3<i32>(0), u.cell_dims - 1);
+}
+
+fn cell_id(c: vec3<i32>) -> u32 {
+    return u32((c.z * u.cell_dims.y + c.y) * u.cell_dims.x + c.x);
+}
+
+const GATHER_COUNT: u32 = 0u;
+const GATHER_DENSITY: u32 = 1u;
+const GATHER_KNN: u32 = 2u;
+
+// Accumulators of gather(): WGSL has no closures, so the one cell walk switches on a mode and
+// leaves its results here.
+var<private> acc_count: u32;
+var<private> acc_rho: f32;
+var<private> knn_best: array<f32, KNN_MAX>;
+
+// Squared distance from voxel point x to particle p, rounded as the CPU rounds it.
+fn dist2(x: vec3<f32>, p: vec3<f32>) -> f32 {
+    let d = x - p;
+    return (d.x * d.x + d.y * d.y) + d.z * d.z;
+}
+
+// Visits the particles within radius sqrt(limit2) of x (r2 < limit2):
+//   GATHER_COUNT    acc_count += 1 where also r2 <= le (le = limit2 counts all)
+//   GATHER_DENSITY  acc_rho += m * m4_shape(sqrt(r2) * inv_h), acc_count += 1
+//   GATHER_KNN      acc_count += 1 and the k smallest r2 kept sorted in knn_best
+fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
+    let reach = sqrt(limit2) + CELL_SLACK;
+    let lo = cell_of(x - vec3<f32>(reach));
+    let hi = cell_of(x + vec3<f32>(reach));
+    let k = min(u.k, KNN_MAX);
+    for (var cz = lo.z; cz <= hi.z; cz++) {
+        for (var cy = lo.y; cy <= hi.y; cy++) {
+            let first = cell_start[cell_id(vec3<i32>(lo.x, cy, cz))];
+            let last = cell_start[cell_id(vec3<i32>(hi.x, cy, cz)) + 1u];
+            for (var i = first; i < last; i++) {
+                let q = particles[i];
+                let r2 = dist2(x, q.xyz);
+                if (r2 >= limit2) {
+                    continue;
+                }
+                if (mode == GATHER_COUNT) {
+                    acc_count += u32(r2 <= le);
+                } else if (mode == GATHER_DENSITY) {
+                    acc_rho += q.w * m4_shape(sqrt(r2) * inv_h);
+                    acc_count += 1u;
+                } else {
+                    // Insertion into the sorted list of the k smallest so far.
+                    let n = acc_count;
+                    acc_count += 1u;
+                    if (n >= k && r2 >= knn_best[k - 1u]) {
+                        continue;
+                    }
+                    var j = min(n, k - 1u);
+                    while (j > 0u && knn_best[j - 1u] > r2) {
+                        knn_best[j] = knn_best[j - 1u];
+                        j -= 1u;
+                    }
+                    knn_best[j] = r2;
+                }
+            }
+        }
+    }
+}
+
+fn count_within(x: vec3<f32>, r: f32) -> u32 {
+    acc_count = 0u;
+    let r2 = r * r;
+    gather(x, r2, GATHER_COUNT, 0.0, r2);
+    return acc_count;
+}
+
+// The voxel of invocation i: its global index point, or w = 0 when it lies outside the grid
+// (an edge brick) or the chunk.
+fn voxel_point(i: u32) -> vec4<i32> {
+    if (i >= u.voxel_count) {
+        return vec4<i32>(0);
+    }
+    let v = i % BRICK_VOXELS;
+    let local = vec3<i32>(i32(v >> 6u), i32((v >> 3u) & 7u), i32(v & 7u));
+    let ijk = bricks[u.first_brick + i / BRICK_VOXELS].xyz + local;
+    return vec4<i32>(ijk, i32(all(ijk < u.grid_dims)));
+}
+
+fn linear_index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
+    return ((wid.z * nwg.y + wid.y) * nwg.x + wid.x) * WORKGROUP_SIZE + lid;
+}
+
+// asl2 / asl3 pass 1: N0 within kappa*h0 and the predicted h1 (final for asl2).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn predict(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) lid: u32) {
+    let i = linear_index(wid, nwg, lid);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let x = voxel_point(i);
+    var n0 = 0u;
+    if (x.w != 0) {
+        n0 = count_within(vec3<f32>(x.xyz), KAPPA * u.h0);
+    }
+    var h = predict_h1(n0, u.n_star, u.h0);
+    if (u.method == METHOD_ASL2) {
+        h = clamp_h(h, u.h_min, u.h0);
+    }
+    n0_out[i] = n0;
+    h_out[i] = h;
+}
+
+// asl3 pass 2: N1 within kappa*h1, then the corrector and the clamp.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn correct(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) lid: u32) {
+    let i = linear_index(wid, nwg, lid);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let n0 = n0_out[i];
+    let h1 = h_out[i];
+    var n1 = 0u;
+    if (n0 > 0u) {
+        n1 = count_within(vec3<f32>(voxel_point(i).xyz), KAPPA * h1);
+    }
+    h_out[i] = clamp_h(correct_h(n0, n1, u.n_star, u.h0, h1, u.relax), u.h_min, u.h0);
+}
+
+// knn: the distance to the N*-th nearest within kappa*h0, / kappa (h0 when fewer), clamped.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+       @builtin(local_invocation_index) lid: u32) {
+    let i = linear_index(wid, nwg, lid);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let x4 = voxel_point(i);
+    let x = vec3<f32>(x4.xyz);
+    let r0 = KAPPA * u.h0;
+    let limit2 = r0 * r0;
+    acc_count = 0u;
+    var kth = limit2;
+    if (x4.w != 0) {
+        if (u.k <= KNN_MAX) {
+            gather(x, limit2, GATHER_KNN, 0.0, 0.0);
+            if (acc_count >= u.k) {
+                kth = knn_best[u.k - 1u];
+            }
+        } else {
+            acc_count = count_within(x, r0);
+            if (acc_count >= u.k) {
+                // The smallest t (as ordered f32 bits, r2 >= 0) with #{r2 <= t} >= k.
+                let total = acc_count;
+                var lo = 0u;
+                var hi = bitcast<u32>(limit2);
+                while (lo < hi) {
+                    let mid = lo + (hi - lo) / 2u;
+                    acc_count = 0u;
+                    gather(x, limit2, GATHER_COUNT, 0.0, bitcast<f32>(mid));
+                    if (acc_count >= u.k) {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1u;
+                    }
+                }
+                kth = bitcast<f32>(lo);
+                acc_count = total;
+            }
+        }
+    }
+    n0_out[i] = acc_count;
+    var h = u.h0;
+    if (acc_count >= u.k) {
+        h = clamp_h(sqrt(kth) / KAPPA, u.h_min, u.h0);
+    }
+    h_out[i] = h;
+}
+
+// Every method's last pass: the density with each voxel's h (h0 for usl).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn density(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+           @builtin(local_invocation_index) lid: u32) {
+    let i = linear_index(wid, nwg, lid);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let x = voxel_point(i);
+    var h = u.h0;
+    var reached = x.w != 0;
+    if (u.method != METHOD_USL) {
+        h = h_out[i];
+        reached = reached && n0_out[i] > 0u;
+    }
+    acc_count = 0u;
+    acc_rho = 0.0;
+    if (reached) {
+        let r = KAPPA * h;
+        gather(vec3<f32>(x.xyz), r * r, GATHER_DENSITY, 1.0 / h, 0.0);
+    }
+    h_out[i] = h;
+    rho_out[i] = acc_rho;
+    used_out[i] = acc_count;
+}
