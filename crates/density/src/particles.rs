@@ -180,7 +180,9 @@ impl Sink {
 
     fn push(&mut self, p: DVec3, mass: Option<f64>, place: impl FnOnce() -> String) -> Result<(), ReadError> {
         self.report.rows += 1;
-        if !p.is_finite() || mass.is_some_and(|m| !m.is_finite()) {
+        // Masses are kept as f32: one finite in f64 but beyond f32's range (1e39) would be
+        // stored as infinity, so it counts as non-finite too (found by fuzzing).
+        if !p.is_finite() || mass.is_some_and(|m| !(m as f32).is_finite()) {
             self.report.skipped_nonfinite += 1;
             return Ok(());
         }
