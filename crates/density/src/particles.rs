@@ -558,6 +558,11 @@ fn skip_ply_element<R: BufRead>(
     element: &Element,
     line_no: &mut usize,
 ) -> Result<(), ReadError> {
+    // An element without properties holds no data: its records take no bytes, so counting
+    // through a header's 2^64 of them would never end (found by fuzzing).
+    if element.props.is_empty() {
+        return Ok(());
+    }
     let mut values = vec![0.0; element.props.len()];
     let mut line = String::new();
     for i in 0..element.count {
