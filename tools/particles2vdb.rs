@@ -46,7 +46,8 @@ struct Args {
     #[arg(long)]
     resolution: Option<u32>,
     /// Grid bounds as MINX,MINY,MINZ,MAXX,MAXY,MAXZ (default: the particles padded by the kernel).
-    #[arg(long, value_parser = parse_bounds, allow_negative_numbers = true)]
+    /// (Hyphen values: a list such as -1,-1,-1,1,1,1 is not a negative number to clap.)
+    #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
     bounds: Option<(DVec3, DVec3)>,
     /// Refuse grids whose bounding box would exceed this many voxels.
     #[arg(long, default_value_t = 1u64 << 30)]

@@ -79,6 +79,11 @@ fn read_photons(file: &VdbFile) -> Result<PhotonMap, Failure> {
         return Err(Failure::input("grid 'photons' is not a points grid", file.label()));
     }
     let points = file.read_points("photons").map_err(|e| Failure::input(e, file.label()))?;
+    // OpenVDB keeps the attribute descriptor in the leaves: a points grid with no points (what
+    // vdbphoton writes when nothing scatters) carries no attributes at all.
+    if points.is_empty() {
+        return Ok(PhotonMap::default());
+    }
     let attr = |name: &str| {
         points.vec3(name).map(<[_]>::to_vec).ok_or_else(|| Failure::input(format!("photons lack the vec3 attribute '{name}'"), file.label()))
     };

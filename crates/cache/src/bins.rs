@@ -138,37 +138,63 @@ impl PhotonBins {
         // Max-heap on squared distance (f32 bits order like the floats, being non-negative).
         let mut heap: BinaryHeap<(u32, u32)> = BinaryHeap::with_capacity(k + 1);
         let max_shell = (max_radius / self.cell).ceil() as i32 + 1;
+        let visit = |heap: &mut BinaryHeap<(u32, u32)>, c: IVec3| {
+            let id = self.cell_id(c);
+            for &i in &self.order[self.starts[id] as usize..self.starts[id + 1] as usize] {
+                let d2 = (self.local[i as usize] - q).length_squared();
+                if d2 > max_r2 {
+                    continue;
+                }
+                if heap.len() < k {
+                    heap.push((d2.to_bits(), i));
+                } else if d2 < f32::from_bits(heap.peek().unwrap().0) {
+                    heap.pop();
+                    heap.push((d2.to_bits(), i));
+                }
+            }
+        };
         for shell in 0..=max_shell {
             // Nothing in this shell is nearer than (shell - 1) cells.
             let reach = ((shell - 1).max(0) as f64 * self.cell) as f32;
             if reach * reach > max_r2 || (heap.len() == k && reach * reach > f32::from_bits(heap.peek().unwrap().0)) {
                 break;
             }
-            let lo = centre - shell;
-            let hi = centre + shell;
-            for x in lo.x..=hi.x {
-                for y in lo.y..=hi.y {
-                    for z in lo.z..=hi.z {
-                        let on_shell = x == lo.x || x == hi.x || y == lo.y || y == hi.y || z == lo.z || z == hi.z;
-                        let c = IVec3::new(x, y, z);
-                        if !on_shell || c.cmplt(IVec3::ZERO).any() || c.cmpge(self.dims).any() {
-                            continue;
-                        }
-                        let id = self.cell_id(c);
-                        for &i in &self.order[self.starts[id] as usize..self.starts[id + 1] as usize] {
-                            let d2 = (self.local[i as usize] - q).length_squared();
-                            if d2 > max_r2 {
-                                continue;
-                            }
-                            if heap.len() < k {
-                                heap.push((d2.to_bits(), i));
-                            } else if d2 < f32::from_bits(heap.peek().unwrap().0) {
-                                heap.pop();
-                                heap.push((d2.to_bits(), i));
-                            }
+            // Only the shell's surface cells inside the grid are visited: with photons on a
+            // plane the cells are tiny against max_radius, and walking every cell of every
+            // shell's cube (shells^4 in all) did not finish.
+            let (lo, hi) = (centre - shell, centre + shell);
+            let (a, b) = (lo.max(IVec3::ZERO), hi.min(self.dims - 1));
+            if a.cmpgt(b).any() {
+                continue;
+            }
+            // The shell's two faces across an axis that lie inside the grid (one at shell 0).
+            let faces = |axis: usize| {
+                let (l, h) = (lo[axis], hi[axis]);
+                [Some(l), (h != l).then_some(h)].into_iter().flatten().filter(move |v| (a[axis]..=b[axis]).contains(v))
+            };
+            for x in a.x..=b.x {
+                if x == lo.x || x == hi.x {
+                    for y in a.y..=b.y {
+                        for z in a.z..=b.z {
+                            visit(&mut heap, IVec3::new(x, y, z));
                         }
                     }
+                    continue;
                 }
+                for y in faces(1) {
+                    for z in a.z..=b.z {
+                        visit(&mut heap, IVec3::new(x, y, z));
+                    }
+                }
+                for z in faces(2) {
+                    for y in (a.y..=b.y).filter(|&y| y != lo.y && y != hi.y) {
+                        visit(&mut heap, IVec3::new(x, y, z));
+                    }
+                }
+            }
+            // Once the shell's cube holds the whole grid there is nothing farther out.
+            if lo.cmple(IVec3::ZERO).all() && hi.cmpge(self.dims - 1).all() {
+                break;
             }
         }
         let far = heap.peek().map_or(0.0, |e| f32::from_bits(e.0));
@@ -200,6 +226,27 @@ mod tests {
             got.sort();
             let want: Vec<u32> = (0..pts.len() as u32).filter(|&i| (pts[i as usize] - *q).length() <= 0.4).collect();
             assert_eq!(got, want);
+        }
+    }
+
+    /// Photons on a plane (what an opaque medium stores: every interaction at its surface) make
+    /// cells tiny against the search reach. The search used to walk every cell of every
+    /// shell's cube, about (reach / cell)^4 of them, and did not finish here.
+    #[test]
+    fn nearest_over_a_flat_photon_map_ends_and_equals_brute_force() {
+        let pts: Vec<DVec3> = points(300).iter().map(|p| DVec3::new(p.x * 0.15, p.y * 0.3, 0.6)).collect();
+        let bins = PhotonBins::new(&pts, 1e-3);
+        let mut out = vec![];
+        for q in [DVec3::new(1e5 * 0.15 + 0.3, 0.3, 0.1), DVec3::new(1e5 * 0.15, 0.0, 0.6), DVec3::new(0.0, 0.0, 0.0)] {
+            for (k, reach) in [(8, 1.2), (400, 1.2), (8, 0.05)] {
+                let far = bins.nearest(q, k, reach, &mut out);
+                let mut d: Vec<f64> = pts.iter().map(|p| (*p - q).length_squared()).filter(|d| *d <= reach * reach).collect();
+                d.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                assert_eq!(out.len(), k.min(d.len()), "query {q}, k {k}, reach {reach}");
+                if let Some(want) = d.get(out.len().max(1) - 1) {
+                    assert!((far as f64 - want).abs() < 1e-4 * want.max(1e-6), "{far} vs {want}");
+                }
+            }
         }
     }
 

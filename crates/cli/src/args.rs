@@ -70,7 +70,7 @@ impl VdbOutputArgs {
 #[derive(Args, Debug, Clone, Default)]
 pub struct MediumArgs {
     /// Extinction per unit density (default 1, or what the input file records).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub extinction: Option<f32>,
     /// Single-scattering albedo, one grey value or R,G,B (default 0.9).
     #[arg(long, value_parser = parse_rgb)]
@@ -131,17 +131,18 @@ impl LightArgs {
     }
 }
 
-/// `--eye --look-at --up --fov --width --height`.
+/// `--eye --look-at --up --fov --width --height`. The X,Y,Z flags take hyphen values: clap's
+/// allow_negative_numbers only knows single numbers, so it refused `--eye -5,0,1`.
 #[derive(Args, Debug, Clone, Default)]
 pub struct CameraArgs {
     /// Camera position X,Y,Z (default: frames the volume from -Y).
-    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub eye: Option<DVec3>,
     /// Point the camera looks at, X,Y,Z (default: the volume's centre).
-    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub look_at: Option<DVec3>,
     /// Up direction X,Y,Z (default 0,0,1).
-    #[arg(long, value_parser = parse_dvec3, allow_negative_numbers = true)]
+    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub up: Option<DVec3>,
     /// Horizontal field of view in degrees (default 40).
     #[arg(long)]

@@ -180,7 +180,9 @@ impl Sink {
 
     fn push(&mut self, p: DVec3, mass: Option<f64>, place: impl FnOnce() -> String) -> Result<(), ReadError> {
         self.report.rows += 1;
-        if !p.is_finite() || mass.is_some_and(|m| !m.is_finite()) {
+        // Masses are kept as f32: one finite in f64 but beyond f32's range (1e39) would be
+        // stored as infinity, so it counts as non-finite too (found by fuzzing).
+        if !p.is_finite() || mass.is_some_and(|m| !(m as f32).is_finite()) {
             self.report.skipped_nonfinite += 1;
             return Ok(());
         }
@@ -556,6 +558,11 @@ fn skip_ply_element<R: BufRead>(
     element: &Element,
     line_no: &mut usize,
 ) -> Result<(), ReadError> {
+    // An element without properties holds no data: its records take no bytes, so counting
+    // through a header's 2^64 of them would never end (found by fuzzing).
+    if element.props.is_empty() {
+        return Ok(());
+    }
     let mut values = vec![0.0; element.props.len()];
     let mut line = String::new();
     for i in 0..element.count {

@@ -166,6 +166,35 @@ fn nan_rows_are_skipped_and_counted() {
     assert_eq!((set.len(), report.skipped_nonfinite), (1, 1));
 }
 
+/// Found by fuzzing (fuzz target `ply`): an element with no properties and a count near
+/// 2^64 before the vertices. Its records take no bytes; skipping them one by one never ended.
+#[test]
+fn ply_element_without_properties_is_skipped_whatever_its_count() {
+    for format in ["binary_little_endian", "ascii"] {
+        let mut bytes = format!("ply\nformat {format} 1.0\nelement face 18446744073709551615\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n").into_bytes();
+        if format == "ascii" {
+            bytes.extend_from_slice(b"1 2 3\n");
+        } else {
+            for v in [1.0f32, 2.0, 3.0] {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        let (set, _) = read_particles(&bytes[..], Format::Ply).unwrap();
+        assert_eq!(set.positions, vec![DVec3::new(1.0, 2.0, 3.0)], "{format}");
+    }
+}
+
+/// Found by fuzzing (fuzz target `delimited`): a mass finite as f64 but past f32's range was
+/// stored as an infinite f32 mass. It is non-finite as kept, so it is skipped and counted.
+#[test]
+fn masses_beyond_f32_range_are_skipped_as_non_finite() {
+    let text = "x,y,z,mass\n0,0,0,1\n1,1,1,1e39\n2,2,2,-1e300\n3,3,3,3e38\n";
+    let (set, report) = read_particles(text.as_bytes(), Format::Csv).unwrap();
+    assert_eq!(report.skipped_nonfinite, 2);
+    assert_eq!(set.masses, Some(vec![1.0, 3e38]));
+    assert!(set.masses.iter().flatten().all(|m| m.is_finite()));
+}
+
 #[test]
 fn csv_errors_say_where() {
     let negative = "x,y,z,mass\n1,2,3,1\n1,2,3,-0.5\n";

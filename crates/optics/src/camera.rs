@@ -13,6 +13,12 @@ use glam::{DVec2, DVec3};
 
 use crate::params::{join, KeyValues, ParseError};
 
+/// The largest image side and pixel count a camera accepts: 16K x 16K, twice 8K's width.
+/// Beyond that the renderers' per-pixel buffers (tens of bytes a pixel) stop fitting in
+/// memory and their size arithmetic could overflow, so such a size is refused up front.
+pub const MAX_SIDE: u32 = 1 << 15;
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 /// Why a camera was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CameraError {
@@ -26,6 +32,8 @@ pub enum CameraError {
     Fov(f64),
     #[error("camera image size must be at least 1x1, got {0}x{1}")]
     Size(u32, u32),
+    #[error("camera image of {0}x{1} pixels is larger than {MAX_PIXELS} pixels or {MAX_SIDE} on a side")]
+    TooLarge(u32, u32),
     #[error("bounding box is empty or not finite (min {}, max {})", join(&.0.to_array()), join(&.1.to_array()))]
     Bounds(DVec3, DVec3),
 }
@@ -63,6 +71,9 @@ impl Camera {
         }
         if width == 0 || height == 0 {
             return Err(CameraError::Size(width, height));
+        }
+        if width > MAX_SIDE || height > MAX_SIDE || width as u64 * height as u64 > MAX_PIXELS {
+            return Err(CameraError::TooLarge(width, height));
         }
         let forward = (look_at - eye).normalize_or_zero();
         if forward == DVec3::ZERO {

@@ -52,7 +52,7 @@ mod phase;
 mod rng;
 mod sampling;
 
-pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH};
+pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
 pub use light::{format_lights, parse_lights, EmissionDisc, Incident, Light, LightError};
 pub use medium::{Medium, MediumError};

@@ -97,6 +97,11 @@ fn degenerate_cameras_are_errors() {
     }
     assert!(matches!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, 0, 10), Err(CameraError::Size(0, 10))));
     assert!(matches!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, 10, 0), Err(CameraError::Size(10, 0))));
+    // Sizes whose pixel buffers cannot exist are refused rather than overflowing later.
+    assert!(matches!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, u32::MAX, u32::MAX), Err(CameraError::TooLarge(..))));
+    assert!(matches!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, 40_000, 1), Err(CameraError::TooLarge(..))));
+    assert!(matches!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, 20_000, 20_000), Err(CameraError::TooLarge(..))));
+    assert!(Camera::new(e, DVec3::ZERO, DVec3::Z, 40.0, 7680, 4320).is_ok(), "8K is fine");
     assert!(matches!(Camera::new(DVec3::NAN, DVec3::ZERO, DVec3::Z, 40.0, 10, 10), Err(CameraError::NotFinite)));
     assert!(matches!(Camera::default_for_bounds(DVec3::ONE, DVec3::ZERO), Err(CameraError::Bounds(..))));
     assert!(matches!(Camera::default_for_bounds(DVec3::ZERO, DVec3::INFINITY), Err(CameraError::Bounds(..))));

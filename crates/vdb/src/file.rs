@@ -77,6 +77,9 @@ pub enum Space {
     World,
 }
 
+/// The most active voxels [`VdbFile::read_volume`] converts (2^30: 4 GiB of floats).
+pub const MAX_READ_VOXELS: u64 = 1 << 30;
+
 /// A description of one grid, as listed by [`VdbFile::grids`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct GridInfo {
@@ -484,6 +487,15 @@ impl VdbFile {
         let (index, info) = self.find(name)?;
         self.check_kind(&info, T::KIND)?;
         let transform = self.affine(&info)?;
+        // Active tiles arrive voxelized, so a few bytes of file (one active root tile, or a
+        // corrupt one) can stand for 10^11 voxels: refuse before allocating rather than die
+        // out of memory. OpenVDB counts tiles voxel by voxel without voxelizing them.
+        if info.active_voxel_count > MAX_READ_VOXELS {
+            return Err(self.grid_error(
+                name,
+                format!("holds {} active voxels (tiles counted voxel by voxel), more than the {MAX_READ_VOXELS} nimbus reads into memory", info.active_voxel_count),
+            ));
+        }
         let mut background = [0f32; 3];
         let mut it = ptr::null_mut();
         // SAFETY: valid grid pointer, a 3-float background buffer and out-pointer.

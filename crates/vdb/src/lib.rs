@@ -71,7 +71,7 @@ mod points;
 mod sys;
 
 pub use error::{Result, VdbError};
-pub use file::{has_blosc, Compression, GridClass, GridInfo, GridKind, GridValue, Space, VdbFile, WriteOptions};
+pub use file::{has_blosc, Compression, GridClass, GridInfo, GridKind, GridValue, Space, VdbFile, WriteOptions, MAX_READ_VOXELS};
 pub use meta::{MetaValue, Metadata};
 pub use points::{PointAttribute, PointSet};
 

@@ -137,3 +137,22 @@ fn bad_names_are_errors_not_panics() {
     let err = file.write("", &WriteOptions::default()).unwrap_err().to_string();
     assert!(err.contains("cannot write"), "{err}");
 }
+
+/// Found by fuzzing (fuzz target `vdb`): active tiles are voxelized on read, so a small file
+/// can stand for more voxels than memory holds. A 4096^3 active tile (70 KB of file at most)
+/// is refused with the count instead of being allocated.
+#[test]
+fn huge_active_tiles_are_refused_before_allocating() {
+    let Some(py) = common::python_with_pyopenvdb() else { return };
+    let dir = TempDir::new("tiles");
+    let path = dir.path("tile.vdb");
+    let script = format!(
+        "import pyopenvdb as v; g = v.FloatGrid(); g.name = 'density'; g.fill((0, 0, 0), (4095, 4095, 4095), 1.0, True); v.write({:?}, [g])",
+        path.display().to_string()
+    );
+    common::run(std::process::Command::new(py).args(["-c", &script]));
+    let file = VdbFile::open(&path).unwrap();
+    assert_eq!(file.grid("density").unwrap().active_voxel_count, 4096u64.pow(3));
+    let err = file.read_float("density").unwrap_err().to_string();
+    assert!(err.contains("68719476736 active voxels") && err.contains(&nimbus_vdb::MAX_READ_VOXELS.to_string()), "{err}");
+}

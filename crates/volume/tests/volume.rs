@@ -230,6 +230,25 @@ proptest! {
             }
         }
     }
+
+    /// Trilinear sampling is a convex combination of the cell's eight corners: bounded by
+    /// their min and max, anywhere (inside bricks, across brick edges, in the background,
+    /// and far from the origin, where the cell fraction is computed from large coordinates).
+    #[test]
+    fn trilinear_sample_lies_between_its_corners(
+        seed in 0u64..1000, background in prop::sample::select(vec![0.0f32, 0.5, -1.0]),
+        p in prop::array::uniform3(-40.0f64..40.0), far in prop::sample::select(vec![0.0f64, 1e6, -3e7]),
+    ) {
+        let v = random_volume(seed, background);
+        let p = DVec3::from(p) + DVec3::splat(far);
+        let b = p.floor().as_ivec3();
+        let corners: Vec<f32> = (0..8).map(|n| v.get(b + IVec3::new((n >> 2) & 1, (n >> 1) & 1, n & 1))).collect();
+        let lo = corners.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = corners.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let got = v.sample_index(p);
+        let slack = 1e-6 * lo.abs().max(hi.abs()).max(1.0);
+        prop_assert!(got >= lo - slack && got <= hi + slack, "{} outside [{}, {}] at {}", got, lo, hi, p);
+    }
 }
 
 #[test]
