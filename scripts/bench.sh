@@ -7,6 +7,7 @@ run() { echo; echo "== $*"; "$@"; }
 run cargo bench --locked -p nimbus-vdb --bench io
 run cargo bench --locked -p nimbus-gpu --bench sampling
 run cargo run --locked --release -p nimbus-density --example accuracy
+run cargo bench --locked -p nimbus-density --bench estimate
 run cargo bench --locked -p nimbus-photon --bench trace
 run cargo run --locked --release -p nimbus-photon --example figure2
 run cargo bench --locked -p nimbus-march --bench render
