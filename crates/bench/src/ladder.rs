@@ -72,11 +72,11 @@ pub fn presets() -> Vec<Rung> {
         .collect()
 }
 
-/// The ladder: the presets, and one setting at a time varied around `preview` (the tools'
-/// defaults), including the paper's distance modes at a quarter of the photons (they cost
+/// The ladder: the presets, and one setting at a time varied around the tools' defaults
+/// (200k photons, 64 neighbours, cache scale 2, default step, 1 spp), including the paper's distance modes at a quarter of the photons (they cost
 /// more per photon: compare them at equal time on the plot).
 fn ladder(quick: bool) -> Vec<Rung> {
-    let p = presets()[1].clone();
+    let p = Rung::new("", 200_000, "delta", 64, 2.0, 1.0, 1);
     let vary = |name: &str, f: &dyn Fn(&mut Rung)| {
         let mut r = p.clone();
         f(&mut r);

@@ -37,6 +37,8 @@ pub fn error_vs_time(rows: &[Row], png: &Path) -> Result<()> {
             .x_desc("vdbphoton + vdbcache + vdbmarch, seconds")
             .y_desc("relative RMSE (2x2 blocks)")
             .label_style(("sans-serif", 14))
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| format!("{v:.2}"))
             .draw()?;
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene).collect();
         scenes.dedup();
