@@ -10,6 +10,7 @@ run cargo run --locked --release -p nimbus-density --example accuracy
 run cargo bench --locked -p nimbus-density --bench estimate
 run cargo bench --locked -p nimbus-photon --bench trace
 run cargo run --locked --release -p nimbus-photon --example figure2
+run cargo bench --locked -p nimbus-cache --bench bake
 run cargo bench --locked -p nimbus-march --bench render
 # vdbmarch on the Cloud1-class and smoke-like caches (made by the release tools).
 run scripts/bench-scenes.sh
