@@ -3,7 +3,7 @@
 //! Cloud1-class and smoke-like caches that `scripts/bench-scenes.sh` makes with the release
 //! tools, plus a 4096 x 2304 row as a size stress.
 //!
-//!     scripts/bench-scenes.sh && cargo bench -p nimbus-march --bench scenes [-- quick] [-- stress]
+//!     scripts/bench-scenes.sh && cargo bench -p nimbus-march --bench scenes [-- quick] [-- stress] [-- only=smoke]
 //!
 //! Times are the march alone (the cache is loaded once; GPU times include uploads and
 //! read-back), median of 3 runs (1 run where one takes over 10 s). Error: each image is
@@ -117,8 +117,14 @@ fn timed(mut f: impl FnMut() -> Image) -> (Duration, Image) {
 fn main() {
     let quick = std::env::args().any(|a| a == "quick");
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../out/bench");
-    let mut scenes = vec![load("cloud1", &root.join("cloud1.vdb"))];
-    if !quick {
+    // `-- only=smoke` (or cloud1) runs one scene.
+    let only = std::env::args().find_map(|a| a.strip_prefix("only=").map(str::to_owned));
+    let wanted = |name: &str| only.as_deref().is_none_or(|o| o == name);
+    let mut scenes = Vec::new();
+    if wanted("cloud1") {
+        scenes.push(load("cloud1", &root.join("cloud1.vdb")));
+    }
+    if !quick && wanted("smoke") {
         scenes.push(load("smoke", &root.join("smoke.vdb")));
     }
     let ctx = common::gpu();
