@@ -5,21 +5,12 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-fn bin(name: &str) -> PathBuf {
-    match name {
-        "particles2vdb" => env!("CARGO_BIN_EXE_particles2vdb"),
-        "vdbphoton" => env!("CARGO_BIN_EXE_vdbphoton"),
-        "vdbcache" => env!("CARGO_BIN_EXE_vdbcache"),
-        "vdbmarch" => env!("CARGO_BIN_EXE_vdbmarch"),
-        _ => unreachable!(),
-    }
-    .into()
-}
+mod common;
+
+use common::bin;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nimbus-e2e-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("e2e", name)
 }
 
 /// A ball of particles with a denser knot, as ASCII PLY.

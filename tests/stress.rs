@@ -16,21 +16,12 @@ use glam::{DVec3, IVec3};
 use nimbus_vdb::{GridClass, VdbFile, WriteOptions};
 use nimbus_volume::{Transform, Volume};
 
-fn bin(name: &str) -> PathBuf {
-    match name {
-        "particles2vdb" => env!("CARGO_BIN_EXE_particles2vdb"),
-        "vdbphoton" => env!("CARGO_BIN_EXE_vdbphoton"),
-        "vdbcache" => env!("CARGO_BIN_EXE_vdbcache"),
-        "vdbmarch" => env!("CARGO_BIN_EXE_vdbmarch"),
-        _ => unreachable!(),
-    }
-    .into()
-}
+mod common;
+
+use common::bin;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nimbus-stress-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("stress", name)
 }
 
 /// How long any one tool run may take before it counts as a hang. Generous against a loaded

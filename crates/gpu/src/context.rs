@@ -244,6 +244,11 @@ impl GpuContext {
         })
     }
 
+    /// A bind group over `entries`, its errors caught like every other operation's.
+    pub fn bind_group(&self, label: &str, layout: &wgpu::BindGroupLayout, entries: &[wgpu::BindGroupEntry]) -> Result<wgpu::BindGroup, GpuError> {
+        self.scoped(label, || self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries }))
+    }
+
     /// A bind group whose binding `i` is the whole of `buffers[i]`.
     pub fn buffer_bind_group(&self, label: &str, layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]) -> Result<wgpu::BindGroup, GpuError> {
         let entries: Vec<wgpu::BindGroupEntry> = buffers
@@ -251,9 +256,7 @@ impl GpuContext {
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
             .collect();
-        self.scoped(label, || {
-            self.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some(label), layout, entries: &entries })
-        })
+        self.bind_group(label, layout, &entries)
     }
 
     /// Workgroup counts covering `items` invocations of a `workgroup_size`-wide kernel,

@@ -229,9 +229,7 @@ fn march_pixels(
             wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
         ]);
-        ctx.scoped("march bind group", || {
-            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("march"), layout: &layout, entries: &group_entries })
-        })
+        ctx.bind_group("march", &layout, &group_entries)
     })
 }
 

@@ -1,7 +1,7 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -88,15 +88,7 @@ pub fn render_reference_gpu(
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("reference params", &tile)?;
-        let entries = [
-            wgpu::BindGroupEntry { binding: 0, resource: uniform_buffer.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 1, resource: light_buffer.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 2, resource: majorant_buffer.as_entire_binding() },
-            wgpu::BindGroupEntry { binding: 3, resource: out.as_entire_binding() },
-        ];
-        ctx.scoped("reference bind group", || {
-            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("reference"), layout: &layout, entries: &entries })
-        })
+        ctx.buffer_bind_group("reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out])
     })?;
     Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
 }
