@@ -17,6 +17,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/PointIndexGrid.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -213,7 +214,18 @@ void write_archive(const nimbus_file& file, std::ostream& os, nimbus_compression
     bool half)
 {
     SeekableWriter writer;
-    writer.setCompression(compression_flags(compression));
+    uint32_t flags = compression_flags(compression);
+    // OpenVDB never ZIP-compresses the voxels of fog volumes and level sets
+    // (Archive::setGridCompression), yet OpenVDB 10 still deflates every leaf of them to
+    // record compressed sizes in its delayed-load metadata: 0.5 s for a 4M-voxel density
+    // grid, for bytes that are then written uncompressed. When ZIP could not apply to any
+    // grid in the file, it is not asked for; the voxel data written is the same.
+    const bool zip_applies = std::any_of(file.grids.begin(), file.grids.end(), [](const auto& g) {
+        const vdb::GridClass c = g->grid->getGridClass();
+        return c != vdb::GRID_FOG_VOLUME && c != vdb::GRID_LEVEL_SET;
+    });
+    if (!zip_applies) flags &= ~uint32_t(vdb::io::COMPRESS_ZIP);
+    writer.setCompression(flags);
     vdb::GridCPtrVec grids;
     grids.reserve(file.grids.size());
     for (const auto& g : file.grids) {

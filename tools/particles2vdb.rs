@@ -184,6 +184,14 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         s.grid_mass,
         s.max_density
     ));
+    let t = &s.timings;
+    log.verbose(format!(
+        "estimate: prepare {:.3} s (h0, grid, binning), passes {:.3} s ({} bricks), finish {:.3} s",
+        t.prepare.as_secs_f64(),
+        t.estimate.as_secs_f64(),
+        s.bricks_proposed,
+        t.finish.as_secs_f64()
+    ));
     if args.stats {
         eprintln!("particles used per occupied grid point: mean {:.2}, std {:.2} over {} points ({})", s.used_mean, s.used_std, s.used_points, method.name());
     }

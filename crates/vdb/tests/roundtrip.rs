@@ -273,3 +273,23 @@ fn blosc_matches_what_the_build_supports() {
     let result = file.to_bytes(&WriteOptions { compression: Compression::Blosc, half: false });
     assert_eq!(result.is_ok(), has_blosc(), "{result:?}");
 }
+
+/// OpenVDB never ZIP-compresses fog volumes, yet OpenVDB 10 deflates every leaf of one to
+/// fill its delayed-load metadata when the archive asks for ZIP (half a second for a
+/// 4M-voxel density grid). A file of fog volumes only is therefore written as with `None`:
+/// same size, same values; a file with another class of grid still gets ZIP.
+#[test]
+fn zip_is_not_asked_for_where_it_cannot_apply() {
+    let density = sample_float_volume(awkward_transform());
+    let mut fog = VdbFile::new();
+    fog.insert_volume("density", &density, GridClass::FogVolume).unwrap();
+    let size = |f: &VdbFile, c| f.to_bytes(&WriteOptions { compression: c, half: false }).unwrap().len();
+    assert_eq!(size(&fog, Compression::Zip), size(&fog, Compression::None));
+    let back = VdbFile::from_bytes(&fog.to_bytes(&WriteOptions::default()).unwrap(), "<fog>").unwrap();
+    assert_volumes_equal(&back.read_float("density").unwrap(), &density);
+
+    let mut mixed = VdbFile::new();
+    mixed.insert_volume("density", &density, GridClass::FogVolume).unwrap();
+    mixed.insert_volume("Li_single", &sample_vec3_volume(Transform::uniform(0.05, DVec3::ZERO)), GridClass::Unknown).unwrap();
+    assert!(size(&mixed, Compression::Zip) < size(&mixed, Compression::None), "ZIP still applies to the vec3 grid");
+}
