@@ -1,7 +1,7 @@
 //! The backends side by side: CPU (rayon, all cores) and GPU (whatever adapter there is;
 //! lavapipe, i.e. the same CPU cores, on the development machines), every method, on the
-//! Cloud1-class scene (500k particles, 339 x 42 x 361 voxels) and the smoke-like plume (330k
-//! particles with dense eddies). Time is the median of RUNS estimates (prepare + passes +
+//! Cloud1-class scene (500k particles, 339 x 42 x 361 voxels) and the smoke-like one (330k
+//! particles with dense eddies in a 280 x 255 x 233 box; `Scene::smoke`). Time is the median of RUNS estimates (prepare + passes +
 //! finish, in process; the whole `particles2vdb` command is timed by
 //! scripts/bench_density.sh), error the relative L2 against the scene's analytic density over
 //! every grid point, mass the grid's mass over the particles'.
@@ -51,7 +51,7 @@ fn main() {
     };
     let mut scenes: Vec<Scene> = args.iter().filter_map(|a| Scene::by_name(a)).collect();
     if scenes.is_empty() {
-        scenes = vec![Scene::cloud1(), Scene::plume()];
+        scenes = vec![Scene::cloud1(), Scene::smoke()];
     }
     println!("{} threads; GPU: {}; N* = {neighbours}; median of {runs} CPU / {gpu_runs} GPU runs", rayon::current_num_threads(), ctx.as_ref().map_or("none".into(), |c| c.info.to_string()));
     for scene in scenes {

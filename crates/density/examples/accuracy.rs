@@ -2,7 +2,7 @@
 //!
 //!     cargo run --release -p nimbus-density --example accuracy [-- SCENE...]
 //!
-//! For each scene (knots, shell, plume, cloud1; default the first three) it samples particles
+//! For each scene (knots, shell, plume, cloud1, smoke; default the first three) it samples particles
 //! from the analytic density, estimates the density on one fixed grid with each method, and
 //! prints the relative L2 error against the true density over every grid point
 //! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
@@ -123,7 +123,7 @@ fn main() {
     for name in names {
         match Scene::by_name(name) {
             Some(scene) => accuracy(scene),
-            None => eprintln!("unknown scene {name} (knots, shell, plume, cloud1)"),
+            None => eprintln!("unknown scene {name} (knots, shell, plume, cloud1, smoke)"),
         }
     }
 }

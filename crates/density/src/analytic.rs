@@ -253,27 +253,29 @@ impl Scene {
 
     /// Smoke-like plume: a rising, widening, wavering column of puffs, denser at the source.
     pub fn plume() -> Scene {
-        let mut rng = Rng::new(31, 0);
-        let mut components = Vec::new();
-        let n = 80;
-        for i in 0..n {
-            let t = i as f64 / (n - 1) as f64;
-            let z = 150.0 * t;
-            let centre = DVec3::new(12.0 * (z / 25.0).sin() * t, 8.0 * (z / 35.0).cos() * t, z);
-            let s = 2.0 + 14.0 * t;
-            let jitter = DVec3::new(rng.normal(), rng.normal(), rng.normal()) * 0.4 * s;
-            let weight = 1.0 - 0.6 * t;
-            components.push((weight, Component::Gaussian { centre: centre + jitter, sigma: DVec3::splat(s) }));
-            // Small dense eddies riding on the column.
-            components.push((0.15 * weight, Component::Gaussian { centre: centre - jitter, sigma: DVec3::splat(0.3 * s + 0.5) }));
-        }
         Scene {
             name: "plume",
-            density: Analytic { components },
+            density: plume_puffs(150.0, DVec3::ZERO),
             total_mass: 1000.0,
             particles: 330_000,
             voxel_size: 0.9,
             bounds: None,
+        }
+    }
+
+    /// The smoke-like benchmark scene of the issue (330k particles, grid 280 x 255 x 233): the
+    /// plume blown sideways by a wind, so it fills a near-cubic simulation box, which is given
+    /// as explicit bounds the way a smoke solver's domain would be.
+    pub fn smoke() -> Scene {
+        let voxel = 0.8;
+        let lo = DVec3::new(-30.0, -30.0, -8.0);
+        Scene {
+            name: "smoke",
+            density: plume_puffs(120.0, DVec3::new(120.0, 95.0, 0.0)),
+            total_mass: 1000.0,
+            particles: 330_000,
+            voxel_size: voxel,
+            bounds: Some((lo, lo + DVec3::new(280.0, 255.0, 233.0) * voxel)),
         }
     }
 
@@ -283,9 +285,30 @@ impl Scene {
             "shell" => Some(Scene::shell()),
             "cloud1" => Some(Scene::cloud1()),
             "plume" => Some(Scene::plume()),
+            "smoke" => Some(Scene::smoke()),
             _ => None,
         }
     }
+}
+
+/// 80 puffs rising `height` from the origin, widening from sigma 2 to 16 and drifting by
+/// `wind` at the top (quadratically: the column bends over), each with a small dense eddy.
+fn plume_puffs(height: f64, wind: DVec3) -> Analytic {
+    let mut rng = Rng::new(31, 0);
+    let mut components = Vec::new();
+    let n = 80;
+    for i in 0..n {
+        let t = i as f64 / (n - 1) as f64;
+        let z = height * t;
+        let centre = DVec3::new(12.0 * (z / 25.0).sin() * t, 8.0 * (z / 35.0).cos() * t, z) + wind * t * t;
+        let s = 2.0 + 14.0 * t;
+        let jitter = DVec3::new(rng.normal(), rng.normal(), rng.normal()) * 0.4 * s;
+        let weight = 1.0 - 0.6 * t;
+        components.push((weight, Component::Gaussian { centre: centre + jitter, sigma: DVec3::splat(s) }));
+        // Small dense eddies riding on the column.
+        components.push((0.15 * weight, Component::Gaussian { centre: centre - jitter, sigma: DVec3::splat(0.3 * s + 0.5) }));
+    }
+    Analytic { components }
 }
 
 /// A scene's true density at every point of a grid, to score estimates against.
