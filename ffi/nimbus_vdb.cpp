@@ -18,10 +18,12 @@
 #include <openvdb/tools/PointIndexGrid.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <memory>
 #include <mutex>
 #include <sstream>
@@ -239,8 +241,217 @@ void write_archive(const nimbus_file& file, std::ostream& os, nimbus_compression
     os.flush();
 }
 
+// ---- layout check ---------------------------------------------------------------------
+
+// OpenVDB trusts the lengths a file states. io::readString() does std::string(size, ' ')
+// on a uint32 it has just read, and string or unknown-type metadata resize a buffer to the
+// value size the file gives, all before reading the bytes. A corrupt or truncated file thus
+// makes it allocate and zero-fill up to 4 GiB before the short read fails. LayoutCheck walks
+// the parts of a file that hold such lengths -- the header, the file metadata, the grid
+// descriptors and each grid's metadata and transform type -- and refuses any length that
+// runs past the data, before io::Stream sees the file. It reads only fixed-size fields and
+// short type names, seeking over everything else, so it costs a few reads per item.
+// Layout as read by OpenVDB 10: io/Archive.cc (readHeader, readGridCompression, readGrid),
+// io/Stream.cc, io/GridDescriptor.cc (read), MetaMap.cc (readMeta), Metadata.h.
+class LayoutCheck {
+public:
+    LayoutCheck(std::streambuf& buf, uint64_t size) : mBuf(buf), mSize(size) {}
+
+    void run()
+    {
+        // Header (Archive::readHeader).
+        if (mSize < 8 || i64("magic number") != vdb::OPENVDB_MAGIC) fail("not a VDB file");
+        uint32_t version = u32("file format version");
+        if (version < 211) {
+            // Before 211 the version was stored as major, minor, patch.
+            const uint32_t minor = u32("file format version"), patch = u32("file format version");
+            version = 100 * version + 10 * minor + patch;
+        } else {
+            skip(8, "library version");
+        }
+        bool offsets = true; // grid offsets, implied before 212
+        if (version >= 212) offsets = byte("grid offsets flag") != 0;
+        if (version >= vdb::OPENVDB_FILE_VERSION_SELECTIVE_COMPRESSION
+            && version < vdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
+            skip(1, "compression flag");
+        if (version >= vdb::OPENVDB_FILE_VERSION_BOOST_UUID) {
+            // ASCII, read with `is >> uuid`, which skips leading white space first.
+            while (std::isspace(static_cast<unsigned char>(byte("UUID")))) {}
+            --mPos;
+            skip(36, "UUID");
+        } else {
+            skip(16, "UUID");
+        }
+
+        meta_map("file metadata", mSize);
+
+        // Grids (Stream::Stream reads them in sequence).
+        const int32_t count = i32("grid count");
+        const bool instancing = version >= vdb::OPENVDB_FILE_VERSION_GRID_INSTANCING;
+        // Each grid takes at least its descriptor: 2 or 3 string lengths and 3 offsets.
+        const uint64_t min_grid = (instancing ? 3 : 2) * 4 + 24;
+        if (count < 0 || uint64_t(count) > remaining(mSize) / min_grid)
+            fail(at("grid count " + std::to_string(count), mPos - 4) + " does not fit in the "
+                + std::to_string(mSize) + " bytes of data (truncated or corrupt file)");
+        for (int32_t i = 0; i < count; ++i) {
+            const std::string label = "grid " + std::to_string(i + 1) + " of " + std::to_string(count);
+            string(label + " name", mSize);
+            string(label + " type", mSize);
+            if (instancing) string(label + " instance parent name", mSize);
+            const uint64_t desc_end = mPos + 24;
+            const int64_t grid_pos = i64(label + " grid offset");
+            i64(label + " block offset");
+            const int64_t end_pos = i64(label + " end offset");
+            // Without offsets the next grid starts where this one's tree ends, which only
+            // parsing the tree finds: check this grid's metadata and stop.
+            uint64_t limit = mSize;
+            if (offsets) {
+                // Offsets are absolute; the grid lies between its descriptor and the end.
+                // (The block offset is not used by a sequential read.)
+                if (grid_pos < int64_t(desc_end) || end_pos < grid_pos || uint64_t(end_pos) > mSize)
+                    fail(at(label + " offsets (grid " + std::to_string(grid_pos) + ", end "
+                        + std::to_string(end_pos) + ")", desc_end - 24) + " lie outside the "
+                        + std::to_string(mSize) + " bytes of data (truncated or corrupt file)");
+                limit = uint64_t(end_pos);
+            }
+            // Archive::readGrid: compression flags, the grid's metadata, then (from 216
+            // on) the transform, which begins with its map type name.
+            if (version >= vdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
+                skip(4, label + " compression flags", limit);
+            meta_map(label + " metadata", limit);
+            if (instancing) string(label + " transform type", limit);
+            if (!offsets) break;
+            mPos = uint64_t(end_pos);
+        }
+    }
+
+private:
+    std::streambuf& mBuf;
+    const uint64_t mSize;
+    uint64_t mPos = 0;
+    uint64_t mAt = ~uint64_t(0); // where the streambuf reads next, when known
+    const std::string* mMap = nullptr; // the metadata map being checked
+    uint32_t mItem = 0, mItems = 0;
+
+    uint64_t remaining(uint64_t limit) const { return limit > mPos ? limit - mPos : 0; }
+
+    static std::string at(const std::string& what, uint64_t pos)
+    {
+        return what + " at byte " + std::to_string(pos);
+    }
+
+    // Inside a metadata map, `what` names a part of the current item; the full label is
+    // composed only on failure, as a corrupt map may state billions of tiny items.
+    std::string label(const std::string& what) const
+    {
+        if (!mMap) return what;
+        return *mMap + " item " + std::to_string(mItem) + " of " + std::to_string(mItems) + " " + what;
+    }
+
+    // Fails unless n bytes remain before `limit` (the data's or the grid's end).
+    void need(uint64_t n, const std::string& what, uint64_t limit)
+    {
+        if (n <= remaining(limit)) return;
+        std::string msg = at(label(what), mPos) + " needs " + std::to_string(n) + " bytes but only "
+            + std::to_string(remaining(limit)) + " remain";
+        if (limit != mSize) msg += " before the grid's end offset";
+        fail(msg + " (truncated or corrupt file)");
+    }
+    void skip(uint64_t n, const std::string& what, uint64_t limit)
+    {
+        need(n, what, limit);
+        if (n <= 256 && mAt == mPos) {
+            // Reading a short field beats seeking past it (see read()).
+            char scratch[256];
+            read(scratch, size_t(n), what, limit);
+        } else {
+            mPos += n;
+        }
+    }
+    void skip(uint64_t n, const std::string& what) { skip(n, what, mSize); }
+    void read(void* out, size_t n, const std::string& what, uint64_t limit)
+    {
+        need(n, what, limit);
+        // Seek only after a skip: a seek drops a filebuf's buffer, and items are small.
+        if ((mAt != mPos && mBuf.pubseekpos(std::streampos(std::streamoff(mPos)), std::ios_base::in) == std::streampos(-1))
+            || mBuf.sgetn(static_cast<char*>(out), std::streamsize(n)) != std::streamsize(n))
+            fail(at(label(what), mPos) + ": read failed");
+        mPos += n;
+        mAt = mPos;
+    }
+    template <class T> T scalar(const std::string& what, uint64_t limit)
+    {
+        T v;
+        read(&v, sizeof v, what, limit);
+        return v;
+    }
+    uint32_t u32(const std::string& what, uint64_t limit) { return scalar<uint32_t>(what, limit); }
+    uint32_t u32(const std::string& what) { return u32(what, mSize); }
+    int32_t i32(const std::string& what) { return scalar<int32_t>(what, mSize); }
+    int64_t i64(const std::string& what) { return scalar<int64_t>(what, mSize); }
+    char byte(const std::string& what) { return scalar<char>(what, mSize); }
+
+    // io::readString: a uint32 length, then that many bytes. Returns the text when it is
+    // short (type names are), else an empty string.
+    std::string string(const std::string& what, uint64_t limit)
+    {
+        const uint32_t n = u32(what, limit);
+        std::string s;
+        if (n <= 64) {
+            s.resize(n);
+            read(s.data(), n, what, limit);
+        } else {
+            skip(n, what, limit);
+        }
+        return s;
+    }
+
+    // MetaMap::readMeta: a uint32 count, then per item a name, a type name, a uint32 value
+    // size and the value (Metadata::read). Fixed-size types read sizeof(T) whatever the
+    // stated size; strings and unregistered types read the stated size.
+    void meta_map(const std::string& what, uint64_t limit)
+    {
+        const uint32_t count = u32(what + " count", limit);
+        mMap = &what;
+        mItems = count;
+        for (uint32_t i = 0; i < count; ++i) {
+            mItem = i + 1;
+            // MetaMap::insertMeta refuses an empty name; refusing it here too stops a
+            // corrupt count from making this loop over a file of zeros.
+            const uint32_t name = u32("name", limit);
+            if (name == 0) fail(label("has an empty name (corrupt file)"));
+            skip(name, "name", limit);
+            const std::string type = string("type name", limit);
+            const uint32_t stated = u32("value size", limit);
+            uint64_t n = stated;
+            if (!type.empty() && vdb::Metadata::isRegisteredType(type)) {
+                // A fresh TypedMetadata has size sizeof(T); a fresh string has size 0.
+                const vdb::Index32 fixed = vdb::Metadata::createMetadata(type)->size();
+                if (fixed != 0) n = fixed;
+            }
+            skip(n, type.empty() ? "value" : "value (" + type + ")", limit);
+        }
+        mMap = nullptr;
+    }
+};
+
 std::unique_ptr<nimbus_file> read_archive(std::istream& is)
 {
+    // Both entry points hand over a stream positioned at the start of the data.
+    std::streambuf& buf = *is.rdbuf();
+    const std::streampos end = buf.pubseekoff(0, std::ios_base::end, std::ios_base::in);
+    if (end == std::streampos(-1)) {
+        // Not seekable (a pipe given as a path, e.g. /dev/fd/N): read it all into memory,
+        // as stdin is, so the layout can be checked before OpenVDB parses it.
+        std::vector<char> bytes{std::istreambuf_iterator<char>(is), std::istreambuf_iterator<char>()};
+        MemInBuf mem(reinterpret_cast<const uint8_t*>(bytes.data()), bytes.size());
+        std::istream ms(&mem);
+        ms.exceptions(std::ios_base::failbit | std::ios_base::badbit);
+        return read_archive(ms);
+    }
+    LayoutCheck(buf, uint64_t(std::streamoff(end))).run();
+    is.seekg(0);
+
     // No delayed loading: everything is in memory when this returns, so the source can
     // be overwritten (a tool may write its output over its input).
     vdb::io::Stream stream(is, /*delayLoad=*/false);

@@ -156,3 +156,126 @@ fn huge_active_tiles_are_refused_before_allocating() {
     let err = file.read_float("density").unwrap_err().to_string();
     assert!(err.contains("68719476736 active voxels") && err.contains(&nimbus_vdb::MAX_READ_VOXELS.to_string()), "{err}");
 }
+
+/// Peak resident set size of this process so far, in KiB (VmHWM, as getrusage's ru_maxrss).
+fn peak_rss_kib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmHWM:")).expect("VmHWM in /proc/self/status");
+    line.trim_start_matches("VmHWM:").trim().trim_end_matches("kB").trim().parse().unwrap()
+}
+
+/// Set in the child process that `corrupt_metadata_lengths_are_refused_before_allocating`
+/// starts to run itself alone.
+const CHILD_ENV: &str = "NIMBUS_VDB_TEST_ALONE";
+
+/// Found by fuzzing (fuzz target `vdb`, fuzz/regressions/vdb-metadata-string-*): a file
+/// metadata name length of 2.6 or 4 GiB in a 10-20 KB file made OpenVDB allocate and
+/// zero-fill a string that size before the short read failed. The bridge now checks the
+/// stated lengths against the data before OpenVDB parses it. Peak memory is a property of
+/// the whole process, and other tests run beside this one, so it measures itself in a child
+/// process running only this test.
+#[test]
+fn corrupt_metadata_lengths_are_refused_before_allocating() {
+    const NAME: &str = "corrupt_metadata_lengths_are_refused_before_allocating";
+    const MARK: &str = "peak RSS growth KiB: ";
+    if std::env::var_os(CHILD_ENV).is_none() {
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([NAME, "--exact", "--nocapture", "--test-threads=1"])
+            .env(CHILD_ENV, "1")
+            .output()
+            .unwrap();
+        let (stdout, stderr) = (String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        // The child ran this test (not zero tests) and measured; memory is checked first.
+        let growth: u64 = stdout
+            .lines()
+            .find_map(|l| l.split_once(MARK).map(|(_, n)| n.trim()))
+            .unwrap_or_else(|| panic!("no measurement from the child:\n{stdout}\n{stderr}"))
+            .parse()
+            .unwrap();
+        assert!(growth < 256 * 1024, "reading grew peak RSS by {growth} KiB:\n{stdout}\n{stderr}");
+        assert!(out.status.success(), "child failed:\n{stdout}\n{stderr}");
+        return;
+    }
+
+    let dir = TempDir::new("regressions");
+    let regressions = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/regressions");
+    let before = peak_rss_kib();
+    let mut messages = Vec::new();
+    for (name, stated) in [("vdb-metadata-string-2.6gib", 2643056797u64), ("vdb-metadata-string-4gib", 4294967267)] {
+        let bytes = std::fs::read(regressions.join(name)).unwrap();
+        messages.push((assert_unreadable(&bytes, &dir, name), stated));
+    }
+    println!("{MARK}{}", peak_rss_kib() - before);
+    for (msg, stated) in messages {
+        let want = format!("file metadata item 3 of 4 name at byte 369 needs {stated} bytes but only");
+        assert!(msg.contains(&want) && msg.contains("truncated or corrupt"), "{msg}");
+    }
+}
+
+/// Overwrites the u32 length in front of the first `len`-prefixed occurrence of `text`.
+fn patch_length(bytes: &mut [u8], text: &[u8], len: u32) {
+    let mut prefixed = (text.len() as u32).to_le_bytes().to_vec();
+    prefixed.extend_from_slice(text);
+    let at = bytes.windows(prefixed.len()).position(|w| w == prefixed).expect("length-prefixed text");
+    bytes[at..at + 4].copy_from_slice(&len.to_le_bytes());
+}
+
+/// Every stated length and offset the bridge checks before OpenVDB parses: in the file
+/// metadata, the grid count, each grid's descriptor, metadata and transform type, found by
+/// hopping from grid to grid with the grid offsets. Each is refused with what and where.
+#[test]
+fn stated_lengths_past_the_end_are_refused() {
+    let dir = TempDir::new("lengths");
+    let mut file = VdbFile::new();
+    let vol = sample_float_volume(awkward_transform());
+    file.insert_volume("density", &vol, GridClass::FogVolume).unwrap();
+    file.insert_volume("temperature", &vol, GridClass::FogVolume).unwrap();
+    file.set_metadata("nimbus:seed", 7i64).unwrap();
+    file.set_metadata("nimbus:note", "hello").unwrap();
+    let bytes = file.to_bytes(&WriteOptions::default()).unwrap();
+    assert!(VdbFile::from_bytes(&bytes, "two.vdb").is_ok());
+    let huge = u32::MAX - 8;
+
+    let cases: [(&[u8], &str); 7] = [
+        (b"nimbus:note", "file metadata item 1 of 2 name at byte"),
+        (b"hello", "file metadata item 1 of 2 value (string) at byte"),
+        (b"density", "grid 1 of 2 name at byte"),
+        (b"temperature", "grid 2 of 2 name at byte"),
+        (b"fog volume", "grid 1 of 2 metadata item 1 of"),
+        (b"AffineMap", "grid 1 of 2 transform type at byte"),
+        (b"Tree_float_5_4_3", "grid 1 of 2 type at byte"),
+    ];
+    for (n, (text, want)) in cases.iter().enumerate() {
+        let mut bad = bytes.clone();
+        patch_length(&mut bad, text, huge);
+        let msg = assert_unreadable(&bad, &dir, &format!("len{n}.vdb"));
+        assert!(msg.contains(want) && msg.contains(&format!("needs {huge} bytes")), "{msg}");
+    }
+
+    // OpenVDB refuses an empty metadata name; so does the check, before walking on.
+    let mut bad = bytes.clone();
+    patch_length(&mut bad, b"nimbus:note", 0);
+    let msg = assert_unreadable(&bad, &dir, "empty-name.vdb");
+    assert!(msg.contains("file metadata item 1 of 2 has an empty name"), "{msg}");
+
+    // The grid count follows the file metadata: the int64 "nimbus:seed" value ends it.
+    let mut bad = bytes.clone();
+    let seed = bad.windows(20).position(|w| w == b"nimbus:seed\x05\0\0\0int64").unwrap();
+    let count_at = seed + 20 + 4 + 8;
+    assert_eq!(bad[count_at..count_at + 4], 2i32.to_le_bytes());
+    bad[count_at..count_at + 4].copy_from_slice(&i32::MAX.to_le_bytes());
+    let msg = assert_unreadable(&bad, &dir, "count.vdb");
+    assert!(msg.contains("grid count 2147483647 at byte") && msg.contains("does not fit"), "{msg}");
+
+    // The end offset of grid 1 (after its name, type and empty instance parent name).
+    let mut bad = bytes.clone();
+    let desc = bad.windows(20).position(|w| w == b"Tree_float_5_4_3\0\0\0\0").unwrap();
+    let end_at = desc + 20 + 16;
+    bad[end_at..end_at + 8].copy_from_slice(&(bytes.len() as i64 + 1).to_le_bytes());
+    let msg = assert_unreadable(&bad, &dir, "offset.vdb");
+    assert!(msg.contains("grid 1 of 2 offsets") && msg.contains("lie outside"), "{msg}");
+
+    // A truncated file fails at the first length that runs past the new end.
+    let msg = assert_unreadable(&bytes[..100], &dir, "cut.vdb");
+    assert!(msg.contains("truncated or corrupt"), "{msg}");
+}
