@@ -95,15 +95,17 @@ fn accuracy(scene: Scene) {
         }
         rows.push(row);
     }
-    for n_star in [16, 32, 64, 128] {
-        for h_min in [0.5, 1.0, 2.0] {
-            rows.push(run(
-                &particles,
-                &truth,
-                format!("asl3 N*={n_star} h_min={h_min} vox"),
-                DensityParams { method: Method::Asl3, neighbours: n_star, h_min: Some(h_min * voxel), ..base.clone() },
-            ));
-        }
+    // N* at the default h_min (h0 auto follows N*), then h_min at the default N*.
+    for n_star in [16, 32, 48, 64, 96, 128] {
+        rows.push(run(&particles, &truth, format!("asl3 N*={n_star}"), DensityParams { method: Method::Asl3, neighbours: n_star, ..base.clone() }));
+    }
+    for h_min in [0.5, 2.0] {
+        rows.push(run(
+            &particles,
+            &truth,
+            format!("asl3 h_min={h_min} vox"),
+            DensityParams { method: Method::Asl3, h_min: Some(h_min * voxel), ..base.clone() },
+        ));
     }
     for n_star in [16, 64] {
         rows.push(run(&particles, &truth, format!("knn N*={n_star}"), DensityParams { method: Method::Knn, neighbours: n_star, ..base.clone() }));
