@@ -28,7 +28,7 @@ struct Args {
     h0: String,
     /// N*: target neighbour count of the adaptive methods (and of --h0 auto). 32 keeps dense
     /// knots sharpest; smooth media are less noisy with 64-128 at 1.5-3x the time.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = nimbus_density::DEFAULT_NEIGHBOURS)]
     neighbours: u32,
     /// asl3 relaxation s in [0,1] for overestimated lengths.
     #[arg(long, default_value_t = 0.0)]

@@ -59,14 +59,22 @@
 //!
 //! Relative L2 error against analytic densities: asl3 ~= knn at the same N* (the
 //! predictor-corrector is as good as the exact neighbour search), and both far better than usl
-//! with h0 off by 2x. The default N* = 32 (design.md) is the sharpest on dense knots (asl3
-//! 0.132 vs the best oracle-tuned usl 0.144) but noise-limited on smooth or thin structures,
-//! which the L2 norm weighs by their density: shell +38%, plume +31% over the best usl, and the
-//! Cloud1-class puffs 0.36 vs usl at auto h0 0.17. More neighbours trade time for that noise:
-//! asl3 at N* = 64 / 128 gives cloud1 0.256 / 0.185, plume 0.121 / 0.110 (best usl ~0.10..0.14)
-//! at 1.4x / 2.8x the CPU time; N* = 128 is within 5% of the best usl on knots and shell.
-//! h_min = 1 voxel is right: 0.5 voxel is always worse (the grid cannot resolve the kernel),
-//! 2 voxels blurs dense knots.
+//! with h0 off by 2x. asl3 against the best oracle-tuned usl, by N* (h_min 1 voxel):
+//!
+//! | scene | best usl | N* 32 (default) | 64 | 96 | 128 |
+//! |---|---|---|---|---|---|
+//! | knots (steep contrast) | 0.144 | 0.132 (-9%) | 0.129 | 0.128 (-11%) | 0.126 |
+//! | shell (steep contrast) | 0.227 | 0.313 (+38%) | 0.251 | 0.223 (-2%) | 0.218 |
+//! | plume (smooth) | 0.099 | 0.130 (+31%) | 0.121 | 0.114 (+15%) | 0.110 |
+//! | Cloud1-class (smooth) | 0.144 | 0.360 (+149%) | 0.256 | 0.211 (+46%) | 0.185 |
+//!
+//! The accuracy goal (asl3 untuned within 5% of the best-tuned usl) is first met on both
+//! steep-contrast scenes at N* = 96, at ~2.3x the CPU time of N* = 32 and with the gather
+//! estimate's mass excess on a small smooth blob past 1% (0.6% at 32, 1.2% at 64, 1.6% at
+//! 96); the default stays 32 ([`DEFAULT_NEIGHBOURS`]). Where the adaptive method loses is
+//! smooth media: there the best usl averages 250+ particles per point, and an N*-neighbour
+//! kernel is noise-limited (error falls as N* grows). h_min = 1 voxel is right: 0.5 voxel is
+//! always worse (the grid cannot resolve the kernel), 2 voxels blurs dense knots.
 
 //! # Backends
 //!
@@ -99,7 +107,7 @@ use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
 pub use nimbus_optics::noise;
-pub use params::{DensityParams, Method, NoiseParams, Resolution, H0};
+pub use params::{DensityParams, Method, NoiseParams, Resolution, DEFAULT_NEIGHBOURS, H0};
 pub use particles::{read_particles, read_path, write_ply, Format, ParticleSet, ReadError, ReadReport};
 pub use setup::{auto_h0, bin, plan_grid, prepare, CellGrid, Grid, Prepared, AUTO_H0_PERCENTILE};
 

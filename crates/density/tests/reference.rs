@@ -300,6 +300,7 @@ fn mass_is_conserved() {
         bounds: None,
     };
     for (method, ratio) in mass_ratios(blob, 0.4) {
+        eprintln!("blob {method:?}: {ratio}");
         assert!((ratio - 1.0).abs() < 0.01, "blob {method:?}: grid mass / particle mass {ratio}");
     }
     // Steep contrasts: usl still conserves mass to 1% (every particle's kernel is whole and
