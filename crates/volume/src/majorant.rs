@@ -1,10 +1,25 @@
-//! A coarse grid of upper bounds on a scalar volume's interpolated value, and the 3D DDA that
-//! walks it along a ray. Cells whose bound is zero are empty space a ray can step over; the
-//! bound is the majorant that delta and ratio tracking sample free paths against.
+//! A grid of upper bounds on a scalar volume's interpolated value, and the 3D DDA that walks
+//! it along a ray. Cells whose bound is zero are empty space a ray can step over; the bound is
+//! the majorant that delta and ratio tracking sample free paths against.
+//!
+//! Why cells are as small as the budget allows (one voxel where it fits) rather than whole
+//! bricks: a brick is only storage granularity, and a brick-sized bound is as loose as the
+//! brick's one densest voxel. Delta tracking pays majorant x distance in null collisions, so
+//! a photon crossing the empty part of a brick that holds one voxel of density 1e9 took ~1e8
+//! of them; the ray march sampled the empty parts of thin, partially filled bricks step by
+//! step. Finer cells cost DDA steps (one per cell crossed, which the GPU's software-adapter
+//! guard counts) and memory (one f32 per cell of the data's bounding box, uploaded whole to
+//! the GPU), hence the cell budget `MAX_CELLS`.
+//!
+//! Why each bound is the maximum over a cell's voxels plus one layer: trilinear sampling at p
+//! reads the voxels floor(p) and floor(p)+1 per axis, so positions in the cell [c*s, c*s+s)
+//! read voxel indices [c*s, c*s+s] per axis; the cell's bound is the maximum of those (and of
+//! the background wherever they are not stored), and nothing looser, so cells just outside
+//! the data's support get the background (zero for density) and are skipped.
 
 use glam::{DVec3, IVec3};
 
-use crate::{Volume, BRICK_DIM};
+use crate::{brick_local, Volume, BRICK_VOXELS};
 
 /// Upper bounds of `Volume<f32>::sample_index` over cubic cells of `1 << cell_log2` voxels.
 #[derive(Clone, Debug)]
@@ -26,28 +41,49 @@ pub struct MajorantSegment {
     pub majorant: f32,
 }
 
-/// Most cells a grid may hold before its cells grow (16 MiB of bounds).
+/// Most cells a grid may hold before its cells grow: 16 MiB of bounds, the size of a dense
+/// 160^3 f32 volume, well inside every GPU's storage-binding limit (128 MiB by default), and
+/// enough for one-voxel cells up to about 160^3 voxels of bounding box and two-voxel cells up
+/// to 320^3 (the Cloud1-class bench scene, 340 x 40 x 360 voxels, gets two-voxel cells).
 const MAX_CELLS: i64 = 1 << 22;
 
+/// Relative headroom on positive bounds. `sample_index` lerps in f32, and a lerp between
+/// non-negative values can round one ulp above its larger end (at an exact rounding tie), so
+/// three nested lerps can exceed the largest corner by a few ulps; 8 epsilon covers that and
+/// leaves zero bounds exactly zero.
+const ROUNDING_HEADROOM: f32 = 8.0 * f32::EPSILON;
+
 impl MajorantGrid {
-    /// Cells of one brick (8 voxels), grown by powers of two if the bounding box would need
-    /// more than [`MAX_CELLS`] cells, so very sparse, very wide volumes stay cheap.
+    /// The finest cells within `MAX_CELLS`: one voxel where the data's bounding box allows,
+    /// grown by powers of two for larger boxes, so very sparse, very wide volumes stay cheap.
     pub fn build(volume: &Volume<f32>) -> MajorantGrid {
-        Self::with_cell_log2(volume, crate::BRICK_LOG2)
+        Self::with_cell_log2(volume, 0)
     }
 
+    /// Cells of at least `1 << min_cell_log2` voxels, grown like [`MajorantGrid::build`]'s.
     pub fn with_cell_log2(volume: &Volume<f32>, min_cell_log2: u32) -> MajorantGrid {
         let outside = volume.background();
+        // Only voxels above the background raise a bound (every cell starts at the
+        // background), so the grid spans just their bounding box.
         let Some((lo, hi)) = volume
             .bricks()
-            .map(|b| (b.origin, b.origin))
+            .filter_map(|b| {
+                let mut range: Option<(IVec3, IVec3)> = None;
+                for (offset, &value) in b.values.iter().enumerate() {
+                    if value > outside {
+                        let p = b.origin + brick_local(offset);
+                        range = Some(range.map_or((p, p), |(l, h)| (l.min(p), h.max(p))));
+                    }
+                }
+                range
+            })
             .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
         else {
             return MajorantGrid { cell_log2: min_cell_log2, origin: IVec3::ZERO, dims: IVec3::ZERO, values: vec![], outside };
         };
-        // A brick at o affects interpolation at positions [o-1, o+8): its voxels are the upper
-        // corners of the cells just below it.
-        let (lo, hi) = (lo - 1, hi + (BRICK_DIM - 1));
+        // A voxel v is read by interpolation at positions [v-1, v+1): the grid covers
+        // positions [lo-1, hi+1), i.e. cells from the one holding lo-1 to the one holding hi.
+        let lo = lo - 1;
         let mut cell_log2 = min_cell_log2;
         let (origin, dims) = loop {
             let origin = (lo >> cell_log2 as i32) << cell_log2 as i32;
@@ -59,17 +95,34 @@ impl MajorantGrid {
             cell_log2 += 1;
         };
         let mut values = vec![outside; (dims.x * dims.y * dims.z) as usize];
+        let mask = (1i32 << cell_log2) - 1;
         for brick in volume.bricks() {
-            let m = brick.values.iter().copied().fold(outside, f32::max);
-            let c0 = (brick.origin - 1 - origin) >> cell_log2 as i32;
-            let c1 = (brick.origin + (BRICK_DIM - 1) - origin) >> cell_log2 as i32;
-            for x in c0.x..=c1.x {
-                for y in c0.y..=c1.y {
-                    for z in c0.z..=c1.z {
-                        let i = ((x * dims.y + y) * dims.z + z) as usize;
-                        values[i] = values[i].max(m);
+            if !brick.values.iter().any(|&v| v > outside) {
+                continue;
+            }
+            debug_assert_eq!(brick.values.len(), BRICK_VOXELS);
+            for (offset, &value) in brick.values.iter().enumerate().filter(|&(_, &v)| v > outside) {
+                // Voxel r (relative to the grid) lies in cell r >> log2 and, where it sits on
+                // that cell's lower face, is also the upper layer of the cell below.
+                let r = brick.origin + brick_local(offset) - origin;
+                let c1 = r >> cell_log2 as i32;
+                let on_face = (r & IVec3::splat(mask)).cmpeq(IVec3::ZERO);
+                let c0 = (c1 - IVec3::new(on_face.test(0) as i32, on_face.test(1) as i32, on_face.test(2) as i32)).max(IVec3::ZERO);
+                let c1 = c1.min(dims - 1);
+                for x in c0.x..=c1.x {
+                    for y in c0.y..=c1.y {
+                        let row = ((x * dims.y + y) * dims.z) as usize;
+                        for z in c0.z..=c1.z {
+                            let cell = &mut values[row + z as usize];
+                            *cell = cell.max(value);
+                        }
                     }
                 }
+            }
+        }
+        for v in &mut values {
+            if *v > 0.0 {
+                *v += *v * ROUNDING_HEADROOM;
             }
         }
         MajorantGrid { cell_log2, origin, dims, values, outside }
@@ -77,6 +130,10 @@ impl MajorantGrid {
 
     pub fn cell_size(&self) -> i32 {
         1 << self.cell_log2
+    }
+
+    pub fn cell_log2(&self) -> u32 {
+        self.cell_log2
     }
 
     pub fn origin(&self) -> IVec3 {
