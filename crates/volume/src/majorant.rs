@@ -18,6 +18,7 @@
 //! the data's support get the background (zero for density) and are skipped.
 
 use glam::{DVec3, IVec3};
+use rayon::prelude::*;
 
 use crate::{brick_local, Volume, BRICK_VOXELS};
 
@@ -64,10 +65,12 @@ impl MajorantGrid {
     pub fn with_cell_log2(volume: &Volume<f32>, min_cell_log2: u32) -> MajorantGrid {
         let outside = volume.background();
         // Only voxels above the background raise a bound (every cell starts at the
-        // background), so the grid spans just their bounding box.
-        let Some((lo, hi)) = volume
-            .bricks()
-            .filter_map(|b| {
+        // background), so the grid spans just their bounding box, and only bricks holding
+        // such voxels are visited again.
+        let raised: Vec<(usize, IVec3, IVec3)> = volume
+            .par_bricks()
+            .enumerate()
+            .filter_map(|(i, b)| {
                 let mut range: Option<(IVec3, IVec3)> = None;
                 for (offset, &value) in b.values.iter().enumerate() {
                     if value > outside {
@@ -75,10 +78,10 @@ impl MajorantGrid {
                         range = Some(range.map_or((p, p), |(l, h)| (l.min(p), h.max(p))));
                     }
                 }
-                range
+                range.map(|(l, h)| (i, l, h))
             })
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-        else {
+            .collect();
+        let Some((lo, hi)) = raised.iter().map(|&(_, l, h)| (l, h)).reduce(|a, b| (a.0.min(b.0), a.1.max(b.1))) else {
             return MajorantGrid { cell_log2: min_cell_log2, origin: IVec3::ZERO, dims: IVec3::ZERO, values: vec![], outside };
         };
         // A voxel v is read by interpolation at positions [v-1, v+1): the grid covers
@@ -94,37 +97,46 @@ impl MajorantGrid {
             }
             cell_log2 += 1;
         };
+        let log2 = cell_log2 as i32;
         let mut values = vec![outside; (dims.x * dims.y * dims.z) as usize];
-        let mask = (1i32 << cell_log2) - 1;
-        for brick in volume.bricks() {
-            if !brick.values.iter().any(|&v| v > outside) {
-                continue;
-            }
-            debug_assert_eq!(brick.values.len(), BRICK_VOXELS);
-            for (offset, &value) in brick.values.iter().enumerate().filter(|&(_, &v)| v > outside) {
-                // Voxel r (relative to the grid) lies in cell r >> log2 and, where it sits on
-                // that cell's lower face, is also the upper layer of the cell below.
-                let r = brick.origin + brick_local(offset) - origin;
-                let c1 = r >> cell_log2 as i32;
-                let on_face = (r & IVec3::splat(mask)).cmpeq(IVec3::ZERO);
-                let c0 = (c1 - IVec3::new(on_face.test(0) as i32, on_face.test(1) as i32, on_face.test(2) as i32)).max(IVec3::ZERO);
-                let c1 = c1.min(dims - 1);
-                for x in c0.x..=c1.x {
-                    for y in c0.y..=c1.y {
-                        let row = ((x * dims.y + y) * dims.z) as usize;
-                        for z in c0.z..=c1.z {
-                            let cell = &mut values[row + z as usize];
-                            *cell = cell.max(value);
+        // In parallel over slabs of x planes of cells; each slab visits the bricks whose
+        // voxels reach it and keeps the cells inside it.
+        let plane = (dims.y * dims.z) as usize;
+        let slab = (dims.x as usize).div_ceil(4 * rayon::current_num_threads()).max(1);
+        values.par_chunks_mut(slab * plane).enumerate().for_each(|(n, chunk)| {
+            let x_lo = (n * slab) as i32;
+            let x_hi = x_lo + (chunk.len() / plane) as i32 - 1;
+            for &(i, l, h) in &raised {
+                if ((h.x - origin.x) >> log2) < x_lo || ((l.x - 1 - origin.x) >> log2) > x_hi {
+                    continue;
+                }
+                let brick = volume.brick(i);
+                debug_assert_eq!(brick.values.len(), BRICK_VOXELS);
+                for (offset, &value) in brick.values.iter().enumerate().filter(|&(_, &v)| v > outside) {
+                    // Voxel r (relative to the grid) lies in cell r >> log2 and, where it sits
+                    // on that cell's lower face, is also the upper layer of the cell below.
+                    let r = brick.origin + brick_local(offset) - origin;
+                    let c1 = r >> log2;
+                    let on_face = (r & IVec3::splat((1 << log2) - 1)).cmpeq(IVec3::ZERO);
+                    let c0 = c1 - IVec3::new(on_face.test(0) as i32, on_face.test(1) as i32, on_face.test(2) as i32);
+                    let (c0, c1) = (c0.max(IVec3::new(x_lo, 0, 0)), c1.min(IVec3::new(x_hi, dims.y - 1, dims.z - 1)));
+                    for x in c0.x..=c1.x {
+                        for y in c0.y..=c1.y {
+                            let row = ((x - x_lo) * dims.y + y) as usize * dims.z as usize;
+                            for z in c0.z..=c1.z {
+                                let cell = &mut chunk[row + z as usize];
+                                *cell = cell.max(value);
+                            }
                         }
                     }
                 }
             }
-        }
-        for v in &mut values {
-            if *v > 0.0 {
-                *v += *v * ROUNDING_HEADROOM;
+            for v in chunk.iter_mut() {
+                if *v > 0.0 {
+                    *v += *v * ROUNDING_HEADROOM;
+                }
             }
-        }
+        });
         MajorantGrid { cell_log2, origin, dims, values, outside }
     }
 
