@@ -120,7 +120,7 @@ pub fn render_gpu_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = MajorantGrid::build(density);
+    let majorant = crate::cpu::march_majorant(density, params);
     if ctx.info.is_software {
         let steps = longest_march(density, &majorant, params);
         if steps > SOFTWARE_MAX_STEPS {

@@ -140,6 +140,54 @@ impl MajorantGrid {
         MajorantGrid { cell_log2, origin, dims, values, outside }
     }
 
+    /// The grid grown by `radius` voxels per axis: each cell bounds every position within
+    /// `radius` of it (the box grows to match), for callers that sample the volume at points
+    /// displaced from the ray they walk (vdbmarch's offset noise).
+    pub fn dilated(&self, radius: DVec3) -> MajorantGrid {
+        if self.values.is_empty() {
+            return self.clone();
+        }
+        let s = self.cell_size() as f64;
+        let pad = (radius.max(DVec3::ZERO) / s).ceil().as_ivec3();
+        if pad == IVec3::ZERO {
+            return self.clone();
+        }
+        let dims = self.dims + 2 * pad;
+        let index = |c: IVec3| ((c.x * dims.y + c.y) * dims.z + c.z) as usize;
+        let mut values = vec![self.outside; (dims.x * dims.y * dims.z) as usize];
+        for x in 0..self.dims.x {
+            for y in 0..self.dims.y {
+                for z in 0..self.dims.z {
+                    values[index(IVec3::new(x, y, z) + pad)] = self.values[((x * self.dims.y + y) * self.dims.z + z) as usize];
+                }
+            }
+        }
+        // A separable running maximum, one axis at a time.
+        for axis in 0..3 {
+            let r = pad[axis];
+            if r == 0 {
+                continue;
+            }
+            let before = values.clone();
+            for x in 0..dims.x {
+                for y in 0..dims.y {
+                    for z in 0..dims.z {
+                        let c = IVec3::new(x, y, z);
+                        let (lo, hi) = ((c[axis] - r).max(0), (c[axis] + r).min(dims[axis] - 1));
+                        let mut m = before[index(c)];
+                        for k in lo..=hi {
+                            let mut n = c;
+                            n[axis] = k;
+                            m = m.max(before[index(n)]);
+                        }
+                        values[index(c)] = m;
+                    }
+                }
+            }
+        }
+        MajorantGrid { cell_log2: self.cell_log2, origin: self.origin - pad * self.cell_size(), dims, values, outside: self.outside }
+    }
+
     pub fn cell_size(&self) -> i32 {
         1 << self.cell_log2
     }

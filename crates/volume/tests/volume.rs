@@ -425,3 +425,20 @@ fn skipping_empty_cells_loses_nothing() {
     }
     }
 }
+
+/// A dilated grid bounds every position within the radius of a position the original bounds.
+#[test]
+fn dilated_grid_bounds_displaced_samples() {
+    let v = sparse_volume(21);
+    let m = MajorantGrid::build(&v);
+    let r = DVec3::new(2.5, 0.7, 1.2);
+    let d = m.dilated(r);
+    assert_eq!(d.cell_size(), m.cell_size());
+    let mut rng = Lcg(4);
+    for _ in 0..50_000 {
+        let p = random_point(&mut rng, DVec3::new(-45.0, -45.0, -35.0), DVec3::new(90.0, 90.0, 70.0));
+        let q = p + (DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - 1.0) * r;
+        assert!(v.sample_index(q) <= d.at(p), "sample at {q} above the dilated bound at {p}");
+        assert!(m.at(p) <= d.at(p));
+    }
+}
