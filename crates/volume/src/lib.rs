@@ -6,7 +6,7 @@
 //! the bounding box. [`Volume::sample_index`] is trilinear interpolation identical to
 //! `openvdb::tools::BoxSampler` (the vdb crate's tests hold it to that), and the
 //! [`MajorantGrid`] gives a conservative upper bound of the interpolated density over cubic
-//! cells (one voxel where the cell budget allows, independent of the bricks), walked along a
+//! cells (bricks, or down to one voxel for optically huge media), walked along a
 //! ray by a 3D DDA: the basis for empty-space skipping and for delta/ratio tracking.
 //!
 //! Conventions (design.md section 2): a voxel's value sits at its integer index coordinate;
@@ -16,7 +16,7 @@ mod majorant;
 mod transform;
 mod volume;
 
-pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk};
+pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk, MAX_CELL_OPTICAL_DEPTH};
 pub use transform::Transform;
 pub use volume::{brick_local, brick_offset, brick_origin, BrickMask, BrickRef, Volume, BRICK_DIM, BRICK_LOG2, BRICK_VOXELS};
 

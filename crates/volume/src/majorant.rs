@@ -2,14 +2,15 @@
 //! it along a ray. Cells whose bound is zero are empty space a ray can step over; the bound is
 //! the majorant that delta and ratio tracking sample free paths against.
 //!
-//! Why cells are as small as the budget allows (one voxel where it fits) rather than whole
-//! bricks: a brick is only storage granularity, and a brick-sized bound is as loose as the
-//! brick's one densest voxel. Delta tracking pays majorant x distance in null collisions, so
-//! a photon crossing the empty part of a brick that holds one voxel of density 1e9 took ~1e8
-//! of them; the ray march sampled the empty parts of thin, partially filled bricks step by
-//! step. Finer cells cost DDA steps (one per cell crossed, which the GPU's software-adapter
-//! guard counts) and memory (one f32 per cell of the data's bounding box, uploaded whole to
-//! the GPU), hence the cell budget `MAX_CELLS`.
+//! Why two cell sizes: a brick is only storage granularity, and a brick-sized bound is as
+//! loose as the brick's one densest voxel. Delta tracking pays majorant x distance in null
+//! collisions, so a photon crossing the empty part of a brick holding one voxel of density 1e9
+//! took ~1e8 of them; [`MajorantGrid::for_tracking`] therefore refines the cells of optically
+//! huge media, down to one voxel. Finer cells cost a DDA step each (which the GPU's
+//! software-adapter guard counts) and memory (one f32 per cell of the data's bounding box,
+//! uploaded whole to the GPU, hence `MAX_CELLS`); on ordinary media they cost more than they
+//! save (two-voxel cells made photon tracing 1.4-1.6x slower on the bench scenes and the
+//! march 6-9% faster), so skipping and ordinary tracking keep brick cells.
 //!
 //! Why each bound is the maximum over a cell's voxels plus one layer: trilinear sampling at p
 //! reads the voxels floor(p) and floor(p)+1 per axis, so positions in the cell [c*s, c*s+s)
@@ -20,7 +21,7 @@
 use glam::{DVec3, IVec3};
 use rayon::prelude::*;
 
-use crate::{brick_local, Volume, BRICK_VOXELS};
+use crate::{brick_local, Volume, BRICK_LOG2, BRICK_VOXELS};
 
 /// Upper bounds of `Volume<f32>::sample_index` over cubic cells of `1 << cell_log2` voxels.
 #[derive(Clone, Debug)]
@@ -48,6 +49,11 @@ pub struct MajorantSegment {
 /// to 320^3 (the Cloud1-class bench scene, 340 x 40 x 360 voxels, gets two-voxel cells).
 const MAX_CELLS: i64 = 1 << 22;
 
+/// Most mean free paths one tracking cell may span at the volume's peak before
+/// [`MajorantGrid::for_tracking`] refines the cells: a ray through the empty part of such a cell
+/// costs at most about this many null collisions.
+pub const MAX_CELL_OPTICAL_DEPTH: f64 = 64.0;
+
 /// Relative headroom on positive bounds. `sample_index` lerps in f32, and a lerp between
 /// non-negative values can round one ulp above its larger end (at an exact rounding tie), so
 /// three nested lerps can exceed the largest corner by a few ulps; 8 epsilon covers that and
@@ -55,10 +61,28 @@ const MAX_CELLS: i64 = 1 << 22;
 const ROUNDING_HEADROOM: f32 = 8.0 * f32::EPSILON;
 
 impl MajorantGrid {
-    /// The finest cells within `MAX_CELLS`: one voxel where the data's bounding box allows,
-    /// grown by powers of two for larger boxes, so very sparse, very wide volumes stay cheap.
+    /// Brick-sized cells (8 voxels), grown by powers of two for very wide boxes: what empty-space
+    /// skipping needs (the march, the cache's shadow rays) at the fewest DDA steps.
     pub fn build(volume: &Volume<f32>) -> MajorantGrid {
-        Self::with_cell_log2(volume, 0)
+        Self::with_cell_log2(volume, BRICK_LOG2)
+    }
+
+    /// Cells for delta and ratio tracking with `sigma_t = extinction * density`: brick-sized,
+    /// halved (down to one voxel) while a cell at the volume's peak would span more than
+    /// [`MAX_CELL_OPTICAL_DEPTH`] mean free paths. Null collisions cost majorant x distance,
+    /// so an optically huge cell makes every path through its empty part crawl (a brick with
+    /// one voxel of density 1e9 took ~1e8 null collisions per crossing); finer cells cost a
+    /// DDA step each, which on ordinary media outweighs the few null collisions they save
+    /// (measured on the bench scenes: two-voxel cells traced photons 1.4-1.6x slower).
+    pub fn for_tracking(volume: &Volume<f32>, extinction: f32) -> MajorantGrid {
+        let peak = volume.bricks().flat_map(|b| b.values.iter().copied()).fold(volume.background(), f32::max) as f64;
+        let edge = volume.transform().voxel_size().max_element();
+        let depth = |log2: u32| peak * extinction.max(0.0) as f64 * edge * (1u32 << log2) as f64;
+        let mut log2 = BRICK_LOG2;
+        while log2 > 0 && depth(log2) > MAX_CELL_OPTICAL_DEPTH {
+            log2 -= 1;
+        }
+        Self::with_cell_log2(volume, log2)
     }
 
     /// Cells of at least `1 << min_cell_log2` voxels, grown like [`MajorantGrid::build`]'s.

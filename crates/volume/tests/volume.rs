@@ -222,7 +222,7 @@ fn single_voxel_reaches_only_its_neighbour_cells() {
         let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
         v.set(ijk, 1e9);
         for log2 in [0, 1, 2, 3] {
-            let m = MajorantGrid::build(&v);
+            let m = MajorantGrid::with_cell_log2(&v, 0);
             let m = if log2 == 0 { m } else { MajorantGrid::with_cell_log2(&v, log2) };
             assert_eq!(m.cell_size(), 1 << log2);
             // Positions whose interpolation reads the voxel: (ijk - 1, ijk + 1) per axis.
@@ -265,7 +265,7 @@ fn zero_voxels_beside_a_dense_one_are_empty() {
         }
     }
     v.set(IVec3::new(7, 7, 7), 1e9);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     assert_eq!(m.cell_size(), 1);
     assert_eq!(m.at(DVec3::splat(3.5)), 0.0);
     assert_eq!(m.at(DVec3::new(6.5, 6.5, 5.5)), 0.0);
@@ -283,7 +283,7 @@ fn wide_volumes_grow_cells() {
     let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
     v.set(IVec3::ZERO, 1.0);
     v.set(IVec3::new(200, 200, 200), 1.0);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     // 202^3 one-voxel cells exceed 2^22; 101^3 two-voxel cells do not.
     assert_eq!(m.cell_size(), 2);
     assert!(m.values().len() <= 1 << 22);
@@ -293,7 +293,7 @@ fn wide_volumes_grow_cells() {
 #[test]
 fn box_maximum_sees_what_points_see() {
     let v = random_volume(19, 0.0);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     let mut rng = Lcg(8);
     for _ in 0..2000 {
         let lo = DVec3::new(rng.next() * 90.0 - 45.0, rng.next() * 90.0 - 45.0, rng.next() * 70.0 - 35.0);
@@ -311,7 +311,7 @@ fn box_maximum_sees_what_points_see() {
 #[test]
 fn empty_volume_has_no_majorant() {
     let v: Volume<f32> = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     assert_eq!(m.max(), 0.0);
     let segs: Vec<_> = m.walk(DVec3::ZERO, DVec3::X, 0.0, 10.0).collect();
     assert_eq!(segs.len(), 1);
@@ -414,7 +414,7 @@ proptest! {
 #[test]
 fn skipping_empty_cells_loses_nothing() {
     for v in [random_volume(17, 0.0), sparse_volume(17)] {
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     let mut rng = Lcg(23);
     for _ in 0..20 {
         let o = DVec3::new(rng.next() * 80.0 - 40.0, rng.next() * 80.0 - 40.0, -40.0);
@@ -430,7 +430,7 @@ fn skipping_empty_cells_loses_nothing() {
 #[test]
 fn dilated_grid_bounds_displaced_samples() {
     let v = sparse_volume(21);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     let r = DVec3::new(2.5, 0.7, 1.2);
     let d = m.dilated(r);
     assert_eq!(d.cell_size(), m.cell_size());
@@ -441,4 +441,28 @@ fn dilated_grid_bounds_displaced_samples() {
         assert!(v.sample_index(q) <= d.at(p), "sample at {q} above the dilated bound at {p}");
         assert!(m.at(p) <= d.at(p));
     }
+}
+
+/// Tracking keeps brick cells on ordinary media and refines them, down to one voxel, where a
+/// brick at the peak would span more than MAX_CELL_OPTICAL_DEPTH mean free paths.
+#[test]
+fn tracking_cells_follow_the_optical_depth() {
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in 0..6 {
+        for y in 0..6 {
+            for z in 0..6 {
+                v.set(IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    // 8 voxels of 0.1 at sigma_t 1: 0.8 mean free paths per brick.
+    assert_eq!(MajorantGrid::for_tracking(&v, 1.0).cell_size(), 8);
+    assert_eq!(MajorantGrid::for_tracking(&v, 0.0).cell_size(), 8);
+    // 8 voxels at sigma_t 160: 128 mean free paths; 4 voxels: 64, within the limit.
+    assert_eq!(MajorantGrid::for_tracking(&v, 160.0).cell_size(), 4);
+    // Density 1e9: one-voxel cells, and the brick's empty corner is empty space.
+    let m = MajorantGrid::for_tracking(&v, 1e9);
+    assert_eq!(m.cell_size(), 1);
+    assert_eq!(m.at(DVec3::new(6.5, 6.5, 6.5)), 0.0);
+    assert!(m.at(DVec3::new(5.5, 5.5, 5.5)) >= 1.0);
 }
