@@ -326,8 +326,8 @@ fn track_transmittance(r: TrackRay, g: MajorantGridInfo, t_max: f32, step: f32, 
     return exp(-s.tau);
 }
 
-// MediumRay::sample_exponential: sigma_t frozen at the first non-empty point (stepping by
-// `step` through non-empty segments).
+// MediumRay::sample_exponential: sigma_t frozen at the first non-empty point of the lattice
+// t = k step within non-empty segments.
 fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, step: f32) -> f32 {
     var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, TRACK_FAR);
     loop {
@@ -344,7 +344,9 @@ fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, s
         // voxels away. Values under the f32 resolution of the weights (1e-6 of the
         // segment's majorant) count as empty.
         let floor = 1e-6 * seg.majorant * r.extinction;
-        var t = seg.t_start;
+        // On the ray's lattice t = k step, as the CPU (not from the segment start, which lies
+        // on the voxel plane where the support begins).
+        var t = ceil(seg.t_start / step) * step;
         while (t < seg.t_end) {
             let s = track_sigma_t(r, t);
             if (s > floor) {

@@ -81,10 +81,26 @@ pub fn march_ray(
     r
 }
 
+/// The majorant grid both backends march. Offset noise samples the density up to its
+/// displacement away from the ray being walked, so each cell must also bound the cells within
+/// that distance (index space, per axis) or the march would skip segments whose displaced
+/// samples see density: the grid is dilated by it. The fBm's components stay within about
+/// [-1, 1]; twice the amplitude is a generous bound.
+pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams) -> MajorantGrid {
+    let grid = MajorantGrid::build(density);
+    if params.offset_noise <= 0.0 {
+        return grid;
+    }
+    let m = density.transform().world_to_index().matrix3;
+    // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
+    let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
+    grid.dilated(rows * (2.0 * params.offset_noise))
+}
+
 /// Renders the image on the CPU.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = MajorantGrid::build(density);
+    let majorant = march_majorant(density, params);
     let camera = &params.camera;
     let (w, h) = (camera.width() as usize, camera.height() as usize);
     let spp = params.spp;

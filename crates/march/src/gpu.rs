@@ -120,8 +120,9 @@ pub fn render_gpu_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
+    let majorant = crate::cpu::march_majorant(density, params);
     if ctx.info.is_software {
-        let steps = longest_march(density, params);
+        let steps = longest_march(density, &majorant, params);
         if steps > SOFTWARE_MAX_STEPS {
             return Err(MarchError::Gpu(GpuError::BeyondAdapter(format!(
                 "a pixel's march of up to {steps} steps ({} spp) is more than a software Vulkan adapter runs whole \
@@ -131,25 +132,33 @@ pub fn render_gpu_with(
             ))));
         }
     }
-    let pixels = march_pixels(ctx, density, cache, params, options)?;
+    let pixels = march_pixels(ctx, density, &majorant, cache, params, options)?;
     Ok(assemble(params, &pixels))
 }
 
 /// Most march steps per pixel a software adapter takes whole: llvmpipe (lavapipe) ends any
 /// loop after 65535 iterations per invocation, nested loops included, without an error, and
 /// a march step costs several; measured on lavapipe: 10,000 steps exact, 15,000 truncated.
+/// (Measured with brick-sized majorant cells, when the DDA's own iterations were few.)
 const SOFTWARE_MAX_STEPS: u64 = 8_000;
 
-/// An upper bound on the steps one pixel marches: spp times the grid's diagonal over the step.
-fn longest_march(density: &Volume<f32>, params: &MarchParams) -> u64 {
+/// An upper bound on the loop iterations one pixel takes, in march steps: spp times the
+/// grid's diagonal over the step, plus the majorant cells a ray can cross. Each cell crossed
+/// costs the DDA loop, the march's segment loop and its closing test, at most three
+/// iterations, less than a sample step's (the lookups and noise loops) but no longer
+/// negligible with cells of one or two voxels: counted as one step each.
+fn longest_march(density: &Volume<f32>, majorant: &MajorantGrid, params: &MarchParams) -> u64 {
     let Some((lo, hi)) = density.world_bounds() else { return 0 };
-    let per_ray = ((hi - lo).length() / params.step).ceil() + 1.0;
-    (per_ray * f64::from(params.spp)).min(u64::MAX as f64) as u64
+    let samples = ((hi - lo).length() / params.step).ceil() + 1.0;
+    // A straight ray crosses each cell plane of the grid at most once.
+    let cells = f64::from(majorant.dims().element_sum()) + 1.0;
+    ((samples + cells) * f64::from(params.spp)).min(u64::MAX as f64) as u64
 }
 
 fn march_pixels(
     ctx: &GpuContext,
     density: &Volume<f32>,
+    majorant: &MajorantGrid,
     cache: &IlluminationCache,
     params: &MarchParams,
     options: &GpuMarchOptions,
@@ -158,7 +167,6 @@ fn march_pixels(
     let pixel_count = camera.width() as u64 * camera.height() as u64;
     // Every position on the GPU is relative to the eye.
     let origin = camera.eye();
-    let majorant = MajorantGrid::build(density);
 
     let mut density_gpu = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     density_gpu.set_world_origin(ctx, origin);
@@ -192,7 +200,7 @@ fn march_pixels(
     let uniforms = GpuMarchParams {
         camera: GpuCamera::new(camera, origin),
         medium: GpuMedium::from(&params.medium),
-        grid: GpuMajorantInfo::new(&majorant, density.background()),
+        grid: GpuMajorantInfo::new(majorant, density.background()),
         background: params.background.to_array(),
         step: params.step as f32,
         noise_base,
@@ -216,7 +224,7 @@ fn march_pixels(
         tile_pixels: 0,
         _pad: 0,
     };
-    let majorant_buffer = majorant_buffer(ctx, &majorant)?;
+    let majorant_buffer = majorant_buffer(ctx, majorant)?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {

@@ -150,7 +150,7 @@ pub(crate) fn prepare(density: &Volume<f32>, params: &PhotonParams) -> Result<Pr
     let Some(emitter) = Emitter::new(&params.lights, bounds) else {
         return skip("the lights emit no power");
     };
-    let majorant = MajorantGrid::build(density);
+    let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
     let step = params.step * density.transform().voxel_size().min_element();
     Ok(Prepared::Trace(Setup { emitter, bounds, majorant, step }))
 }

@@ -94,17 +94,20 @@ fn nothing_to_trace_finishes_fast_with_an_empty_map() {
 #[test]
 fn modes_agree_on_a_smooth_medium() {
     // Simpson and delta sample the same distribution; their maps agree in count per emitted
-    // photon and in the centroid of stored positions.
+    // photon and in the centroid of stored positions. Over seeds 1-6 at 20,000 photons the
+    // centroids' difference scattered with ~0.012 per coordinate (stored photons of one path
+    // are correlated), so a 0.02 bound failed one seed in three, whatever the majorant grid;
+    // 80,000 photons and 0.03 keep it near three sigma.
     let v = ball(12, 3.0);
     let stats_of = |mode| {
-        let (map, stats) = trace_cpu(&v, &params(mode, 20_000)).unwrap();
+        let (map, stats) = trace_cpu(&v, &params(mode, 80_000)).unwrap();
         let centroid = map.positions.iter().copied().sum::<DVec3>() / map.len() as f64;
         (stats.emitted as f64 / map.len() as f64, centroid)
     };
     let (ratio_s, c_s) = stats_of(DistanceSampling::Simpson);
     let (ratio_d, c_d) = stats_of(DistanceSampling::Delta);
     assert!((ratio_s / ratio_d - 1.0).abs() < 0.05, "emitted per stored: {ratio_s} vs {ratio_d}");
-    assert!((c_s - c_d).length() < 0.02, "centroids {c_s} vs {c_d}");
+    assert!((c_s - c_d).length() < 0.03, "centroids {c_s} vs {c_d}");
 }
 
 #[test]

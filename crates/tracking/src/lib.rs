@@ -189,13 +189,16 @@ impl<'a> MediumRay<'a> {
     }
 
     /// The paper's Eq. 1: d = -ln(1 - xi) / sigma_t(x0), with sigma_t frozen at the first
-    /// point along the ray (stepping by `step`) where the medium is not empty. Biased where
-    /// density varies; kept to compare against.
+    /// point of the ray's lattice t = k * `step` where the medium is not empty. Biased where
+    /// density varies; kept to compare against. The lattice is the ray's, not the majorant
+    /// cells': starting at each non-empty segment would put the first sample on the plane
+    /// where the support begins (cells end on voxel planes), freeze sigma_t at the rounding
+    /// noise there and send the photon out of the medium.
     pub fn sample_exponential(&self, tau_target: f64, step: f64) -> FreePath {
         let mut segments = self.segments();
         let mut hit = None;
         for (a, b, _) in segments.by_ref() {
-            let mut t = a;
+            let mut t = (a / step).ceil() * step;
             while t < b && hit.is_none() {
                 let s = self.sigma_t(t) as f64;
                 if s > 0.0 {

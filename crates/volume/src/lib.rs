@@ -5,9 +5,9 @@
 //! crate copies leaves in and out without reshuffling. Memory follows the active bricks, never
 //! the bounding box. [`Volume::sample_index`] is trilinear interpolation identical to
 //! `openvdb::tools::BoxSampler` (the vdb crate's tests hold it to that), and the
-//! [`MajorantGrid`] gives a conservative upper bound of the interpolated density over coarse
-//! blocks, walked along a ray by a 3D DDA: the basis for empty-space skipping and for
-//! delta/ratio tracking.
+//! [`MajorantGrid`] gives a conservative upper bound of the interpolated density over cubic
+//! cells (bricks, or down to one voxel for optically huge media), walked along a
+//! ray by a 3D DDA: the basis for empty-space skipping and for delta/ratio tracking.
 //!
 //! Conventions (design.md section 2): a voxel's value sits at its integer index coordinate;
 //! the [`Transform`] is any affine index-to-world map, kept in f64.
@@ -16,7 +16,7 @@ mod majorant;
 mod transform;
 mod volume;
 
-pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk};
+pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk, MAX_CELL_OPTICAL_DEPTH};
 pub use transform::Transform;
 pub use volume::{brick_local, brick_offset, brick_origin, BrickMask, BrickRef, Volume, BRICK_DIM, BRICK_LOG2, BRICK_VOXELS};
 

@@ -1,10 +1,27 @@
-//! A coarse grid of upper bounds on a scalar volume's interpolated value, and the 3D DDA that
-//! walks it along a ray. Cells whose bound is zero are empty space a ray can step over; the
-//! bound is the majorant that delta and ratio tracking sample free paths against.
+//! A grid of upper bounds on a scalar volume's interpolated value, and the 3D DDA that walks
+//! it along a ray. Cells whose bound is zero are empty space a ray can step over; the bound is
+//! the majorant that delta and ratio tracking sample free paths against.
+//!
+//! Why two cell sizes: a brick is only storage granularity, and a brick-sized bound is as
+//! loose as the brick's one densest voxel. Delta tracking pays majorant x distance in null
+//! collisions, so a photon crossing the empty part of a brick holding one voxel of density 1e9
+//! took ~1e8 of them; [`MajorantGrid::for_tracking`] therefore refines the cells of optically
+//! huge media, down to one voxel. Finer cells cost a DDA step each (which the GPU's
+//! software-adapter guard counts) and memory (one f32 per cell of the data's bounding box,
+//! uploaded whole to the GPU, hence `MAX_CELLS`); on ordinary media they cost more than they
+//! save (two-voxel cells made photon tracing 1.4-1.6x slower on the bench scenes and the
+//! march 6-9% faster), so skipping and ordinary tracking keep brick cells.
+//!
+//! Why each bound is the maximum over a cell's voxels plus one layer: trilinear sampling at p
+//! reads the voxels floor(p) and floor(p)+1 per axis, so positions in the cell [c*s, c*s+s)
+//! read voxel indices [c*s, c*s+s] per axis; the cell's bound is the maximum of those (and of
+//! the background wherever they are not stored), and nothing looser, so cells just outside
+//! the data's support get the background (zero for density) and are skipped.
 
 use glam::{DVec3, IVec3};
+use rayon::prelude::*;
 
-use crate::{Volume, BRICK_DIM};
+use crate::{brick_local, Volume, BRICK_LOG2, BRICK_VOXELS};
 
 /// Upper bounds of `Volume<f32>::sample_index` over cubic cells of `1 << cell_log2` voxels.
 #[derive(Clone, Debug)]
@@ -26,28 +43,74 @@ pub struct MajorantSegment {
     pub majorant: f32,
 }
 
-/// Most cells a grid may hold before its cells grow (16 MiB of bounds).
+/// Most cells a grid may hold before its cells grow: 16 MiB of bounds, the size of a dense
+/// 160^3 f32 volume, well inside every GPU's storage-binding limit (128 MiB by default), and
+/// enough for one-voxel cells up to about 160^3 voxels of bounding box and two-voxel cells up
+/// to 320^3 (the Cloud1-class bench scene, 340 x 40 x 360 voxels, gets two-voxel cells).
 const MAX_CELLS: i64 = 1 << 22;
 
+/// Most mean free paths one tracking cell may span at the volume's peak before
+/// [`MajorantGrid::for_tracking`] refines the cells: a ray through the empty part of such a cell
+/// costs at most about this many null collisions.
+pub const MAX_CELL_OPTICAL_DEPTH: f64 = 64.0;
+
+/// Relative headroom on positive bounds. `sample_index` lerps in f32, and a lerp between
+/// non-negative values can round one ulp above its larger end (at an exact rounding tie), so
+/// three nested lerps can exceed the largest corner by a few ulps; 8 epsilon covers that and
+/// leaves zero bounds exactly zero.
+const ROUNDING_HEADROOM: f32 = 8.0 * f32::EPSILON;
+
 impl MajorantGrid {
-    /// Cells of one brick (8 voxels), grown by powers of two if the bounding box would need
-    /// more than [`MAX_CELLS`] cells, so very sparse, very wide volumes stay cheap.
+    /// Brick-sized cells (8 voxels), grown by powers of two for very wide boxes: what empty-space
+    /// skipping needs (the march, the cache's shadow rays) at the fewest DDA steps.
     pub fn build(volume: &Volume<f32>) -> MajorantGrid {
-        Self::with_cell_log2(volume, crate::BRICK_LOG2)
+        Self::with_cell_log2(volume, BRICK_LOG2)
     }
 
+    /// Cells for delta and ratio tracking with `sigma_t = extinction * density`: brick-sized,
+    /// halved (down to one voxel) while a cell at the volume's peak would span more than
+    /// [`MAX_CELL_OPTICAL_DEPTH`] mean free paths. Null collisions cost majorant x distance,
+    /// so an optically huge cell makes every path through its empty part crawl (a brick with
+    /// one voxel of density 1e9 took ~1e8 null collisions per crossing); finer cells cost a
+    /// DDA step each, which on ordinary media outweighs the few null collisions they save
+    /// (measured on the bench scenes: two-voxel cells traced photons 1.4-1.6x slower).
+    pub fn for_tracking(volume: &Volume<f32>, extinction: f32) -> MajorantGrid {
+        let peak = volume.bricks().flat_map(|b| b.values.iter().copied()).fold(volume.background(), f32::max) as f64;
+        let edge = volume.transform().voxel_size().max_element();
+        let depth = |log2: u32| peak * extinction.max(0.0) as f64 * edge * (1u32 << log2) as f64;
+        let mut log2 = BRICK_LOG2;
+        while log2 > 0 && depth(log2) > MAX_CELL_OPTICAL_DEPTH {
+            log2 -= 1;
+        }
+        Self::with_cell_log2(volume, log2)
+    }
+
+    /// Cells of at least `1 << min_cell_log2` voxels, grown like [`MajorantGrid::build`]'s.
     pub fn with_cell_log2(volume: &Volume<f32>, min_cell_log2: u32) -> MajorantGrid {
         let outside = volume.background();
-        let Some((lo, hi)) = volume
-            .bricks()
-            .map(|b| (b.origin, b.origin))
-            .reduce(|a, b| (a.0.min(b.0), a.1.max(b.1)))
-        else {
+        // Only voxels above the background raise a bound (every cell starts at the
+        // background), so the grid spans just their bounding box, and only bricks holding
+        // such voxels are visited again.
+        let raised: Vec<(usize, IVec3, IVec3)> = volume
+            .par_bricks()
+            .enumerate()
+            .filter_map(|(i, b)| {
+                let mut range: Option<(IVec3, IVec3)> = None;
+                for (offset, &value) in b.values.iter().enumerate() {
+                    if value > outside {
+                        let p = b.origin + brick_local(offset);
+                        range = Some(range.map_or((p, p), |(l, h)| (l.min(p), h.max(p))));
+                    }
+                }
+                range.map(|(l, h)| (i, l, h))
+            })
+            .collect();
+        let Some((lo, hi)) = raised.iter().map(|&(_, l, h)| (l, h)).reduce(|a, b| (a.0.min(b.0), a.1.max(b.1))) else {
             return MajorantGrid { cell_log2: min_cell_log2, origin: IVec3::ZERO, dims: IVec3::ZERO, values: vec![], outside };
         };
-        // A brick at o affects interpolation at positions [o-1, o+8): its voxels are the upper
-        // corners of the cells just below it.
-        let (lo, hi) = (lo - 1, hi + (BRICK_DIM - 1));
+        // A voxel v is read by interpolation at positions [v-1, v+1): the grid covers
+        // positions [lo-1, hi+1), i.e. cells from the one holding lo-1 to the one holding hi.
+        let lo = lo - 1;
         let mut cell_log2 = min_cell_log2;
         let (origin, dims) = loop {
             let origin = (lo >> cell_log2 as i32) << cell_log2 as i32;
@@ -58,25 +121,103 @@ impl MajorantGrid {
             }
             cell_log2 += 1;
         };
+        let log2 = cell_log2 as i32;
         let mut values = vec![outside; (dims.x * dims.y * dims.z) as usize];
-        for brick in volume.bricks() {
-            let m = brick.values.iter().copied().fold(outside, f32::max);
-            let c0 = (brick.origin - 1 - origin) >> cell_log2 as i32;
-            let c1 = (brick.origin + (BRICK_DIM - 1) - origin) >> cell_log2 as i32;
-            for x in c0.x..=c1.x {
-                for y in c0.y..=c1.y {
-                    for z in c0.z..=c1.z {
-                        let i = ((x * dims.y + y) * dims.z + z) as usize;
-                        values[i] = values[i].max(m);
+        // In parallel over slabs of x planes of cells; each slab visits the bricks whose
+        // voxels reach it and keeps the cells inside it.
+        let plane = (dims.y * dims.z) as usize;
+        let slab = (dims.x as usize).div_ceil(4 * rayon::current_num_threads()).max(1);
+        values.par_chunks_mut(slab * plane).enumerate().for_each(|(n, chunk)| {
+            let x_lo = (n * slab) as i32;
+            let x_hi = x_lo + (chunk.len() / plane) as i32 - 1;
+            for &(i, l, h) in &raised {
+                if ((h.x - origin.x) >> log2) < x_lo || ((l.x - 1 - origin.x) >> log2) > x_hi {
+                    continue;
+                }
+                let brick = volume.brick(i);
+                debug_assert_eq!(brick.values.len(), BRICK_VOXELS);
+                for (offset, &value) in brick.values.iter().enumerate().filter(|&(_, &v)| v > outside) {
+                    // Voxel r (relative to the grid) lies in cell r >> log2 and, where it sits
+                    // on that cell's lower face, is also the upper layer of the cell below.
+                    let r = brick.origin + brick_local(offset) - origin;
+                    let c1 = r >> log2;
+                    let on_face = (r & IVec3::splat((1 << log2) - 1)).cmpeq(IVec3::ZERO);
+                    let c0 = c1 - IVec3::new(on_face.test(0) as i32, on_face.test(1) as i32, on_face.test(2) as i32);
+                    let (c0, c1) = (c0.max(IVec3::new(x_lo, 0, 0)), c1.min(IVec3::new(x_hi, dims.y - 1, dims.z - 1)));
+                    for x in c0.x..=c1.x {
+                        for y in c0.y..=c1.y {
+                            let row = ((x - x_lo) * dims.y + y) as usize * dims.z as usize;
+                            for z in c0.z..=c1.z {
+                                let cell = &mut chunk[row + z as usize];
+                                *cell = cell.max(value);
+                            }
+                        }
+                    }
+                }
+            }
+            for v in chunk.iter_mut() {
+                if *v > 0.0 {
+                    *v += *v * ROUNDING_HEADROOM;
+                }
+            }
+        });
+        MajorantGrid { cell_log2, origin, dims, values, outside }
+    }
+
+    /// The grid grown by `radius` voxels per axis: each cell bounds every position within
+    /// `radius` of it (the box grows to match), for callers that sample the volume at points
+    /// displaced from the ray they walk (vdbmarch's offset noise).
+    pub fn dilated(&self, radius: DVec3) -> MajorantGrid {
+        if self.values.is_empty() {
+            return self.clone();
+        }
+        let s = self.cell_size() as f64;
+        let pad = (radius.max(DVec3::ZERO) / s).ceil().as_ivec3();
+        if pad == IVec3::ZERO {
+            return self.clone();
+        }
+        let dims = self.dims + 2 * pad;
+        let index = |c: IVec3| ((c.x * dims.y + c.y) * dims.z + c.z) as usize;
+        let mut values = vec![self.outside; (dims.x * dims.y * dims.z) as usize];
+        for x in 0..self.dims.x {
+            for y in 0..self.dims.y {
+                for z in 0..self.dims.z {
+                    values[index(IVec3::new(x, y, z) + pad)] = self.values[((x * self.dims.y + y) * self.dims.z + z) as usize];
+                }
+            }
+        }
+        // A separable running maximum, one axis at a time.
+        for axis in 0..3 {
+            let r = pad[axis];
+            if r == 0 {
+                continue;
+            }
+            let before = values.clone();
+            for x in 0..dims.x {
+                for y in 0..dims.y {
+                    for z in 0..dims.z {
+                        let c = IVec3::new(x, y, z);
+                        let (lo, hi) = ((c[axis] - r).max(0), (c[axis] + r).min(dims[axis] - 1));
+                        let mut m = before[index(c)];
+                        for k in lo..=hi {
+                            let mut n = c;
+                            n[axis] = k;
+                            m = m.max(before[index(n)]);
+                        }
+                        values[index(c)] = m;
                     }
                 }
             }
         }
-        MajorantGrid { cell_log2, origin, dims, values, outside }
+        MajorantGrid { cell_log2: self.cell_log2, origin: self.origin - pad * self.cell_size(), dims, values, outside: self.outside }
     }
 
     pub fn cell_size(&self) -> i32 {
         1 << self.cell_log2
+    }
+
+    pub fn cell_log2(&self) -> u32 {
+        self.cell_log2
     }
 
     pub fn origin(&self) -> IVec3 {

@@ -123,23 +123,177 @@ fn from_brick_fn_drops_empty_bricks() {
     assert_eq!(v.get(IVec3::new(16, 0, 5)), 1.0);
 }
 
-#[test]
-fn majorant_bounds_every_sample() {
-    let v = random_volume(11, 0.0);
-    for log2 in [3, 4] {
-        let m = MajorantGrid::with_cell_log2(&v, log2);
-        let mut rng = Lcg(5);
-        for _ in 0..50_000 {
-            let p = DVec3::new(rng.next() * 80.0 - 40.0, rng.next() * 80.0 - 40.0, rng.next() * 60.0 - 30.0);
-            assert!(v.sample_index(p) <= m.at(p), "at {p}: sample above its majorant");
+/// A few single voxels with values over many orders of magnitude (1e-9 to 1e9) in mostly
+/// empty bricks, and a block of random values: cells must follow individual voxels.
+fn sparse_volume(seed: u64) -> Volume<f32> {
+    let mut rng = Lcg(seed);
+    let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
+    for _ in 0..40 {
+        let ijk = IVec3::new((rng.next() * 40.0) as i32 - 20, (rng.next() * 40.0) as i32 - 20, (rng.next() * 24.0) as i32 - 12);
+        v.set(ijk, 10f32.powf((rng.next() * 18.0 - 9.0) as f32));
+    }
+    for x in 0..5 {
+        for y in 0..3 {
+            for z in 0..4 {
+                v.set(IVec3::new(30 + x, -25 + y, 7 + z), rng.next() as f32 * 3.0);
+            }
         }
     }
+    v
+}
+
+/// A random point, half of them on a voxel plane or cell face on some axis (where the
+/// interpolation's corner set changes).
+fn random_point(rng: &mut Lcg, lo: DVec3, size: DVec3) -> DVec3 {
+    let mut p = lo + size * DVec3::new(rng.next(), rng.next(), rng.next());
+    if rng.next() < 0.5 {
+        let a = (rng.next() * 3.0) as usize;
+        p[a] = p[a].round();
+    }
+    p
+}
+
+#[test]
+fn majorant_bounds_every_sample() {
+    for (seed, v) in [(11, random_volume(11, 0.0)), (12, random_volume(12, 0.5)), (13, sparse_volume(13)), (14, sparse_volume(14))] {
+        for log2 in [0, 1, 2, 3, 4] {
+            let m = MajorantGrid::with_cell_log2(&v, log2);
+            assert_eq!(m.cell_size(), 1 << log2, "small volumes get the cells asked for");
+            let mut rng = Lcg(seed * 31 + log2 as u64);
+            for _ in 0..100_000 {
+                let p = random_point(&mut rng, DVec3::new(-42.0, -42.0, -32.0), DVec3::new(84.0, 84.0, 64.0));
+                assert!(v.sample_index(p) <= m.at(p), "at {p} (cell log2 {log2}): sample above its majorant");
+            }
+        }
+    }
+}
+
+/// The brute-force bound of cell `c` (of size `s`, grid origin `o`): the largest value among
+/// voxels [o + c*s, o + c*s + s] per axis.
+fn cell_voxel_max(v: &Volume<f32>, o: IVec3, c: IVec3, s: i32) -> f32 {
+    let lo = o + c * s;
+    let mut m = f32::MIN;
+    for x in 0..=s {
+        for y in 0..=s {
+            for z in 0..=s {
+                m = m.max(v.get(lo + IVec3::new(x, y, z)));
+            }
+        }
+    }
+    m
+}
+
+/// Each cell's bound is the maximum over exactly the voxels interpolation reads inside it
+/// (up to the rounding headroom): cells outside the data's support are exactly zero.
+#[test]
+fn majorant_is_the_exact_voxel_maximum_per_cell() {
+    for v in [sparse_volume(5), random_volume(6, 0.0)] {
+        for log2 in [0, 1, 3] {
+            let m = MajorantGrid::with_cell_log2(&v, log2);
+            let (s, o, d) = (m.cell_size(), m.origin(), m.dims());
+            let mut zero = 0;
+            for x in 0..d.x {
+                for y in 0..d.y {
+                    for z in 0..d.z {
+                        let c = IVec3::new(x, y, z);
+                        let got = m.values()[((x * d.y + y) * d.z + z) as usize];
+                        let want = cell_voxel_max(&v, o, c, s);
+                        if want == 0.0 {
+                            assert_eq!(got, 0.0, "cell {c} (log2 {log2}) reads only zero voxels");
+                            zero += 1;
+                        } else {
+                            assert!(got >= want && got <= want * (1.0 + 1e-6), "cell {c} (log2 {log2}): {got} vs {want}");
+                        }
+                    }
+                }
+            }
+            assert!(zero > 0, "the test volumes leave empty cells");
+        }
+    }
+}
+
+/// A single voxel's influence reaches the cells within one voxel of it (interpolation at p
+/// reads floor(p) and floor(p) + 1), and nothing else.
+#[test]
+fn single_voxel_reaches_only_its_neighbour_cells() {
+    let mut rng = Lcg(77);
+    for _ in 0..40 {
+        let ijk = IVec3::new((rng.next() * 64.0) as i32 - 32, (rng.next() * 64.0) as i32 - 32, (rng.next() * 64.0) as i32 - 32);
+        let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
+        v.set(ijk, 1e9);
+        for log2 in [0, 1, 2, 3] {
+            let m = MajorantGrid::with_cell_log2(&v, 0);
+            let m = if log2 == 0 { m } else { MajorantGrid::with_cell_log2(&v, log2) };
+            assert_eq!(m.cell_size(), 1 << log2);
+            // Positions whose interpolation reads the voxel: (ijk - 1, ijk + 1) per axis.
+            for dx in -3..=3 {
+                for dy in -3..=3 {
+                    for dz in -3..=3 {
+                        let p = ijk.as_dvec3() + DVec3::new(dx as f64, dy as f64, dz as f64) * 0.5 + 0.01;
+                        let reads = (p - ijk.as_dvec3()).abs().max_element() < 1.0;
+                        let s = m.cell_size() as f64;
+                        // The cell holding p, as index-space box [lo, lo + s).
+                        let lo = ((p - m.origin().as_dvec3()) / s).floor() * s + m.origin().as_dvec3();
+                        let cell_reads = (0..3).all(|a| lo[a] <= ijk[a] as f64 && ijk[a] as f64 <= lo[a] + s);
+                        assert_eq!(m.at(p) > 0.0, cell_reads, "voxel {ijk}, p {p}, log2 {log2}");
+                        if reads {
+                            assert!(m.at(p) >= 1e9);
+                        }
+                    }
+                }
+            }
+            let nonzero = m.values().iter().filter(|&&b| b > 0.0).count();
+            // 1 to 2 cells per axis: 2 where the voxel sits on a cell face.
+            let faces = (0..3).filter(|&a| (ijk[a] - m.origin()[a]) % m.cell_size() == 0).count();
+            assert_eq!(nonzero, 1 << faces, "voxel {ijk}, log2 {log2}");
+            if log2 == 0 {
+                assert_eq!(nonzero, 8, "one-voxel cells: the eight around the voxel");
+            }
+        }
+    }
+}
+
+/// One 1e9 voxel in a corner of a brick of zeros: the rest of the brick is empty space.
+#[test]
+fn zero_voxels_beside_a_dense_one_are_empty() {
+    let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
+    for x in 0..8 {
+        for y in 0..8 {
+            for z in 0..8 {
+                v.set(IVec3::new(x, y, z), 0.0);
+            }
+        }
+    }
+    v.set(IVec3::new(7, 7, 7), 1e9);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
+    assert_eq!(m.cell_size(), 1);
+    assert_eq!(m.at(DVec3::splat(3.5)), 0.0);
+    assert_eq!(m.at(DVec3::new(6.5, 6.5, 5.5)), 0.0);
+    assert!(m.at(DVec3::splat(6.5)) >= 1e9);
+    // A ray along x through the voxel's row meets bounds only in the two cells that read it.
+    let segs: Vec<_> = m.walk(DVec3::new(-1.0, 6.5, 6.5), DVec3::X, 0.0, 20.0).filter(|s| s.majorant > 0.0).collect();
+    assert_eq!(segs.len(), 2, "{segs:?}");
+    assert_eq!(segs[0].t_start, 7.0);
+    assert_eq!(segs[1].t_end, 9.0);
+}
+
+/// Grids wider than the cell budget grow their cells by powers of two.
+#[test]
+fn wide_volumes_grow_cells() {
+    let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
+    v.set(IVec3::ZERO, 1.0);
+    v.set(IVec3::new(200, 200, 200), 1.0);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
+    // 202^3 one-voxel cells exceed 2^22; 101^3 two-voxel cells do not.
+    assert_eq!(m.cell_size(), 2);
+    assert!(m.values().len() <= 1 << 22);
+    assert!(m.at(DVec3::splat(200.5)) > 0.0 && m.at(DVec3::splat(100.5)) == 0.0);
 }
 
 #[test]
 fn box_maximum_sees_what_points_see() {
     let v = random_volume(19, 0.0);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     let mut rng = Lcg(8);
     for _ in 0..2000 {
         let lo = DVec3::new(rng.next() * 90.0 - 45.0, rng.next() * 90.0 - 45.0, rng.next() * 70.0 - 35.0);
@@ -157,7 +311,7 @@ fn box_maximum_sees_what_points_see() {
 #[test]
 fn empty_volume_has_no_majorant() {
     let v: Volume<f32> = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0);
-    let m = MajorantGrid::build(&v);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     assert_eq!(m.max(), 0.0);
     let segs: Vec<_> = m.walk(DVec3::ZERO, DVec3::X, 0.0, 10.0).collect();
     assert_eq!(segs.len(), 1);
@@ -169,13 +323,19 @@ fn axis_aligned_ray_visits_cells_in_order() {
     let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
     v.set(IVec3::new(3, 3, 3), 1.0);
     v.set(IVec3::new(27, 3, 3), 5.0);
-    let m = MajorantGrid::build(&v);
-    let segs: Vec<_> = m.walk(DVec3::new(-100.0, 3.5, 3.5), DVec3::X, 0.0, 300.0).collect();
-    let nonzero: Vec<_> = segs.iter().filter(|s| s.majorant > 0.0).collect();
-    // Brick 0 influences cells -1 and 0, brick 3 cells 2 and 3 along x.
-    assert_eq!(nonzero.len(), 4, "{segs:?}");
-    assert_eq!(nonzero[0].t_start, 92.0);
-    assert_eq!(nonzero.last().unwrap().t_end, 132.0);
+    for (log2, count, first, last) in [(0, 4, 102.0, 128.0), (3, 2, 100.0, 132.0)] {
+        let m = MajorantGrid::with_cell_log2(&v, log2);
+        let segs: Vec<_> = m.walk(DVec3::new(-100.0, 3.5, 3.5), DVec3::X, 0.0, 300.0).collect();
+        let nonzero: Vec<_> = segs.iter().filter(|s| s.majorant > 0.0).collect();
+        // Each voxel is read in the cells within one voxel of it: voxel 3 over x in [2, 4) and
+        // voxel 27 over [26, 28) with one-voxel cells; with eight-voxel cells (from x = 0)
+        // neither sits on a cell face, so only cells [0, 8) and [24, 32).
+        assert_eq!(nonzero.len(), count, "{segs:?}");
+        assert_eq!(nonzero[0].t_start, first);
+        assert_eq!(nonzero.last().unwrap().t_end, last);
+        let t: Vec<f64> = segs.iter().map(|s| s.t_start).collect();
+        assert!(t.windows(2).all(|w| w[0] < w[1]), "in order");
+    }
 }
 
 /// Integrates the volume along a ray both by the DDA (skipping zero-majorant segments) and by
@@ -199,16 +359,16 @@ fn march(v: &Volume<f32>, o: DVec3, d: DVec3, t1: f64, segments: Option<&Majoran
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(ProptestConfig::with_cases(256))]
 
     #[test]
     fn walk_covers_the_interval_in_order(
         ox in -60.0f64..60.0, oy in -60.0f64..60.0, oz in -60.0f64..60.0,
         dx in -1.0f64..1.0, dy in -1.0f64..1.0, dz in -1.0f64..1.0,
-        t0 in 0.0f64..10.0, len in 0.0f64..200.0,
+        t0 in 0.0f64..10.0, len in 0.0f64..200.0, log2 in 0u32..5, sparse in any::<bool>(),
     ) {
-        let v = random_volume(13, 0.0);
-        let m = MajorantGrid::build(&v);
+        let v = if sparse { sparse_volume(13) } else { random_volume(13, 0.0) };
+        let m = MajorantGrid::with_cell_log2(&v, log2);
         let d = DVec3::new(dx, dy, dz);
         prop_assume!(d.length() > 1e-3);
         let segs: Vec<_> = m.walk(DVec3::new(ox, oy, oz), d, t0, t0 + len).collect();
@@ -253,8 +413,8 @@ proptest! {
 
 #[test]
 fn skipping_empty_cells_loses_nothing() {
-    let v = random_volume(17, 0.0);
-    let m = MajorantGrid::build(&v);
+    for v in [random_volume(17, 0.0), sparse_volume(17)] {
+    let m = MajorantGrid::with_cell_log2(&v, 0);
     let mut rng = Lcg(23);
     for _ in 0..20 {
         let o = DVec3::new(rng.next() * 80.0 - 40.0, rng.next() * 80.0 - 40.0, -40.0);
@@ -263,4 +423,46 @@ fn skipping_empty_cells_loses_nothing() {
         let skipped = march(&v, o, d, 90.0, Some(&m));
         assert!((full - skipped).abs() <= 1e-6 * (1.0 + full), "{full} vs {skipped}");
     }
+    }
+}
+
+/// A dilated grid bounds every position within the radius of a position the original bounds.
+#[test]
+fn dilated_grid_bounds_displaced_samples() {
+    let v = sparse_volume(21);
+    let m = MajorantGrid::with_cell_log2(&v, 0);
+    let r = DVec3::new(2.5, 0.7, 1.2);
+    let d = m.dilated(r);
+    assert_eq!(d.cell_size(), m.cell_size());
+    let mut rng = Lcg(4);
+    for _ in 0..50_000 {
+        let p = random_point(&mut rng, DVec3::new(-45.0, -45.0, -35.0), DVec3::new(90.0, 90.0, 70.0));
+        let q = p + (DVec3::new(rng.next(), rng.next(), rng.next()) * 2.0 - 1.0) * r;
+        assert!(v.sample_index(q) <= d.at(p), "sample at {q} above the dilated bound at {p}");
+        assert!(m.at(p) <= d.at(p));
+    }
+}
+
+/// Tracking keeps brick cells on ordinary media and refines them, down to one voxel, where a
+/// brick at the peak would span more than MAX_CELL_OPTICAL_DEPTH mean free paths.
+#[test]
+fn tracking_cells_follow_the_optical_depth() {
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in 0..6 {
+        for y in 0..6 {
+            for z in 0..6 {
+                v.set(IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    // 8 voxels of 0.1 at sigma_t 1: 0.8 mean free paths per brick.
+    assert_eq!(MajorantGrid::for_tracking(&v, 1.0).cell_size(), 8);
+    assert_eq!(MajorantGrid::for_tracking(&v, 0.0).cell_size(), 8);
+    // 8 voxels at sigma_t 160: 128 mean free paths; 4 voxels: 64, within the limit.
+    assert_eq!(MajorantGrid::for_tracking(&v, 160.0).cell_size(), 4);
+    // Density 1e9: one-voxel cells, and the brick's empty corner is empty space.
+    let m = MajorantGrid::for_tracking(&v, 1e9);
+    assert_eq!(m.cell_size(), 1);
+    assert_eq!(m.at(DVec3::new(6.5, 6.5, 6.5)), 0.0);
+    assert!(m.at(DVec3::new(5.5, 5.5, 5.5)) >= 1.0);
 }

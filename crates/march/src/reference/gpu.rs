@@ -51,7 +51,7 @@ pub fn render_reference_gpu(
     let pixel_count = camera.width() as u64 * camera.height() as u64;
     // Every position on the GPU is relative to the eye.
     let origin = camera.eye();
-    let majorant = MajorantGrid::build(density);
+    let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
     let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     volume.set_world_origin(ctx, origin);
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
