@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # particles2vdb as a user runs it (release build, whole command: read the PLY, estimate, write
 # the VDB), in one session:
-#   1. the Cloud1-class scene (500k particles, grid 339 x 42 x 361) per method, CPU and GPU:
-#      median wall time of RUNS runs;
+#   1. the Cloud1-class scene (500k particles, grid 339 x 42 x 361) and the smoke-like one
+#      (330k particles, 280 x 255 x 233) per method, CPU and GPU: median wall time of RUNS runs;
 #   2. growth from 100k to 5M particles (cloud1 generator, same grid), usl and asl3 on the
 #      CPU: wall time and peak memory (max RSS from /usr/bin/time -v);
 #   3. sarracen's interpolate_3d_grid on the same particles and grid (scripts/bench_sarracen.py),
@@ -33,21 +33,27 @@ median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR + 1) / 2] : (a[
 measure() { /usr/bin/time -f "%e %U %S %M" -o "$work/time.txt" "$@" >/dev/null 2>&1; awk '{print $1, $2 + $3, $4}' "$work/time.txt"; }
 
 [ -s "$work/cloud1_truth.npy" ] || "$gen" cloud1 "$work/cloud1.ply" 500000 1 "$work/cloud1_truth.npy" >&2
-echo "== 1. whole command, Cloud1-class (500k particles, 339x42x361), median of $runs ($(nproc) cores, load $(cut -d' ' -f1 /proc/loadavg))"
-printf "%-6s %-4s %10s %10s\n" method dev "wall s" "cpu s"
-for method in usl asl2 asl3 knn; do
-    for dev in cpu gpu; do
-        if ! "$p2v" "$work/cloud1.ply" "${grid[@]}" --method "$method" --device "$dev" -o "$work/out.vdb" 2>/dev/null; then
-            printf "%-6s %-4s %10s\n" "$method" "$dev" "failed"
-            continue
-        fi
-        # The GPU (a software adapter here) runs once: tens of seconds per run.
-        n=$runs; [ "$dev" = gpu ] && n=1
-        for _ in $(seq "$n"); do measure "$p2v" "$work/cloud1.ply" "${grid[@]}" --method "$method" --device "$dev" -o "$work/out.vdb"; done >"$work/runs.txt"
-        printf "%-6s %-4s %10.3f %10.3f\n" "$method" "$dev" "$(cut -d' ' -f1 "$work/runs.txt" | median)" "$(cut -d' ' -f2 "$work/runs.txt" | median)"
+# The smoke-like scene: 330k particles in its 280 x 255 x 233 box of 0.8 voxels (Scene::smoke).
+smoke_grid=(--bounds=-30,-30,-8,194,174,178.4 --voxel-size 0.8)
+[ -s "$work/smoke.ply" ] || "$gen" smoke "$work/smoke.ply" >&2
+for scene in cloud1 smoke; do
+    if [ "$scene" = cloud1 ]; then args=("${grid[@]}"); what="Cloud1-class (500k particles, 339x42x361)"; else args=("${smoke_grid[@]}"); what="smoke-like (330k particles, 280x255x233)"; fi
+    echo "== 1. whole command, $what, median of $runs ($(nproc) cores, load $(cut -d' ' -f1 /proc/loadavg))"
+    printf "%-6s %-4s %10s %10s\n" method dev "wall s" "cpu s"
+    for method in usl asl2 asl3 knn; do
+        for dev in cpu gpu; do
+            if ! "$p2v" "$work/$scene.ply" "${args[@]}" --method "$method" --device "$dev" -o "$work/out.vdb" 2>/dev/null; then
+                printf "%-6s %-4s %10s\n" "$method" "$dev" "failed"
+                continue
+            fi
+            # The GPU (a software adapter here) runs once: tens of seconds per run.
+            n=$runs; [ "$dev" = gpu ] && n=1
+            for _ in $(seq "$n"); do measure "$p2v" "$work/$scene.ply" "${args[@]}" --method "$method" --device "$dev" -o "$work/out.vdb"; done >"$work/runs.txt"
+            printf "%-6s %-4s %10.3f %10.3f\n" "$method" "$dev" "$(cut -d' ' -f1 "$work/runs.txt" | median)" "$(cut -d' ' -f2 "$work/runs.txt" | median)"
+        done
     done
+    echo
 done
-
 echo
 echo "== 2. growth, cloud1 generator on the same grid, CPU, one run each"
 printf "%10s %-6s %10s %10s %12s\n" particles method "wall s" "cpu s" "max RSS MiB"
