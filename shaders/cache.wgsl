@@ -234,9 +234,13 @@ fn gather_nearest(q: vec3<f32>, w_out: vec3<f32>) -> Gathered {
     for (var i = 0u; i < len; i = i + 1u) {
         g.sum = g.sum + photon_term(heap_j[i], w_out);
     }
-    // Fewer than k photons within reach: the ball is the whole reach.
+    // Fewer than k photons within reach: the ball is the whole reach. Otherwise the k-th
+    // photon lies on the surface and counts k-1 (cpu.rs li_multiple).
     if (len == params.k) {
         g.radius = sqrt(heap_d[0]);
+        if (len >= 2u) {
+            g.sum = g.sum * (f32(len - 1u) / f32(len));
+        }
     }
     return g;
 }

@@ -115,7 +115,17 @@ pub fn li_multiple(
             }
             used = scratch.len() as u32;
             // Fewer than k photons within reach: the ball is the whole reach.
-            if scratch.len() < k as usize { max_radius } else { (far2 as f64).sqrt() }
+            if scratch.len() < k as usize {
+                max_radius
+            } else {
+                // The k-th photon lies on the ball's surface: counting it whole overestimates
+                // the photon density by k/(k-1), as in the k-nearest-neighbour density
+                // estimate, whose unbiased form (for Poisson points) counts k-1.
+                if k >= 2 {
+                    sum *= (k - 1) as f32 / k as f32;
+                }
+                (far2 as f64).sqrt()
+            }
         }
     };
     if used == 0 || radius <= 0.0 {
