@@ -313,3 +313,27 @@ fn mass_is_conserved() {
         assert!((ratio - 1.0).abs() < tolerance, "knots {method:?}: grid mass / particle mass {ratio}");
     }
 }
+
+/// 100k particles around one point: every grid point's gather visits all of them. A software
+/// adapter (lavapipe) would end that loop after 65535 iterations without an error and return a
+/// density short of a quarter of its mass, so it is refused; a hardware GPU must get the mass.
+#[test]
+fn gathers_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let positions: Vec<DVec3> = (0..100_000)
+        .map(|i| {
+            let t = i as f64 * 0.618_034;
+            DVec3::new((t * 7.1).sin(), (t * 3.3).cos(), (t * 1.7).sin()) * 0.5
+        })
+        .collect();
+    let particles = ParticleSet { positions, masses: None };
+    let params = DensityParams { method: Method::Usl, h0: H0::Fixed(1.0), resolution: Resolution::VoxelSize(0.25), ..Default::default() };
+    let result = estimate_gpu(ctx, &particles, &params);
+    if ctx.info.is_software {
+        let err = result.err().expect("refused on a software adapter").to_string();
+        assert!(err.contains("65535") && err.contains("--device cpu"), "{err}");
+    } else {
+        let out = result.unwrap();
+        assert!((out.stats.grid_mass / 100_000.0 - 1.0).abs() < 0.01, "mass {}", out.stats.grid_mass);
+    }
+}
