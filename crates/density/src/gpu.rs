@@ -76,9 +76,10 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         let iterations = longest_gather(prep, method, pp);
         if iterations > SOFTWARE_MAX_ITERATIONS {
             return Err(GpuError::BeyondAdapter(format!(
-                "a grid point's gather visits up to {iterations} particles, more than a software Vulkan adapter runs \
-                 whole (llvmpipe ends loops after 65535 iterations, nested ones included, without an error, and \
-                 the density would come out short); use --device cpu or a smaller --h0"
+                "a grid point's gather takes up to {iterations} loop iterations (particles in reach, times the \
+                 method's passes over them), more than a software Vulkan adapter runs whole (llvmpipe ends loops \
+                 after 65535 iterations, nested ones included, without an error, and the density would come out \
+                 short); use --device cpu or a smaller --h0"
             )));
         }
     }
