@@ -178,31 +178,23 @@ const SOFTWARE_MAX_ITERATIONS: u64 = 50_000;
 fn longest_gather(prep: &Prepared, method: Method, pp: &PointParams) -> u64 {
     let cells = &prep.cells;
     let reach = crate::kernel::KAPPA * pp.h0;
-    let w = (reach / cells.edge).ceil() as i32 + 1;
+    let w = (reach / cells.edge).ceil() as usize + 1;
     let d = cells.dims;
-    let counts = |c: glam::IVec3| -> u64 {
-        let id = cells.id(c);
-        (cells.start[id + 1] - cells.start[id]) as u64
-    };
-    // Box sums of the per-cell counts over a window of +-w cells, one axis at a time.
+    // Cell ids run x fastest, then y, then z (CellGrid::id), the order of `index` below, so
+    // the per-cell counts are the differences of the counting sort's starts.
     let (nx, ny, nz) = (d.x as usize, d.y as usize, d.z as usize);
     let index = |x: usize, y: usize, z: usize| (z * ny + y) * nx + x;
-    let mut a = vec![0u64; nx * ny * nz];
-    for z in 0..nz {
-        for y in 0..ny {
-            for x in 0..nx {
-                a[index(x, y, z)] = counts(glam::IVec3::new(x as i32, y as i32, z as i32));
-            }
-        }
-    }
+    let mut a: Vec<u64> = cells.start.windows(2).map(|s| (s[1] - s[0]) as u64).collect();
+    debug_assert_eq!(a.len(), nx * ny * nz);
+    // Box sums of the per-cell counts over a window of +-w cells, one axis at a time.
     let window = |len: usize, get: &dyn Fn(usize) -> u64, out: &mut dyn FnMut(usize, u64)| {
         let mut prefix = vec![0u64; len + 1];
         for i in 0..len {
             prefix[i + 1] = prefix[i] + get(i);
         }
         for i in 0..len {
-            let lo = i.saturating_sub(w as usize);
-            let hi = (i + w as usize + 1).min(len);
+            let lo = i.saturating_sub(w);
+            let hi = (i + w + 1).min(len);
             out(i, prefix[hi] - prefix[lo]);
         }
     };
