@@ -184,13 +184,14 @@ fn quality_presets_set_the_tools_and_flags_override_them() {
     run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
     // draft: 50000 photons by delta tracking; --photons overrides the count only.
     run(Command::new(bin("vdbphoton")).arg(&d).args(["--quality", "draft", "--photons", "3000"]).arg("-o").arg(&p));
-    run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "draft", "--width", "16", "--height", "12"]).arg("-o").arg(&c));
-    let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "final", "-v"]).arg("-o").arg(&e));
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final", "--width", "16", "--height", "12"]).arg("-o").arg(&c));
+    let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "final", "--spp", "3", "-v"]).arg("-o").arg(&e));
     let log = String::from_utf8_lossy(&out.stderr);
-    assert!(log.contains("16x12 pixels, 4 spp"), "final marches 4 spp: {log}");
+    assert!(log.contains("16x12 pixels, 3 spp"), "an explicit --spp wins over the preset: {log}");
     if let Ok(out) = Command::new("vdb_print").args(["-l", "-m"]).arg(&c).output() {
         let listing = String::from_utf8_lossy(&out.stdout);
-        for expected in ["distance=delta", "photons=3000", "cache_scale=4", "gather=neighbours:32:"] {
+        // The photons come from draft (count overridden), the cache from final.
+        for expected in ["distance=delta", "photons=3000", "cache_scale=2", "gather=neighbours:128:"] {
             assert!(listing.contains(expected), "{expected} missing from {listing}");
         }
     }
