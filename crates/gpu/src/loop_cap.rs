@@ -30,6 +30,7 @@
 
 use std::fmt;
 
+use crate::context::buffer_entries;
 use crate::{storage_entry, GpuContext, GpuError};
 
 /// Loop iterations a software adapter (llvmpipe) runs per SIMD group before it silently ends
@@ -114,6 +115,20 @@ impl LoopGuard {
 
     pub fn bind_group_entry(&self, binding: u32) -> wgpu::BindGroupEntry<'_> {
         wgpu::BindGroupEntry { binding, resource: self.buffer.as_entire_binding() }
+    }
+
+    /// [`GpuContext::buffer_bind_group`] over `buffers` with the flag after them, at binding
+    /// `buffers.len()` (the binding given to [`Self::wgsl`]).
+    pub fn buffer_bind_group(
+        &self,
+        ctx: &GpuContext,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let mut entries = buffer_entries(buffers);
+        entries.push(self.bind_group_entry(buffers.len() as u32));
+        ctx.bind_group(label, layout, &entries)
     }
 
     /// Errors with [`GpuContext::beyond_loop_cap`] if any invocation since the guard was made
