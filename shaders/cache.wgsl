@@ -10,6 +10,9 @@
 //   the ball (the same 42-point quadrature).
 // Positions are f32 relative to the host's origin, which is the photon bins' origin when
 // there are photons, so bin-local positions are the very f32 values the CPU compares.
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 7 of group 1): every voxel ends with
+// loop_guard_check(), so a software adapter that cut a shadow ray or a photon search short
+// says so.
 
 struct CacheUniforms {
     medium: Medium,
@@ -318,6 +321,7 @@ fn bake_single(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     let v = params.first + i;
     let x = points[v].xyz;
     out[v] = CacheOut(li_single(x, toward_eye(x)), 0u);
+    loop_guard_check();
 }
 
 @compute @workgroup_size(64)
@@ -330,4 +334,5 @@ fn bake_multiple(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let v = params.first + i;
     let x = points[v].xyz;
     out[v] = li_multiple(x, toward_eye(x));
+    loop_guard_check();
 }

@@ -11,6 +11,9 @@
 // `capacity`: past it they are counted but not written, and the host re-runs the chunk with
 // a larger buffer), tagged with (path, interaction) so the host can restore the CPU's order;
 // and per path (interactions, end).
+//
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 6 of group 1): every path ends with
+// loop_guard_check(), so a software adapter that cut a path's loops short says so.
 
 struct PhotonUniforms {
     medium: Medium,
@@ -84,6 +87,12 @@ fn trace_photons(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups)
     if (path >= params.count) {
         return;
     }
+    trace_path(path);
+    loop_guard_check();
+}
+
+// Photon path `path` of this dispatch, from emission to its end.
+fn trace_path(path: u32) {
     let lo = params.first_index.x + path;
     let hi = params.first_index.y + select(0u, 1u, lo < params.first_index.x);
     var rng = rng_new(params.seed, vec2<u32>(lo, hi), PHOTON_DOMAIN);

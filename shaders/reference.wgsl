@@ -10,7 +10,10 @@
 // pixels and adds them to what earlier dispatches left in `pixels`; the last one divides by
 // spp. Few samples per dispatch, because llvmpipe (lavapipe) ends any loop of a SIMD group
 // after 65535 iterations counted over the whole invocation, which silently truncated
-// 256-sample pixels; a desktop GPU's watchdog likes short dispatches too.
+// 256-sample pixels; a desktop GPU's watchdog likes short dispatches too. Delta tracking
+// through an optically huge medium can still run out (its null collisions are random), so
+// this is composed after nimbus_gpu::LoopGuard::wgsl (binding 4 of group 1) and every pixel
+// ends with loop_guard_check().
 // The CPU decides in f64 and the GPU in f32, so a path can take another turn now and then:
 // the two images agree in distribution (to Monte Carlo error), not pixel for pixel.
 
@@ -138,4 +141,5 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         sum = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, -1.0);
     }
     pixels[local] = sum;
+    loop_guard_check();
 }

@@ -3,7 +3,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
@@ -22,6 +22,8 @@ pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 const WORKGROUP_SIZE: u32 = 64;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
+/// Group 1 binding of the [`LoopGuard`] flag.
+const GUARD_BINDING: u32 = 7;
 
 /// WGSL `CacheUniforms`.
 #[repr(C)]
@@ -137,6 +139,7 @@ struct GpuBaker<'a> {
     uniforms: GpuCacheParams,
     buffers: [wgpu::Buffer; 5],
     out: wgpu::Buffer,
+    guard: LoopGuard,
     voxels: u64,
     _volume: GpuVolume,
 }
@@ -167,9 +170,15 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(4, true),
                 storage_entry(5, true),
                 storage_entry(6, false),
+                LoopGuard::layout_entry(GUARD_BINDING),
             ],
         )?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{CACHE_WGSL}", constants_wgsl()));
+        let guard = LoopGuard::new(ctx)?;
+        let source = ctx.compose_shader(&format!(
+            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            constants_wgsl(),
+            guard.wgsl(1, GUARD_BINDING)
+        ));
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
         let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - origin).as_vec3().extend(0.0).to_array()).collect();
@@ -231,6 +240,7 @@ impl<'a> GpuBaker<'a> {
                 ctx.storage_buffer("photons by bin", &sorted)?,
             ],
             out: ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
+            guard,
             voxels,
             _volume: volume,
         })
@@ -246,10 +256,15 @@ impl<'a> GpuBaker<'a> {
             let uniforms = GpuCacheParams { first: first as u32, count: count as u32, ..self.uniforms };
             let uniform_buffer = ctx.uniform_buffer("cache params", &uniforms)?;
             let [a, b, c, d, e] = &self.buffers;
-            let group = ctx.buffer_bind_group("cache", &self.layout, &[&uniform_buffer, a, b, c, d, e, &self.out])?;
+            let group = self.guard.buffer_bind_group(ctx, "cache", &self.layout, &[&uniform_buffer, a, b, c, d, e, &self.out])?;
             ctx.dispatch_1d(entry, &pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
             first += count;
         }
+        let work = match entry {
+            "bake_single" => "a cache voxel's shadow rays",
+            _ => "a cache voxel's photon search",
+        };
+        self.guard.check(ctx, work, "or a longer --step (shadow rays) or fewer --gather-neighbours")?;
         ctx.read_buffer(&self.out)
     }
 }

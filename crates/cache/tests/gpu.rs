@@ -119,3 +119,54 @@ fn too_many_neighbours_is_an_error_not_a_panic() {
     let map = photons(&v, &p);
     assert!(bake_gpu(ctx, &v, &map, &p).is_err());
 }
+
+/// 70,000 photons in one bin: every voxel's nearest-photon search within reach of it offers
+/// them all, more loop iterations than a software adapter (llvmpipe: 65535 per SIMD group)
+/// runs whole; it used to end the search early without an error and estimate from whichever
+/// photons it had seen. A software adapter must refuse; any other must match the CPU.
+#[test]
+fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in -3..3 {
+        for y in -3..3 {
+            for z in -3..3 {
+                v.set(IVec3::new(x, y, z), 2.0);
+            }
+        }
+    }
+    let n = 70_000;
+    let mut rng = 12345u64;
+    let mut next = move || {
+        rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut map = PhotonMap::default();
+    for _ in 0..n {
+        map.positions.push(DVec3::new(next(), next(), next()) * 0.01 - 0.005);
+        map.power.push(Vec3::splat(1e-4));
+        map.dir.push(Vec3::new(next() as f32 - 0.5, next() as f32 - 0.5, 0.3).normalize());
+    }
+    let (lo, hi) = v.world_bounds().unwrap();
+    let p = CacheParams {
+        single: false,
+        gather: Gather::Neighbours { k: 8, max_radius: 0.15 },
+        camera: Camera::default_for_bounds(lo, hi).unwrap(),
+        cache_scale: 2.0,
+        ..params(&v)
+    };
+    match bake_gpu(ctx, &v, &map, &p) {
+        Err(e) if ctx.loop_cap().is_some() => {
+            let e = e.to_string();
+            assert!(e.contains("65535") && e.contains("--device cpu"), "{e}");
+        }
+        Err(e) => panic!("a hardware adapter should bake it: {e}"),
+        Ok((gpu, _)) => {
+            let (cpu, _) = bake_cpu(&v, &map, &p).unwrap();
+            let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
+            eprintln!("li_multiple over {n} voxels: worst {worst:e}, peak {peak:e}");
+            assert!(peak > 0.0 && worst <= 1e-3 * peak, "li_multiple: worst {worst}, peak {peak}");
+            assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
+        }
+    }
+}

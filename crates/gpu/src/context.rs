@@ -251,12 +251,7 @@ impl GpuContext {
 
     /// A bind group whose binding `i` is the whole of `buffers[i]`.
     pub fn buffer_bind_group(&self, label: &str, layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]) -> Result<wgpu::BindGroup, GpuError> {
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-            .collect();
-        self.bind_group(label, layout, &entries)
+        self.bind_group(label, layout, &buffer_entries(buffers))
     }
 
     /// Workgroup counts covering `items` invocations of a `workgroup_size`-wide kernel,
@@ -320,6 +315,11 @@ pub fn split_workgroups(items: u64, workgroup_size: u32, max_per_dim: u32) -> Re
         });
     }
     Ok([x as u32, y as u32, z as u32])
+}
+
+/// Bind group entries whose binding `i` is the whole of `buffers[i]`.
+pub(crate) fn buffer_entries<'a>(buffers: &[&'a wgpu::Buffer]) -> Vec<wgpu::BindGroupEntry<'a>> {
+    buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect()
 }
 
 /// Layout entry for a storage buffer visible to compute shaders.

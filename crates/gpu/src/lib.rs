@@ -34,6 +34,14 @@
 //! becomes a [`GpuError`]; errors raised outside any scope are parked and reported by the next
 //! scoped call rather than panicking.
 //!
+//! # Software adapters' loop cap
+//!
+//! llvmpipe (lavapipe) silently ends loops once a SIMD group has run 65535 iterations; every
+//! stage guards against it through [`GpuContext::check_loop_bound`] (before dispatch, where
+//! an invocation's iterations can be bounded) or [`LoopGuard`] (a flag the shader raises when
+//! its group's budget ran out); both error with [`GpuContext::beyond_loop_cap`]. See
+//! `loop_cap.rs` for what was measured.
+//!
 //! # Shaders and volumes
 //!
 //! A stage shader is `shaders/<stage>.wgsl` composed after [`VOLUME_WGSL`]
@@ -55,12 +63,14 @@
 mod context;
 mod device;
 mod error;
+mod loop_cap;
 mod sampler;
 mod volume;
 
 pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
 pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
 pub use error::GpuError;
+pub use loop_cap::{LoopGuard, SOFTWARE_LOOP_CAP};
 pub use sampler::{PointSampler, SampleMode};
 pub use volume::{AtlasStats, GpuVolume, GpuVolumeOptions, GpuVoxel, VolumeInfo, SLOT_DIM};
 pub use wgpu;

@@ -121,26 +121,20 @@ pub fn render_gpu_with(
 ) -> Result<Image, MarchError> {
     params.validate()?;
     let majorant = crate::cpu::march_majorant(density, params);
-    if ctx.info.is_software {
+    if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
-        if steps > SOFTWARE_MAX_STEPS {
-            return Err(MarchError::Gpu(GpuError::BeyondAdapter(format!(
-                "a pixel's march of up to {steps} steps ({} spp) is more than a software Vulkan adapter runs whole \
-                 (llvmpipe ends loops after 65535 iterations, nested ones included, without an error); \
-                 use --device cpu or a longer --step",
-                params.spp
-            ))));
-        }
+        let work = format!("a pixel's march of up to {steps} steps ({} spp)", params.spp);
+        ctx.check_loop_bound(steps.saturating_mul(ITERATIONS_PER_STEP), work, "or a longer --step")?;
     }
     let pixels = march_pixels(ctx, density, &majorant, cache, params, options)?;
     Ok(assemble(params, &pixels))
 }
 
-/// Most march steps per pixel a software adapter takes whole: llvmpipe (lavapipe) ends any
-/// loop after 65535 iterations per invocation, nested loops included, without an error, and
-/// a march step costs several; measured on lavapipe: 10,000 steps exact, 15,000 truncated.
-/// (Measured with brick-sized majorant cells, when the DDA's own iterations were few.)
-const SOFTWARE_MAX_STEPS: u64 = 8_000;
+/// Loop iterations a march step costs on llvmpipe, whose loop cap (65535 per SIMD group,
+/// [`GpuContext::loop_cap`]) counts the lookups' and noise loops' passes too: measured on
+/// lavapipe, 10,000 steps ran whole and 15,000 did not (4.4 to 6.5 iterations a step, with
+/// brick-sized majorant cells, when the DDA's own iterations were few).
+const ITERATIONS_PER_STEP: u64 = 6;
 
 /// An upper bound on the loop iterations one pixel takes, in march steps: spp times the
 /// grid's diagonal over the step, plus the majorant cells a ray can cross. Each cell crossed

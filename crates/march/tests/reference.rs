@@ -186,3 +186,39 @@ fn gpu_and_cpu_agree_in_distribution() {
     eprintln!("{close} of 108 pixels equal to 1e-3");
     assert!(close >= 80, "only {close} of 108 pixels agree to 1e-3");
 }
+
+/// An albedo-1 cube 300 mean free paths across: a path random-walks tens of thousands of
+/// bounces before it leaves, more loop iterations than a software adapter (llvmpipe: 65535 per
+/// SIMD group) runs whole; it used to end the walks early without an error and return far too
+/// little multiple scattering. A software adapter must refuse; any other must match the CPU
+/// in distribution.
+#[test]
+fn paths_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let mut cube = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in -5..5 {
+        for y in -5..5 {
+            for z in -5..5 {
+                cube.set(IVec3::new(x, y, z), 300.0);
+            }
+        }
+    }
+    let medium = Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 };
+    let camera = Camera::new(DVec3::new(0.0, -3.0, 0.0), DVec3::ZERO, DVec3::Z, 8.0, 8, 8).unwrap();
+    let p = ReferenceParams { max_depth: 1_000_000, ..params(medium, vec![Light::default_sun()], camera, 4) };
+    match render_reference_gpu(ctx, &cube, &p, 64, &no_progress) {
+        Err(e) if ctx.loop_cap().is_some() => {
+            let e = e.to_string();
+            assert!(e.contains("65535") && e.contains("--device cpu"), "{e}");
+        }
+        Err(e) => panic!("a hardware adapter should render it: {e}"),
+        Ok(gpu) => {
+            let cpu = render_reference_cpu(&cube, &p, &no_progress).unwrap();
+            let (c, g) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+            let (mc, mg) = (mean(c.multiple.iter().copied()), mean(g.multiple.iter().copied()));
+            eprintln!("multiple: cpu {mc} gpu {mg}");
+            assert!(mc.x > 0.0 && ((mg - mc) / mc).abs().max_element() < 0.3, "multiple: cpu {mc}, gpu {mg}");
+            assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
+        }
+    }
+}

@@ -5,7 +5,7 @@ use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuMedium, Light, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::Volume;
@@ -20,6 +20,8 @@ const WORKGROUP_SIZE: u32 = 64;
 /// Most paths one dispatch traces; bounds the path buffer and (with the yield) the record one.
 const MAX_CHUNK: u64 = 1 << 18;
 const RECORD_BYTES: u64 = size_of::<GpuRecord>() as u64;
+/// Group 1 binding of the [`LoopGuard`] flag.
+const GUARD_BINDING: u32 = 6;
 
 /// WGSL `PhotonUniforms`.
 #[repr(C)]
@@ -83,6 +85,7 @@ struct GpuTracer<'a> {
     counter: wgpu::Buffer,
     paths: wgpu::Buffer,
     records: Option<wgpu::Buffer>,
+    guard: LoopGuard,
     /// Stored photons per path seen so far: sizes the next record buffer.
     yield_estimate: f64,
     chunk: u64,
@@ -105,9 +108,11 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(3, false),
                 storage_entry(4, false),
                 storage_entry(5, false),
+                LoopGuard::layout_entry(GUARD_BINDING),
             ],
         )?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PHOTON_WGSL}"));
+        let guard = LoopGuard::new(ctx)?;
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1, GUARD_BINDING)));
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
@@ -164,6 +169,7 @@ impl<'a> GpuTracer<'a> {
             counter: ctx.storage_buffer("photon count", &[0u32])?,
             paths: ctx.storage_buffer_zeroed("photon paths", chunk * 8)?,
             records: None,
+            guard,
             yield_estimate: 2.0,
             chunk,
             origin,
@@ -190,12 +196,14 @@ impl<'a> GpuTracer<'a> {
         self.uniforms.capacity = (records.size() / RECORD_BYTES) as u32;
         ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&self.uniforms));
         ctx.queue.write_buffer(&self.counter, 0, bytemuck::bytes_of(&0u32));
-        let group = ctx.buffer_bind_group(
+        let group = self.guard.buffer_bind_group(
+            ctx,
             "photon",
             &self.layout,
             &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths],
         )?;
         ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
+        self.guard.check(ctx, format_args!("tracing photon paths {first}..{}", first + count), "")?;
         let stored: Vec<u32> = ctx.read_buffer(&self.counter)?;
         Ok(stored[0] as u64)
     }

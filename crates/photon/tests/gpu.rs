@@ -178,3 +178,34 @@ fn nothing_to_trace_is_skipped_the_same_way() {
     assert_eq!(cpu.1.emitted, gpu.1.emitted);
     assert_eq!(cpu.0.len(), gpu.0.len());
 }
+
+/// Simpson free paths at a step of 1e-4 voxels through a cube ten voxels across: one
+/// crossing is 1e5 panels, more than a software adapter (llvmpipe: 65535 loop iterations per
+/// SIMD group) runs whole; it used to end the walk early without an error and send the photon
+/// on as if it had escaped. A software adapter must refuse; any other must match the CPU.
+#[test]
+fn paths_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = gpu() else { return };
+    let mut v = nimbus_volume::Volume::new(nimbus_volume::Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in 0..10 {
+        for y in 0..10 {
+            for z in 0..10 {
+                v.set(glam::IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    let p = PhotonParams { step: 1e-4, photons: 8, max_emitted: 64, ..params(DistanceSampling::Simpson, 8) };
+    let gpu = trace_gpu(ctx, &v, &p);
+    match gpu {
+        Err(e) if ctx.loop_cap().is_some() => {
+            let e = e.to_string();
+            assert!(e.contains("65535") && e.contains("--device cpu"), "{e}");
+        }
+        Err(e) => panic!("a hardware adapter should trace it: {e}"),
+        Ok(gpu) => {
+            let cpu = trace_cpu(&v, &p).unwrap();
+            compare("long Simpson walks", v.world_bounds().unwrap(), &cpu, &gpu, 0.05);
+            assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
+        }
+    }
+}

@@ -1,7 +1,7 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -35,6 +35,8 @@ struct GpuReferenceParams {
 
 /// Samples per pixel per dispatch (see reference.wgsl: lavapipe's loop limit).
 const SAMPLES_PER_DISPATCH: u32 = 4;
+/// Group 1 binding of the [`LoopGuard`] flag.
+const GUARD_BINDING: u32 = 4;
 
 /// Renders the reference on the GPU (tiles of at most `max_tile_pixels`: keep them small
 /// for high spp on a desktop GPU, whose watchdog ends long dispatches); `progress` hears each
@@ -55,8 +57,12 @@ pub fn render_reference_gpu(
     let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     volume.set_world_origin(ctx, origin);
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
-    let layout = ctx.bind_group_layout("reference", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false)])?;
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{REFERENCE_WGSL}"));
+    let layout = ctx.bind_group_layout(
+        "reference",
+        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), LoopGuard::layout_entry(GUARD_BINDING)],
+    )?;
+    let guard = LoopGuard::new(ctx)?;
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1, GUARD_BINDING)));
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
@@ -88,8 +94,9 @@ pub fn render_reference_gpu(
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("reference params", &tile)?;
-        ctx.buffer_bind_group("reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out])
+        guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out])
     })?;
+    guard.check(ctx, "a pixel's paths", "")?;
     Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
 }
 
