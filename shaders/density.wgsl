@@ -185,15 +185,11 @@ fn voxel_point(i: u32) -> vec4<i32> {
     return vec4<i32>(ijk, i32(all(ijk < u.grid_dims)));
 }
 
-fn linear_index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
-    return ((wid.z * nwg.y + wid.y) * nwg.x + wid.x) * WORKGROUP_SIZE + lid;
-}
-
 // asl2 / asl3 pass 1: N0 within kappa*h0 and the predicted h1 (final for asl2).
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn predict(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
-    let i = linear_index(wid, nwg, lid);
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
     if (i >= u.voxel_count) {
         return;
     }
@@ -214,7 +210,7 @@ fn predict(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn correct(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
-    let i = linear_index(wid, nwg, lid);
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
     if (i >= u.voxel_count) {
         return;
     }
@@ -231,7 +227,7 @@ fn correct(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
        @builtin(local_invocation_index) lid: u32) {
-    let i = linear_index(wid, nwg, lid);
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
     if (i >= u.voxel_count) {
         return;
     }
@@ -281,7 +277,7 @@ fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn density(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) lid: u32) {
-    let i = linear_index(wid, nwg, lid);
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
     if (i >= u.voxel_count) {
         return;
     }

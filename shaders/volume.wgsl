@@ -141,12 +141,3 @@ fn volume_sample_index3_filtered(p: vec3<f32>) -> vec3<f32> {
 fn volume_world_to_index(p_world_rel: vec3<f32>) -> vec3<f32> {
     return volume_world_to_index_in(volume_info, p_world_rel);
 }
-
-// Flat invocation index for a 1D workload dispatched as a 3D grid of workgroups
-// (GpuContext::workgroups_1d splits counts above max_compute_workgroups_per_dimension).
-// Callers must still test the result against their item count.
-fn dispatch_linear_index(workgroup_id: vec3<u32>, num_workgroups: vec3<u32>, local_index: u32,
-                         workgroup_size: u32) -> u32 {
-    return ((workgroup_id.z * num_workgroups.y + workgroup_id.y) * num_workgroups.x + workgroup_id.x)
-        * workgroup_size + local_index;
-}

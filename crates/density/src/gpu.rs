@@ -17,7 +17,8 @@ use crate::params::Method;
 use crate::setup::Prepared;
 use crate::{BrickResult, PointParams};
 
-/// The density kernels, `shaders/density.wgsl` (standalone, not composed with volume.wgsl).
+/// The density kernels, `shaders/density.wgsl`: they read no volume, so they are composed
+/// after `shaders/dispatch.wgsl` only, not the volume prelude.
 pub const DENSITY_WGSL: &str = include_str!("../../../shaders/density.wgsl");
 
 const WORKGROUP_SIZE: u32 = 64;
@@ -130,9 +131,10 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         &layout,
         &[&uniform_buffer, &particle_buffer, &cell_buffer, &brick_buffer, &n0, &h, &rho, &used],
     )?;
+    let source = format!("{}\n{DENSITY_WGSL}", nimbus_gpu::DISPATCH_WGSL);
     let pipelines = passes(method)
         .iter()
-        .map(|&entry| Ok((entry, ctx.compute_pipeline(entry, DENSITY_WGSL, entry, &[&layout])?)))
+        .map(|&entry| Ok((entry, ctx.compute_pipeline(entry, &source, entry, &[&layout])?)))
         .collect::<Result<Vec<_>, GpuError>>()?;
 
     let mut results = Vec::new();

@@ -75,17 +75,22 @@ pub use sampler::{PointSampler, SampleMode};
 pub use volume::{AtlasStats, GpuVolume, GpuVolumeOptions, GpuVoxel, VolumeInfo, SLOT_DIM};
 pub use wgpu;
 
+/// The flat invocation index of a 1D workload dispatched as a 3D grid
+/// (`dispatch_linear_index`, `shaders/dispatch.wgsl`): no bindings, so shaders that read no
+/// volume compose it too.
+pub const DISPATCH_WGSL: &str = include_str!("../../../shaders/dispatch.wgsl");
+
 /// Sparse-volume sampling shared by every stage shader (`shaders/volume.wgsl`).
 pub const VOLUME_WGSL: &str = include_str!("../../../shaders/volume.wgsl");
 
 /// The kernel behind [`PointSampler`] (`shaders/sample_points.wgsl`); compose before use.
 pub const SAMPLE_POINTS_WGSL: &str = include_str!("../../../shaders/sample_points.wgsl");
 
-/// A stage shader's full source: the `VOLUME_FILTERABLE` switch, [`VOLUME_WGSL`], then
-/// `stage`. `filterable` must be [`GpuContext::float32_filterable`] of the device the
+/// A stage shader's full source: the `VOLUME_FILTERABLE` switch, [`DISPATCH_WGSL`],
+/// [`VOLUME_WGSL`], then `stage`. `filterable` must be [`GpuContext::float32_filterable`] of the device the
 /// pipeline is built on (prefer [`GpuContext::compose_shader`]).
 pub fn compose_shader(filterable: bool, stage: &str) -> String {
-    format!("const VOLUME_FILTERABLE: bool = {filterable};\n{VOLUME_WGSL}\n{stage}")
+    format!("const VOLUME_FILTERABLE: bool = {filterable};\n{DISPATCH_WGSL}\n{VOLUME_WGSL}\n{stage}")
 }
 
 /// The process-wide device for tests and benchmarks: any adapter, software (lavapipe)
