@@ -45,9 +45,10 @@
 //!   2..16 voxels). The per-grid-point queries are batched per 8^3 brick: a brick gathers the
 //!   particles of the cells overlapping it plus a kappa*h0 margin once, and every pass then
 //!   splats those particles onto the brick's voxels within their support, one z column of 8
-//!   voxels at a time (vectorised). That is the paper's rectangle drawing done per brick: each
-//!   pass costs the (particle, voxel) pairs within the support, O(N) for bounded h0, with no
-//!   27-cell candidate waste. Only bricks within kappa*h0 of some particle are proposed.
+//!   voxels at a time (vectorised; the density pass takes two columns per step on AVX-512).
+//!   That is the paper's rectangle drawing done per brick: each pass costs the (particle,
+//!   voxel) pairs within the support, O(N) for bounded h0, with no 27-cell candidate waste.
+//!   Only bricks within kappa*h0 of some particle are proposed.
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
