@@ -11,7 +11,7 @@ Flags mirror vdbmarch's; what is not given comes from the file's nimbus:* metada
 Prints `render_seconds=...` on stdout.
 
 How nimbus's conventions map onto Mitsuba's (checked numerically by --check-grid and by
-comparing images with vdbmarch --reference; see docs/peers.md):
+comparing images with vdbmarch --reference; see scripts/peers/README.md):
 - density: Mitsuba's gridvolume stores samples at cell centres of a grid over [0,1]^3 and
   clamps to the edge outside them; nimbus's value for index i sits at integer index i and the
   density is 0 beyond the active voxels. So the array is padded with one zero voxel per side
