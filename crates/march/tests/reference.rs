@@ -8,7 +8,7 @@ use nimbus_cache::{bake_cpu, CacheParams, Gather};
 use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
-use nimbus_volume::{Transform, Volume};
+use nimbus_volume::Volume;
 
 const VOXEL: f64 = 0.05;
 
@@ -31,14 +31,7 @@ fn mean(values: impl Iterator<Item = Vec3>) -> Vec3 {
 fn slab_transmittance_matches_the_closed_form() {
     // Unit density |z| <= 10 voxels (the trilinear ramps add half a voxel each side), seen
     // face-on through a 2 degree lens: tau = extinction * 21 voxels.
-    let mut slab = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0f32);
-    for x in -40..=40 {
-        for y in -40..=40 {
-            for z in -10..=10 {
-                slab.set(IVec3::new(x, y, z), 1.0);
-            }
-        }
-    }
+    let slab = common::filled(VOXEL, IVec3::new(-40, -40, -10), IVec3::new(40, 40, 10), |_| true);
     let medium = Medium { extinction: 1.0, albedo: Vec3::splat(0.5), g: 0.0 };
     let camera = Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 2.0, 8, 8).unwrap();
     let mut p = params(medium, vec![Light::default_sun()], camera, 64);
@@ -195,14 +188,7 @@ fn gpu_and_cpu_agree_in_distribution() {
 #[test]
 fn paths_longer_than_a_software_adapter_runs_are_refused() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
-    let mut cube = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
-    for x in -5..5 {
-        for y in -5..5 {
-            for z in -5..5 {
-                cube.set(IVec3::new(x, y, z), 300.0);
-            }
-        }
-    }
+    let cube = common::filled(0.1, IVec3::splat(-5), IVec3::splat(4), |_| true).map(0.0, |d| d * 300.0);
     let medium = Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 };
     let camera = Camera::new(DVec3::new(0.0, -3.0, 0.0), DVec3::ZERO, DVec3::Z, 8.0, 8, 8).unwrap();
     let p = ReferenceParams { max_depth: 1_000_000, ..params(medium, vec![Light::default_sun()], camera, 4) };
@@ -266,14 +252,7 @@ fn multiple_scattering_matches_chandrasekhars_semi_infinite_reflection() {
     // of which single scattering is the same with H = 1.
     // The slab: 20 mean free paths deep and 12 wide either side of the 10-unit patch the
     // camera sees (mean free path 5 voxels), so the half-space is exact to well under 0.1%.
-    let mut slab = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
-    for x in -60..=60 {
-        for y in -60..=60 {
-            for z in -100..=-1 {
-                slab.set(IVec3::new(x, y, z), 1.0);
-            }
-        }
-    }
+    let slab = common::filled(1.0, IVec3::new(-60, -60, -100), IVec3::new(60, 60, -1), |_| true);
     let albedo = 0.8;
     let medium = Medium { extinction: 0.2, albedo: Vec3::splat(albedo as f32), g: 0.0 };
     let camera = Camera::new(DVec3::new(0.0, 0.0, 300.0), DVec3::ZERO, DVec3::Y, 2.0, 8, 8).unwrap();

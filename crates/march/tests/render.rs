@@ -4,22 +4,10 @@ use nimbus_march::{render_cpu, MarchParams};
 use nimbus_optics::{Camera, Medium};
 use nimbus_volume::{Transform, Volume};
 
-const VOXEL: f64 = 0.05;
+mod common;
+use common::filled;
 
-fn filled(lo: IVec3, hi: IVec3, inside: impl Fn(IVec3) -> bool) -> Volume<f32> {
-    let mut v = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0);
-    for x in lo.x..=hi.x {
-        for y in lo.y..=hi.y {
-            for z in lo.z..=hi.z {
-                let c = IVec3::new(x, y, z);
-                if inside(c) {
-                    v.set(c, 1.0);
-                }
-            }
-        }
-    }
-    v
-}
+const VOXEL: f64 = 0.05;
 
 /// A cache holding the same Li everywhere near the density.
 fn constant_cache(density: &Volume<f32>, li: Vec3) -> IlluminationCache {
@@ -62,7 +50,7 @@ fn slab_tau(extinction: f64) -> f64 {
 
 #[test]
 fn slab_with_constant_li_equals_the_closed_form_and_converges_with_step() {
-    let v = filled(IVec3::new(-30, -30, -10), IVec3::new(30, 30, 10), |_| true);
+    let v = filled(VOXEL, IVec3::new(-30, -30, -10), IVec3::new(30, 30, 10), |_| true);
     let li = Vec3::new(2.0, 1.0, 0.5);
     let cache = constant_cache(&v, li);
     // Looking straight down the z axis through the middle.
@@ -87,7 +75,7 @@ fn slab_with_constant_li_equals_the_closed_form_and_converges_with_step() {
 #[test]
 fn sphere_with_constant_li_matches_chord_lengths() {
     let r = 16;
-    let v = filled(IVec3::splat(-r), IVec3::splat(r), |c| c.length_squared() <= r * r);
+    let v = filled(VOXEL, IVec3::splat(-r), IVec3::splat(r), |c| c.length_squared() <= r * r);
     let li = Vec3::ONE;
     let cache = constant_cache(&v, li);
     let camera = Camera::new(DVec3::new(0.0, -40.0, 0.0), DVec3::ZERO, DVec3::Z, 2.0, 24, 24).unwrap();
@@ -113,7 +101,7 @@ fn sphere_with_constant_li_matches_chord_lengths() {
 
 #[test]
 fn looking_away_costs_nothing_and_gives_background() {
-    let v = filled(IVec3::splat(-4), IVec3::splat(4), |_| true);
+    let v = filled(VOXEL, IVec3::splat(-4), IVec3::splat(4), |_| true);
     let cache = constant_cache(&v, Vec3::ONE);
     let camera = Camera::new(DVec3::new(0.0, -5.0, 0.0), DVec3::new(0.0, -10.0, 0.0), DVec3::Z, 40.0, 8, 8).unwrap();
     let mut p = params(camera, VOXEL);
@@ -127,7 +115,7 @@ fn looking_away_costs_nothing_and_gives_background() {
 
 #[test]
 fn camera_inside_and_axis_aligned_rays_stay_finite() {
-    let v = filled(IVec3::splat(-8), IVec3::splat(8), |_| true);
+    let v = filled(VOXEL, IVec3::splat(-8), IVec3::splat(8), |_| true);
     let cache = constant_cache(&v, Vec3::ONE);
     for (eye, look) in [(DVec3::ZERO, DVec3::X), (DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO), (DVec3::splat(1e-9), DVec3::Z)] {
         let along_z = (look - eye).normalize().dot(DVec3::Z).abs() > 0.9;
@@ -141,7 +129,7 @@ fn camera_inside_and_axis_aligned_rays_stay_finite() {
 
 #[test]
 fn exr_and_png_encode() {
-    let v = filled(IVec3::splat(-4), IVec3::splat(4), |_| true);
+    let v = filled(VOXEL, IVec3::splat(-4), IVec3::splat(4), |_| true);
     let cache = constant_cache(&v, Vec3::ONE);
     let camera = Camera::new(DVec3::new(0.0, -2.0, 0.0), DVec3::ZERO, DVec3::Z, 40.0, 16, 8).unwrap();
     let image = render_cpu(&v, &cache, &params(camera, VOXEL)).unwrap();
@@ -153,7 +141,7 @@ fn exr_and_png_encode() {
 
 #[test]
 fn one_pixel_images_and_huge_world_offsets() {
-    let v = filled(IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
+    let v = filled(VOXEL, IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
     let cache = constant_cache(&v, Vec3::ONE);
     let one = Camera::new(DVec3::new(0.0, -2.0, 0.0), DVec3::ZERO, DVec3::Z, 10.0, 1, 1).unwrap();
     let image = render_cpu(&v, &cache, &params(one, VOXEL / 2.0)).unwrap();
@@ -180,7 +168,7 @@ fn one_pixel_images_and_huge_world_offsets() {
 fn a_4096_square_image_renders_and_encodes() {
     // 16.7M pixels, the ball a small spot mid-frame: the cost is the image's size (per-pixel
     // set-up, rays that miss, assembly, EXR encoding), not marching.
-    let v = filled(IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
+    let v = filled(VOXEL, IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
     let cache = constant_cache(&v, Vec3::ONE);
     let camera = Camera::new(DVec3::new(0.5, -12.0, 1.0), DVec3::ZERO, DVec3::Z, 30.0, 4096, 4096).unwrap();
     let mut p = params(camera, VOXEL / 2.0);

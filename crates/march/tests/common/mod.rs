@@ -38,6 +38,23 @@ pub fn cloud(n: i32, peak: f32, centre: DVec3) -> Volume<f32> {
     v
 }
 
+/// Unit density at the voxels of edge `voxel` (origin at index 0) within [lo, hi] where
+/// `inside` holds: slabs, cubes and balls with closed-form optics.
+pub fn filled(voxel: f64, lo: IVec3, hi: IVec3, inside: impl Fn(IVec3) -> bool) -> Volume<f32> {
+    let mut v = Volume::new(Transform::uniform(voxel, DVec3::ZERO), 0.0);
+    for x in lo.x..=hi.x {
+        for y in lo.y..=hi.y {
+            for z in lo.z..=hi.z {
+                let c = IVec3::new(x, y, z);
+                if inside(c) {
+                    v.set(c, 1.0);
+                }
+            }
+        }
+    }
+    v
+}
+
 /// A soft ball of radius 14 voxels of edge `voxel` around the origin, with a denser lobe
 /// off-centre: smooth enough that cache interpolation error stays small.
 pub fn soft_ball(voxel: f64) -> Volume<f32> {
