@@ -22,7 +22,7 @@ pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 const WORKGROUP_SIZE: u32 = 64;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
-/// Group 1 binding of the [`LoopGuard`] flag.
+/// Group 1 binding of the [`LoopGuard`] flag (after the 7 buffers).
 const GUARD_BINDING: u32 = 7;
 
 /// WGSL `CacheUniforms`.
@@ -159,6 +159,7 @@ impl<'a> GpuBaker<'a> {
         let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
         volume.set_world_origin(ctx, origin);
         let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+        let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
         let layout = ctx.bind_group_layout(
             "cache",
@@ -170,14 +171,13 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(4, true),
                 storage_entry(5, true),
                 storage_entry(6, false),
-                LoopGuard::layout_entry(GUARD_BINDING),
+                guard.layout_entry(),
             ],
         )?;
-        let guard = LoopGuard::new(ctx)?;
         let source = ctx.compose_shader(&format!(
             "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{CACHE_WGSL}",
             constants_wgsl(),
-            guard.wgsl(1, GUARD_BINDING)
+            guard.wgsl(1)
         ));
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();

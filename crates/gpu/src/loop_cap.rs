@@ -80,19 +80,24 @@ impl GpuContext {
 /// Shader side: compose [`LoopGuard::wgsl`] before the stage shader and call
 /// `loop_guard_check()` once at the end of every invocation that did any work, after every
 /// loop and on every path (wrap a body with early returns in a function). Host side: add
-/// [`LoopGuard::layout_entry`] and [`LoopGuard::bind_group_entry`] at the binding given to
-/// `wgsl`, and call [`LoopGuard::check`] after the dispatches (the flag is sticky).
+/// [`LoopGuard::layout_entry`] to the layout and bind with [`LoopGuard::buffer_bind_group`]
+/// (or [`LoopGuard::bind_group_entry`]), all at the binding the guard was made with, and call
+/// [`LoopGuard::check`] after the dispatches (the flag is sticky).
 #[derive(Debug)]
 pub struct LoopGuard {
     /// Word 0: the flag. Word 1: always 0, read inside the check's loop so that no compiler
     /// can fold the loop away.
     buffer: wgpu::Buffer,
     enabled: bool,
+    /// The flag's binding in its group, fixed here so the WGSL, the layout and the bind
+    /// group cannot disagree.
+    binding: u32,
 }
 
 impl LoopGuard {
-    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        Ok(LoopGuard { buffer: ctx.storage_buffer("loop guard", &[0u32; 2])?, enabled: ctx.loop_cap().is_some() })
+    /// A guard whose flag sits at `binding` of the stage's bind group.
+    pub fn new(ctx: &GpuContext, binding: u32) -> Result<Self, GpuError> {
+        Ok(LoopGuard { buffer: ctx.storage_buffer("loop guard", &[0u32; 2])?, enabled: ctx.loop_cap().is_some(), binding })
     }
 
     /// Whether the shader checks at all (only on adapters with a loop cap).
@@ -100,8 +105,9 @@ impl LoopGuard {
         self.enabled
     }
 
-    /// WGSL declaring the flag at `@group(group) @binding(binding)` and `loop_guard_check()`.
-    pub fn wgsl(&self, group: u32, binding: u32) -> String {
+    /// WGSL declaring the flag at `@group(group)`, the guard's binding, and `loop_guard_check()`.
+    pub fn wgsl(&self, group: u32) -> String {
+        let binding = self.binding;
         format!(
             "const LOOP_GUARD: bool = {};\n\
              @group({group}) @binding({binding}) var<storage, read_write> loop_guard: array<atomic<u32>, 2>;\n{}",
@@ -109,16 +115,16 @@ impl LoopGuard {
         )
     }
 
-    pub fn layout_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-        storage_entry(binding, false)
+    pub fn layout_entry(&self) -> wgpu::BindGroupLayoutEntry {
+        storage_entry(self.binding, false)
     }
 
-    pub fn bind_group_entry(&self, binding: u32) -> wgpu::BindGroupEntry<'_> {
-        wgpu::BindGroupEntry { binding, resource: self.buffer.as_entire_binding() }
+    pub fn bind_group_entry(&self) -> wgpu::BindGroupEntry<'_> {
+        wgpu::BindGroupEntry { binding: self.binding, resource: self.buffer.as_entire_binding() }
     }
 
-    /// [`GpuContext::buffer_bind_group`] over `buffers` with the flag after them, at binding
-    /// `buffers.len()` (the binding given to [`Self::wgsl`]).
+    /// [`GpuContext::buffer_bind_group`] over `buffers` with the flag after them: the guard's
+    /// binding must be `buffers.len()`.
     pub fn buffer_bind_group(
         &self,
         ctx: &GpuContext,
@@ -126,8 +132,9 @@ impl LoopGuard {
         layout: &wgpu::BindGroupLayout,
         buffers: &[&wgpu::Buffer],
     ) -> Result<wgpu::BindGroup, GpuError> {
+        assert_eq!(buffers.len() as u32, self.binding, "the loop guard's binding follows the buffers");
         let mut entries = buffer_entries(buffers);
-        entries.push(self.bind_group_entry(buffers.len() as u32));
+        entries.push(self.bind_group_entry());
         ctx.bind_group(label, layout, &entries)
     }
 

@@ -129,16 +129,16 @@ fn guarded(@builtin(local_invocation_index) lid: u32) {
 
 /// Runs `entry` over one workgroup of 64 with `n`; (what each lane wrote, the guard's verdict).
 fn run(ctx: &GpuContext, entry: &str, n: [u32; 10]) -> (Vec<[u32; 4]>, Result<(), GpuError>) {
-    let guard = LoopGuard::new(ctx).unwrap();
-    let layout = ctx.bind_group_layout("probe", &[storage_entry(0, true), storage_entry(1, false), LoopGuard::layout_entry(2)]).unwrap();
-    let source = format!("{}\n{PROBE}", guard.wgsl(0, 2));
+    let guard = LoopGuard::new(ctx, 2).unwrap();
+    let layout = ctx.bind_group_layout("probe", &[storage_entry(0, true), storage_entry(1, false), guard.layout_entry()]).unwrap();
+    let source = format!("{}\n{PROBE}", guard.wgsl(0));
     let pipeline = ctx.compute_pipeline(entry, &source, entry, &[&layout]).unwrap();
     let nb = ctx.storage_buffer("n", &n).unwrap();
     let out = ctx.storage_buffer_zeroed("out", 64 * 16).unwrap();
     let entries = [
         nimbus_gpu::wgpu::BindGroupEntry { binding: 0, resource: nb.as_entire_binding() },
         nimbus_gpu::wgpu::BindGroupEntry { binding: 1, resource: out.as_entire_binding() },
-        guard.bind_group_entry(2),
+        guard.bind_group_entry(),
     ];
     let group = ctx.bind_group("probe", &layout, &entries).unwrap();
     ctx.dispatch(entry, &pipeline, &[&group], [1, 1, 1]).unwrap();

@@ -99,6 +99,7 @@ impl<'a> GpuTracer<'a> {
         let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
         volume.set_world_origin(ctx, origin);
         let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+        let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
         let layout = ctx.bind_group_layout(
             "photon",
             &[
@@ -108,11 +109,10 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(3, false),
                 storage_entry(4, false),
                 storage_entry(5, false),
-                LoopGuard::layout_entry(GUARD_BINDING),
+                guard.layout_entry(),
             ],
         )?;
-        let guard = LoopGuard::new(ctx)?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1, GUARD_BINDING)));
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1)));
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 

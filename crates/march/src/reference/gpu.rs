@@ -57,12 +57,12 @@ pub fn render_reference_gpu(
     let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     volume.set_world_origin(ctx, origin);
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+    let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
     let layout = ctx.bind_group_layout(
         "reference",
-        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), LoopGuard::layout_entry(GUARD_BINDING)],
+        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), guard.layout_entry()],
     )?;
-    let guard = LoopGuard::new(ctx)?;
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1, GUARD_BINDING)));
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
