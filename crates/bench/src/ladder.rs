@@ -163,6 +163,21 @@ fn run_tool(bin: &Path, tool: &str, args: &[String], log: &Path) -> Result<f64> 
     Ok(seconds)
 }
 
+/// Runs `vdbmarch args -o out` unless `out` is newer than `density` and `key_file` holds the
+/// same command line; returns the seconds it took when it ran (`starting` is called first).
+fn render_cached(bin: &Path, args: &[String], out: &Path, key_file: &Path, density: &Path, log: &Path, starting: impl FnOnce()) -> Result<Option<f64>> {
+    let key = args.join(" ");
+    if is_fresh(out, &[density]) && std::fs::read_to_string(key_file).ok().as_deref() == Some(key.as_str()) {
+        return Ok(None);
+    }
+    starting();
+    let mut a = args.to_vec();
+    a.extend(["-o".into(), out.display().to_string()]);
+    let s = run_tool(bin, "vdbmarch", &a, log)?;
+    std::fs::write(key_file, &key)?;
+    Ok(Some(s))
+}
+
 fn strings(a: &[&str]) -> Vec<String> {
     a.iter().map(|s| s.to_string()).collect()
 }
@@ -208,15 +223,10 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
     let mut ref_args = vec!["--reference".to_string(), density.display().to_string()];
     ref_args.extend(strings(scene.optics));
     ref_args.extend(camera.clone());
-    let key = |spp: u32| format!("{} --spp {spp}", ref_args.join(" "));
-    let key_file = path("reference.key");
-    let cached = is_fresh(&reference, &[&density]) && std::fs::read_to_string(&key_file).ok().as_deref() == Some(&key(args.reference_spp));
-    if !cached {
-        let mut a = ref_args.clone();
-        a.extend(["--spp".into(), args.reference_spp.to_string(), "-o".into(), reference.display().to_string()]);
-        eprintln!("{}: rendering the reference ({}x{}, {} spp)...", scene.name, args.width, args.height, args.reference_spp);
-        let s = run_tool(&args.bin, "vdbmarch", &a, &path("reference.log"))?;
-        std::fs::write(&key_file, key(args.reference_spp))?;
+    let mut a = ref_args.clone();
+    a.extend(["--spp".into(), args.reference_spp.to_string()]);
+    let rendering = || eprintln!("{}: rendering the reference ({}x{}, {} spp)...", scene.name, args.width, args.height, args.reference_spp);
+    if let Some(s) = render_cached(&args.bin, &a, &reference, &path("reference.key"), &density, &path("reference.log"), rendering)? {
         eprintln!("{}: reference in {s:.1} s", scene.name);
     }
     let reference_image = read(&reference)?;
@@ -229,12 +239,7 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
         let out = path(&format!("reference-{spp}.exr"));
         let mut a = ref_args.clone();
         a.extend(["--spp".into(), spp.to_string(), "--seed".into(), (1000 + div).to_string()]);
-        let low_key = a.join(" ");
-        let low_key_file = path(&format!("reference-{spp}.key"));
-        if !(is_fresh(&out, &[&density]) && std::fs::read_to_string(&low_key_file).ok().as_deref() == Some(low_key.as_str())) {
-            a.extend(["-o".into(), out.display().to_string()]);
-            let s = run_tool(&args.bin, "vdbmarch", &a, &path("reference-low.log"))?;
-            std::fs::write(&low_key_file, &low_key)?;
+        if let Some(s) = render_cached(&args.bin, &a, &out, &path(&format!("reference-{spp}.key")), &density, &path("reference-low.log"), || ())? {
             eprintln!("{}: reference at {spp} spp in {s:.1} s", scene.name);
         }
         let e = compare(&read(&out)?, &reference_image);
