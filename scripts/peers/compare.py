@@ -61,6 +61,7 @@ def main():
     ap.add_argument("--reference", required=True, help="reference EXR (vdbmarch --reference [--aovs])")
     ap.add_argument("--spp", default="4,16,64,256", help="Mitsuba spp ladder")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--rr-depth", type=int, default=512, help="Mitsuba volpath rr_depth (mitsuba_render.py)")
     ap.add_argument("--vdb-render", default="",
                     help="vdb_render ladder STEP:SUPERSAMPLE,... (step in voxels, rays per pixel side)")
     ap.add_argument("--vdbmarch", help="vdbmarch binary: add nimbus reference rows at each spp")
@@ -79,9 +80,10 @@ def main():
         for spp in [int(s) for s in args.spp.split(",") if s]:
             exr = os.path.join(where, f"mitsuba_{spp}spp.exr")
             secs, wall = run([py, os.path.join(HERE, "mitsuba_render.py"), args.input, "-o", exr,
-                              "--spp", str(spp), "--seed", str(args.seed)] + flags)
+                              "--spp", str(spp), "--seed", str(args.seed),
+                              "--rr-depth", str(args.rr_depth)] + flags)
             rmse, ratio = ns.compare(ns.read_exr(exr), reference)
-            out.writerow(["mitsuba3-scalar_rgb", f"spp={spp}", f"{secs:.3f}", f"{wall:.3f}",
+            out.writerow(["mitsuba3-scalar_rgb", f"spp={spp},rr_depth={args.rr_depth}", f"{secs:.3f}", f"{wall:.3f}",
                           f"{rmse:.5f}", f"{ratio:.5f}", "all"])
             sys.stdout.flush()
         if args.vdbmarch:

@@ -74,9 +74,9 @@ pub fn presets() -> Vec<Rung> {
 
 /// The ladder: the presets, and one setting at a time varied around the tools' defaults
 /// (200k photons, 64 neighbours, cache scale 2, default step, 1 spp), including the paper's
-/// distance modes at a quarter of the photons (they cost more per photon: compare them at
-/// equal time on the plot), and two rungs far past the presets that show what the error
-/// costs on its way to 2%.
+/// distance modes (they cost more per photon, so each is also scored against delta tracking
+/// at equal time: [`Row::delta_rmse_at_equal_time`]), and two rungs far past the presets
+/// that show what the error costs on its way to 2%.
 fn ladder(quick: bool) -> Vec<Rung> {
     let p = Rung::new("", 200_000, "delta", 64, 2.0, 1.0, 1);
     let vary = |name: &str, f: &dyn Fn(&mut Rung)| {
@@ -92,6 +92,7 @@ fn ladder(quick: bool) -> Vec<Rung> {
     }
     rungs.extend([
         vary("photons 50k", &|r| r.photons = 50_000),
+        vary("photons 200k", &|_| ()),
         vary("photons 800k", &|r| r.photons = 800_000),
         // Where the error goes with many more photons, and at what time: the neighbour count
         // grows with them, as the measured optimum does (K 64 at 200k, 128-256 at 3.2-12.8M).
@@ -109,6 +110,11 @@ fn ladder(quick: bool) -> Vec<Rung> {
         }),
         vary("simpson 50k", &|r| {
             r.photons = 50_000;
+            r.distance = "simpson"
+        }),
+        vary("simpson 200k", &|r| r.distance = "simpson"),
+        vary("simpson 800k", &|r| {
+            r.photons = 800_000;
             r.distance = "simpson"
         }),
         vary("delta 50k", &|r| r.photons = 50_000),
@@ -139,6 +145,11 @@ pub struct Row {
     pub corrected_rmse: f64,
     pub mean_ratio: f64,
     pub pareto: bool,
+    /// For a rung whose photons are not delta-tracked: the error delta tracking reaches in the
+    /// same total time, read off the scene's delta-tracked Pareto front (log-log
+    /// interpolation between its neighbours in time; `None` outside the front's time span or
+    /// for delta rungs). The paper's Eq. 1 and Eq. 2 compared at equal time, as issue 7 asks.
+    pub delta_rmse_at_equal_time: Option<f64>,
 }
 
 impl Row {
@@ -197,6 +208,7 @@ pub fn run(args: &Args) -> Result<Vec<Row>> {
         rows.extend(run_scene(args, scene)?);
     }
     mark_pareto(&mut rows);
+    mark_delta_at_equal_time(&mut rows);
     print_table(&rows);
     Ok(rows)
 }
@@ -306,6 +318,7 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
             corrected_rmse,
             mean_ratio: e.mean_ratio,
             pareto: false,
+            delta_rmse_at_equal_time: None,
         };
         eprintln!("{}: {:<16} {:>7.2} s  rel. RMSE {:.4} ({:.4} less the reference's noise)  mean ratio {:.3}", scene.name, row.rung.name, row.total_s(), row.relative_rmse, row.corrected_rmse, row.mean_ratio);
         rows.push(row);
@@ -326,8 +339,39 @@ fn mark_pareto(rows: &mut [Row]) {
     }
 }
 
+/// Fills [`Row::delta_rmse_at_equal_time`] for the rungs that do not delta-track.
+fn mark_delta_at_equal_time(rows: &mut [Row]) {
+    let snapshot = rows.to_vec();
+    for row in rows.iter_mut().filter(|r| r.rung.distance != "delta") {
+        // The delta rungs no other delta rung of the scene beats in time and error, by time.
+        let delta: Vec<&Row> = snapshot.iter().filter(|o| o.scene == row.scene && o.rung.distance == "delta").collect();
+        let mut front: Vec<(f64, f64)> = delta
+            .iter()
+            .filter(|o| !delta.iter().any(|d| d.total_s() <= o.total_s() && d.relative_rmse < o.relative_rmse))
+            .map(|o| (o.total_s(), o.relative_rmse))
+            .collect();
+        front.sort_by(|a, b| a.0.total_cmp(&b.0));
+        row.delta_rmse_at_equal_time = interpolate_log_log(&front, row.total_s());
+    }
+}
+
+/// y at x on the polyline through `points` (sorted by x) in log-log space; `None` outside it.
+fn interpolate_log_log(points: &[(f64, f64)], x: f64) -> Option<f64> {
+    let (first, last) = (points.first()?, points.last()?);
+    if x < first.0 || x > last.0 {
+        return None;
+    }
+    let i = points.partition_point(|p| p.0 < x).max(1).min(points.len() - 1);
+    let ((x0, y0), (x1, y1)) = (points[i - 1], points[i]);
+    if x1 <= x0 {
+        return Some(y1);
+    }
+    let t = (x.ln() - x0.ln()) / (x1.ln() - x0.ln());
+    Some((y0.ln() + t * (y1.ln() - y0.ln())).exp())
+}
+
 /// The table's columns: (CSV name, Markdown heading).
-const COLUMNS: [(&str, &str); 16] = [
+const COLUMNS: [(&str, &str); 17] = [
     ("scene", "scene"),
     ("rung", "rung"),
     ("photons", "photons"),
@@ -344,6 +388,7 @@ const COLUMNS: [(&str, &str); 16] = [
     ("corrected_rmse", "less ref. noise"),
     ("mean_ratio", "mean ratio"),
     ("pareto", "Pareto"),
+    ("delta_rmse_at_equal_time", "delta at equal time"),
 ];
 
 /// A row's values in [`COLUMNS`] order.
@@ -366,6 +411,7 @@ fn fields(r: &Row) -> Vec<String> {
         format!("{:.4}", r.corrected_rmse),
         format!("{:.4}", r.mean_ratio),
         r.pareto.to_string(),
+        r.delta_rmse_at_equal_time.map_or(String::new(), |e| format!("{e:.4}")),
     ]
 }
 
@@ -390,7 +436,34 @@ mod tests {
     use super::*;
 
     fn row(scene: &'static str, t: f64, e: f64) -> Row {
-        Row { scene, rung: presets()[0].clone(), photon_s: t, cache_s: 0.0, march_s: 0.0, relative_rmse: e, corrected_rmse: e, mean_ratio: 1.0, pareto: false }
+        Row {
+            scene,
+            rung: presets()[0].clone(),
+            photon_s: t,
+            cache_s: 0.0,
+            march_s: 0.0,
+            relative_rmse: e,
+            corrected_rmse: e,
+            mean_ratio: 1.0,
+            pareto: false,
+            delta_rmse_at_equal_time: None,
+        }
+    }
+
+    #[test]
+    fn other_distance_modes_are_scored_against_the_delta_front_at_their_time() {
+        let mut simpson = row("a", 4.0, 0.3);
+        simpson.rung.distance = "simpson";
+        let mut late = row("a", 100.0, 0.05);
+        late.rung.distance = "simpson";
+        // Delta front at 1 s / 0.4 and 16 s / 0.1 (the 8 s / 0.5 rung is dominated).
+        let mut rows = vec![row("a", 1.0, 0.4), row("a", 8.0, 0.5), row("a", 16.0, 0.1), simpson, late, row("b", 4.0, 0.01)];
+        mark_delta_at_equal_time(&mut rows);
+        // Halfway in log time between 1 and 16 s: the geometric mean of 0.4 and 0.1.
+        let at4 = rows[3].delta_rmse_at_equal_time.unwrap();
+        assert!((at4 - 0.2).abs() < 1e-12, "{at4}");
+        assert_eq!(rows[4].delta_rmse_at_equal_time, None, "beyond the front's time span");
+        assert!(rows.iter().filter(|r| r.rung.distance == "delta").all(|r| r.delta_rmse_at_equal_time.is_none()));
     }
 
     #[test]
