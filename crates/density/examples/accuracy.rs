@@ -99,7 +99,7 @@ fn accuracy(scene: Scene) {
     for n_star in [16, 32, 48, 64, 96, 128] {
         rows.push(run(&particles, &truth, format!("asl3 N*={n_star}"), DensityParams { method: Method::Asl3, neighbours: n_star, ..base.clone() }));
     }
-    for h_min in [0.5, 2.0] {
+    for h_min in [0.5, 1.25, 1.5, 1.75, 2.0] {
         rows.push(run(
             &particles,
             &truth,

@@ -74,8 +74,11 @@
 //! estimate's mass excess on a small smooth blob past 1% (0.6% at 32, 1.2% at 64, 1.6% at
 //! 96); the default stays 32 ([`DEFAULT_NEIGHBOURS`]). Where the adaptive method loses is
 //! smooth media: there the best usl averages 250+ particles per point, and an N*-neighbour
-//! kernel is noise-limited (error falls as N* grows). h_min = 1 voxel is right: 0.5 voxel is
-//! always worse (the grid cannot resolve the kernel), 2 voxels blurs dense knots.
+//! kernel is noise-limited (error falls as N* grows). h_min trades the same way, and no floor
+//! suits every scene: 0.5 voxel is always worse (the grid cannot resolve the kernel); 1.5
+//! voxels beats the best usl on the shell (0.214) and the plume (0.098) but costs the knots
+//! 31% (0.188, their best usl kernel is 1 voxel); 1.25 leaves all three 5-8% behind. So
+//! h_min stays 1 voxel, which never loses detail the grid can show.
 
 //! # Backends
 //!
