@@ -31,14 +31,18 @@ pub fn error_vs_time(rows: &[Row], png: &Path) -> Result<()> {
             .margin(16)
             .x_label_area_size(44)
             .y_label_area_size(64)
-            .build_cartesian_2d((t0 / 1.3..t1 * 1.3).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
+            .build_cartesian_2d(
+                (t0 / 1.3..t1 * 1.3).log_scale(),
+                // Explicit keys: plotters' own log keys leave the lowest decade unlabelled,
+                // which is where the good rungs sit.
+                (e0 / 1.3..e1 * 1.3).log_scale().with_key_points(log_keys(e0 / 1.3, e1 * 1.3)),
+            )?;
         chart
             .configure_mesh()
             .x_desc("vdbphoton + vdbcache + vdbmarch, seconds")
             .y_desc("relative RMSE (2x2 blocks)")
             .label_style(("sans-serif", 14))
-            // Enough labels that the time axis names every 1-9 step. The error axis still
-            // leaves its lowest decade (0.02-0.09) unlabelled, as plotters' log keys do.
+            // Enough labels that the time axis names every 1-9 step.
             .x_labels(30)
             .y_labels(30)
             .x_label_formatter(&|v| format!("{v:.0}"))
@@ -71,4 +75,26 @@ pub fn error_vs_time(rows: &[Row], png: &Path) -> Result<()> {
         encoder.write_header()?.write_image_data(&buffer)?;
     }
     std::fs::write(png, out).with_context(|| format!("writing {}", png.display()))
+}
+
+/// 1, 2, 3 and 5 times the powers of ten inside `[lo, hi]`.
+fn log_keys(lo: f64, hi: f64) -> Vec<f64> {
+    let mut keys = Vec::new();
+    let mut decade = 10f64.powf(lo.log10().floor());
+    while decade <= hi {
+        keys.extend([1.0, 2.0, 3.0, 5.0].iter().map(|m| m * decade).filter(|k| (lo..=hi).contains(k)));
+        decade *= 10.0;
+    }
+    keys
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn log_keys_label_every_decade_the_range_touches() {
+        let keys = super::log_keys(0.016, 0.25);
+        let expected = [0.02, 0.03, 0.05, 0.1, 0.2];
+        assert_eq!(keys.len(), expected.len(), "{keys:?}");
+        assert!(keys.iter().zip(expected).all(|(k, e)| (k - e).abs() < 1e-12), "{keys:?}");
+    }
 }
