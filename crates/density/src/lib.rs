@@ -286,15 +286,20 @@ fn mark_occupied(prep: &Prepared, bricks: &mut [BrickResult]) {
     for (i, b) in bricks.iter().enumerate() {
         slot[brick_id(b.origin)] = i as u32;
     }
-    for &p in &prep.positions {
-        let nearest = (p + 0.5).floor().as_ivec3();
-        if nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(dims).all() {
-            let s = slot[brick_id(nearest - nearest % BRICK_DIM)];
-            if s != u32::MAX {
-                let v = brick_offset(nearest % BRICK_DIM);
-                bricks[s as usize].occupied[v >> 6] |= 1 << (v & 63);
+    let marks: Vec<(u32, usize)> = prep
+        .positions
+        .par_iter()
+        .filter_map(|&p| {
+            let nearest = setup::floor_i(p + 0.5);
+            if !(nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(dims).all()) {
+                return None;
             }
-        }
+            let s = slot[brick_id(nearest - nearest % BRICK_DIM)];
+            (s != u32::MAX).then(|| (s, brick_offset(nearest % BRICK_DIM)))
+        })
+        .collect();
+    for (s, v) in marks {
+        bricks[s as usize].occupied[v >> 6] |= 1 << (v & 63);
     }
 }
 
