@@ -11,7 +11,8 @@
 //! step: a support ~5 voxels across reaches most of both, so it takes ~0.57x the steps of
 //! single columns (-20% CPU for usl on the Cloud1-class scene). The counting passes keep
 //! single columns: their smaller adaptive radii leave more of a pair empty, and paired they
-//! measured slower.
+//! measured slower (again: asl3's passes took 1.7x as long, the 16-lane count loop no longer
+//! compiling to a vector compare).
 //!
 //! Coordinates: particle positions are f32 in grid index space, and offsets are formed as
 //! `(voxel index as f32) - p`, exactly as the brute-force reference in tests/ forms them, so counts agree
