@@ -11,7 +11,8 @@
 //! step: a support ~5 voxels across reaches most of both, so it takes ~0.57x the steps of
 //! single columns (-20% CPU for usl on the Cloud1-class scene). The counting passes keep
 //! single columns: their smaller adaptive radii leave more of a pair empty, and paired they
-//! measured slower.
+//! measured slower (again: asl3's passes took 1.7x as long, the 16-lane count loop no longer
+//! compiling to a vector compare).
 //!
 //! Coordinates: particle positions are f32 in grid index space, and offsets are formed as
 //! `(voxel index as f32) - p`, exactly as the brute-force reference in tests/ forms them, so counts agree
@@ -24,7 +25,7 @@ use rayon::prelude::*;
 use crate::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
 use crate::params::Method;
 use crate::setup::Prepared;
-use crate::{BrickResult, PointParams};
+use crate::{BrickResult, Keep, PointParams};
 
 /// Reused per-thread buffers.
 struct Scratch {
@@ -49,13 +50,20 @@ impl Scratch {
 }
 
 /// Runs the method over every proposed brick; bricks with no density are dropped.
-pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, pp: &PointParams) -> Vec<BrickResult> {
+pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, pp: &PointParams, keep: &Keep) -> Vec<BrickResult> {
     prep.bricks
         .par_iter()
-        .map_init(Scratch::new, |scratch, &origin| brick(prep, method, pp, origin, scratch))
+        .enumerate()
+        .map_init(Scratch::new, |scratch, (i, &origin)| {
+            let (rho, h, used) = brick(prep, method, pp, origin, scratch)?;
+            keep.brick(i, origin, rho, h, used, pp)
+        })
         .flatten()
         .collect()
 }
+
+/// A brick's raw sums: rho, h and used per voxel.
+type Sums = (Box<[f32; BRICK_VOXELS]>, Box<[f32; BRICK_VOXELS]>, Box<[u32; BRICK_VOXELS]>);
 
 /// The voxels of a brick that lie inside the grid: local indices 0..n on each axis.
 #[inline]
@@ -203,7 +211,7 @@ fn splat_density<const L: usize>(
 /// The per-brick work, compiled three times: for the baseline target, for AVX2, where each z
 /// column of 8 voxels is a single vector op, and for AVX-512 (picked at run time). No FMA
 /// contraction happens in any (Rust does not fuse), so all give bit-identical results.
-fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx512f") {
         // SAFETY: the CPU has just been checked for AVX-512F.
@@ -219,20 +227,20 @@ fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &m
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn brick_avx2(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+unsafe fn brick_avx2(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
     brick_impl::<ROW>(prep, method, pp, origin, s)
 }
 
 /// The density pass 16 lanes wide: two z columns, neighbours in y, per step.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn brick_avx512(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+unsafe fn brick_avx512(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
     brick_impl::<{ 2 * ROW }>(prep, method, pp, origin, s)
 }
 
 /// Gather, then the method's passes.
 #[inline(always)]
-fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<BrickResult> {
+fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
     let n = valid_extent(prep, origin);
     let r0 = KAPPA * pp.h0;
     gather(prep, origin, n, r0, &mut s.parts);
@@ -299,7 +307,7 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
     let mut used = Box::new([0u32; BRICK_VOXELS]);
     splat_density::<L>(&s.parts, r_max, &s.radius2, &inv_h, origin, n, &mut rho, &mut used);
 
-    BrickResult::from_sums(origin, rho, h, used, pp)
+    Some((rho, h, used))
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

@@ -1,7 +1,7 @@
 //! The GPU backend: one wgpu invocation per voxel of the proposed bricks and per pass
 //! (`shaders/density.wgsl`), each gathering from the cells [`crate::prepare`] sorted the
 //! particles into, as the CPU does. The per-brick sums come back to the host and go through
-//! the same [`BrickResult::from_sums`] and finishing step as the CPU's.
+//! the same [`Keep::brick`] and finishing step as the CPU's.
 //!
 //! Why a per-voxel gather and not the CPU's per-brick splat: a splat on the GPU needs float
 //! atomics (not in WGSL), while a gather writes each voxel once. The gather visits the
@@ -15,7 +15,7 @@ use nimbus_volume::BRICK_VOXELS;
 
 use crate::params::Method;
 use crate::setup::Prepared;
-use crate::{BrickResult, PointParams};
+use crate::{BrickResult, Keep, PointParams};
 
 /// The density kernels, `shaders/density.wgsl`: they read no volume, so they are composed
 /// after `shaders/dispatch.wgsl` only, not the volume prelude.
@@ -69,7 +69,7 @@ fn passes(method: Method) -> &'static [&'static str] {
 
 /// Runs the method's passes over every proposed brick, in chunks; bricks with no density are
 /// dropped, the rest come back in proposal order.
-pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method, pp: &PointParams) -> Result<Vec<BrickResult>, GpuError> {
+pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method, pp: &PointParams, keep: &Keep) -> Result<Vec<BrickResult>, GpuError> {
     if prep.bricks.is_empty() {
         return Ok(Vec::new());
     }
@@ -156,7 +156,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
                 continue;
             }
             let used: Box<[u32; BRICK_VOXELS]> = Box::new(used[span.clone()].try_into().expect("one brick"));
-            results.extend(BrickResult::from_sums(origin, brick(&rho[span.clone()]), brick(&h[span]), used, pp));
+            results.extend(keep.brick(chunk * chunk_bricks + b, origin, brick(&rho[span.clone()]), brick(&h[span]), used, pp));
         }
     }
     Ok(results)

@@ -212,14 +212,14 @@ pub struct DensityOutput {
 /// Estimates the density on the CPU (rayon over bricks, splat passes): [`prepare`], the
 /// method's passes, then the finishing step shared with [`estimate_gpu`].
 pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp| Ok(cpu::estimate_bricks(prep, params.method, pp)))
+    estimate_with(particles, params, |prep, pp, keep| Ok(cpu::estimate_bricks(prep, params.method, pp, keep)))
 }
 
 /// Estimates the density on the GPU (one wgpu invocation per voxel and pass, gathering from
 /// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
 /// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
 pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp| Ok(gpu::estimate_bricks(ctx, prep, params.method, pp)?))
+    estimate_with(particles, params, |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, pp, keep)?))
 }
 
 /// The pipeline every backend runs: prepare, the backend's passes (per-brick sums), results
@@ -227,40 +227,58 @@ pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityP
 fn estimate_with(
     particles: &ParticleSet,
     params: &DensityParams,
-    passes: impl FnOnce(&Prepared, &PointParams) -> Result<Vec<BrickResult>, DensityError>,
+    passes: impl FnOnce(&Prepared, &PointParams, &Keep) -> Result<Vec<BrickResult>, DensityError>,
 ) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
     let prep = prepare(particles, params)?;
     if prep.positions.is_empty() {
         return Err(DensityError::NoParticles);
     }
+    let keep = Keep::new(&prep, params);
     let t1 = Instant::now();
     let pp = PointParams::new(&prep.grid, params);
-    let mut bricks = passes(&prep, &pp)?;
+    let bricks = passes(&prep, &pp, &keep)?;
     let t2 = Instant::now();
-    mark_occupied(&prep, &mut bricks);
     let mut out = finish(&prep, params, bricks);
     out.stats.timings = Timings { prepare: t1 - t0, estimate: t2 - t1, finish: t2.elapsed() };
     Ok(out)
 }
 
-/// One brick's results after a backend's passes: world densities, smoothing lengths (index
-/// units) and used counts per voxel, before noise and thresholding.
+/// One brick's results after a backend's passes: world densities, and smoothing lengths
+/// (index units) and used counts per voxel where an output asks for them, before noise and
+/// thresholding.
 pub(crate) struct BrickResult {
     pub origin: IVec3,
     pub rho: Box<[f32; BRICK_VOXELS]>,
-    pub h: Box<[f32; BRICK_VOXELS]>,
-    pub used: Box<[u32; BRICK_VOXELS]>,
-    /// Voxels whose footprint holds at least one particle (the paper's Table 2 population);
-    /// filled by [`mark_occupied`].
-    pub occupied: [u64; 8],
+    pub h: Option<Box<[f32; BRICK_VOXELS]>>,
+    pub used: Option<Box<[u32; BRICK_VOXELS]>>,
+    /// (points, sum, sum of squares) of the used counts over the voxels whose footprint holds
+    /// at least one particle (the paper's Table 2 population).
+    pub used_stats: (u64, f64, f64),
     pub max_rho: f32,
 }
 
-impl BrickResult {
-    /// From a backend's raw sums `rho[v] = sum m * m4_shape(r / h[v])` (index units): applies
-    /// the world normalisation 1 / (pi h^3). `None` for a brick with no density.
-    pub(crate) fn from_sums(
+/// What the results keep of each brick's per-voxel sums. Most runs write the density alone,
+/// and two more persistent arrays per brick cost more in fresh pages than the statistics
+/// they feed, so those are reduced at once.
+pub(crate) struct Keep {
+    /// Per proposed brick (`Prepared::bricks` order): voxels whose footprint holds a particle.
+    occupied: Vec<BrickMask>,
+    h: bool,
+    used: bool,
+}
+
+impl Keep {
+    fn new(prep: &Prepared, params: &DensityParams) -> Keep {
+        Keep { occupied: occupancy(prep), h: params.smoothing_length, used: params.neighbour_count }
+    }
+
+    /// From a backend's raw sums for proposed brick `index`, `rho[v] = sum m * m4_shape(r /
+    /// h[v])` (index units): applies the world normalisation 1 / (pi h^3). `None` for a brick
+    /// with no density.
+    pub(crate) fn brick(
+        &self,
+        index: usize,
         origin: IVec3,
         mut rho: Box<[f32; BRICK_VOXELS]>,
         h: Box<[f32; BRICK_VOXELS]>,
@@ -274,31 +292,55 @@ impl BrickResult {
                 max_rho = max_rho.max(rho[v]);
             }
         }
-        (max_rho > 0.0).then_some(BrickResult { origin, rho, h, used, occupied: [0; 8], max_rho })
+        if max_rho <= 0.0 {
+            return None;
+        }
+        let occupied = &self.occupied[index];
+        let mut used_stats = (0u64, 0.0f64, 0.0f64);
+        for v in 0..BRICK_VOXELS {
+            if occupied[v >> 6] & (1 << (v & 63)) != 0 {
+                let u = used[v] as f64;
+                used_stats = (used_stats.0 + 1, used_stats.1 + u, used_stats.2 + u * u);
+            }
+        }
+        Some(BrickResult {
+            origin,
+            rho,
+            h: self.h.then_some(h),
+            used: self.used.then_some(used),
+            used_stats,
+            max_rho,
+        })
     }
 }
 
-/// Marks the voxels whose footprint holds a particle (its nearest grid point). `bricks` are in
-/// proposal order, i.e. sorted by (z, y, x) origin.
-fn mark_occupied(prep: &Prepared, bricks: &mut [BrickResult]) {
+/// Per proposed brick, the voxels whose footprint holds a particle (its nearest grid point).
+fn occupancy(prep: &Prepared) -> Vec<BrickMask> {
     let dims = prep.grid.dims;
     let brick_dims = (dims + (BRICK_DIM - 1)) / BRICK_DIM;
     let brick_id = |o: IVec3| ((o.z / BRICK_DIM * brick_dims.y + o.y / BRICK_DIM) * brick_dims.x + o.x / BRICK_DIM) as usize;
-    // Dense brick -> result table: one O(1) lookup per particle.
+    // Dense brick -> proposal table: one O(1) lookup per particle.
     let mut slot = vec![u32::MAX; brick_dims.as_i64vec3().element_product() as usize];
-    for (i, b) in bricks.iter().enumerate() {
-        slot[brick_id(b.origin)] = i as u32;
+    for (i, &origin) in prep.bricks.iter().enumerate() {
+        slot[brick_id(origin)] = i as u32;
     }
-    for &p in &prep.positions {
-        let nearest = (p + 0.5).floor().as_ivec3();
-        if nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(dims).all() {
-            let s = slot[brick_id(nearest - nearest % BRICK_DIM)];
-            if s != u32::MAX {
-                let v = brick_offset(nearest % BRICK_DIM);
-                bricks[s as usize].occupied[v >> 6] |= 1 << (v & 63);
+    let marks: Vec<(u32, usize)> = prep
+        .positions
+        .par_iter()
+        .filter_map(|&p| {
+            let nearest = setup::floor_i(p + 0.5);
+            if !(nearest.cmpge(IVec3::ZERO).all() && nearest.cmplt(dims).all()) {
+                return None;
             }
-        }
+            let s = slot[brick_id(nearest - nearest % BRICK_DIM)];
+            (s != u32::MAX).then(|| (s, brick_offset(nearest % BRICK_DIM)))
+        })
+        .collect();
+    let mut occupied = vec![[0u64; 8]; prep.bricks.len()];
+    for (s, v) in marks {
+        occupied[s as usize][v >> 6] |= 1 << (v & 63);
     }
+    occupied
 }
 
 /// Noise, activity threshold, volumes and statistics from per-brick results.
@@ -342,19 +384,15 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>)
         })
     };
     let density = volume(&|b, v| b.rho[v]);
-    let smoothing = params.smoothing_length.then(|| volume(&|b, v| (b.h[v] as f64 * grid.voxel_size) as f32));
-    let counts = params.neighbour_count.then(|| volume(&|b, v| b.used[v] as f32));
+    let smoothing = params.smoothing_length.then(|| volume(&|b, v| (b.h.as_ref().expect("kept")[v] as f64 * grid.voxel_size) as f32));
+    let counts = params.neighbour_count.then(|| volume(&|b, v| b.used.as_ref().expect("kept")[v] as f32));
 
     // (points, sum, sum of squares) of the particles used at occupied voxels; active mass.
     let (used_n, used_sum, used_sq, grid_mass) = bricks
         .par_iter()
         .map(|b| {
-            let mut acc = (0u64, 0.0f64, 0.0f64, 0.0f64);
+            let mut acc = (b.used_stats.0, b.used_stats.1, b.used_stats.2, 0.0f64);
             for v in 0..BRICK_VOXELS {
-                if b.occupied[v >> 6] & (1 << (v & 63)) != 0 {
-                    let u = b.used[v] as f64;
-                    acc = (acc.0 + 1, acc.1 + u, acc.2 + u * u, acc.3);
-                }
                 if b.rho[v] > threshold {
                     acc.3 += b.rho[v] as f64;
                 }

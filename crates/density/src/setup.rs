@@ -5,6 +5,7 @@
 //! grid, so a 1e6 world offset costs no precision), sorted by cell, ready to upload.
 
 use std::f64::consts::PI;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_volume::{Transform, BRICK_DIM};
@@ -62,10 +63,26 @@ pub struct CellGrid {
     pub start: Vec<u32>,
 }
 
+/// `v.floor().as_ivec3()` without libm: the baseline x86-64 target has no rounding
+/// instruction, so `floor` is a library call, and binning and marking make millions of them.
+/// Exact (the truncation is exact in f32 wherever it differs from floor), saturating like `as`.
+#[inline]
+pub(crate) fn floor_i(v: Vec3) -> IVec3 {
+    let t = v.as_ivec3();
+    IVec3::select(t.as_vec3().cmpgt(v), t.saturating_sub(IVec3::ONE), t)
+}
+
+/// `v.ceil().as_ivec3()` without libm, as [`floor_i`].
+#[inline]
+pub(crate) fn ceil_i(v: Vec3) -> IVec3 {
+    let t = v.as_ivec3();
+    IVec3::select(t.as_vec3().cmplt(v), t.saturating_add(IVec3::ONE), t)
+}
+
 impl CellGrid {
     #[inline]
     pub fn cell_of(&self, p: Vec3) -> IVec3 {
-        ((p - self.origin) / self.edge).floor().as_ivec3().clamp(IVec3::ZERO, self.dims - 1)
+        floor_i((p - self.origin) / self.edge).clamp(IVec3::ZERO, self.dims - 1)
     }
 
     #[inline]
@@ -115,7 +132,8 @@ impl Prepared {
 /// stray particles do not inflate h0); choose h0 with (4/3) pi (kappa h0)^3 n_p = N*.
 /// The cell edge depends on h0, so this iterates from an estimate of the mean spacing.
 /// h0 never exceeds the set's extent / kappa (a set smaller than N* cannot do better).
-/// Returns `None` when the particles span no length (one point).
+/// Returns `None` when the particles span no length (one point). The positions must be finite
+/// (as [`plan_grid`] passes them).
 pub fn auto_h0(positions: &[DVec3], n_star: u32) -> Option<f64> {
     let (lo, hi) = bounding_box(positions)?;
     let extent = (hi - lo).max_element();
@@ -131,19 +149,32 @@ pub fn auto_h0(positions: &[DVec3], n_star: u32) -> Option<f64> {
     // Start from cells that would hold ~N* particles if the set filled a cube of the extent.
     let mut edge = extent / (n / n_star).cbrt();
     let mut h0 = cap;
-    let mut keys: Vec<u64> = Vec::with_capacity(positions.len());
+    let mut keys: Vec<u64> = Vec::new();
     for _ in 0..4 {
         // Keep cell coordinates within 21 bits per axis for the packed key.
         edge = edge.max(extent / 1.0e6);
-        positions
-            .par_iter()
-            .map(|&p| {
-                let c = ((p - lo) / edge).floor().as_u64vec3();
-                (c.x << 42) | (c.y << 21) | c.z
-            })
-            .collect_into_vec(&mut keys);
-        keys.par_sort_unstable();
-        let mut counts: Vec<u64> = keys.chunk_by(|a, b| a == b).map(|run| run.len() as u64).collect();
+        // (p - lo) >= 0, so truncation is the floor.
+        let cell = |p: DVec3| ((p - lo) / edge).as_u64vec3();
+        let dims = cell(hi) + 1;
+        let mut counts: Vec<u64> = if dims.element_product() as f64 <= (4.0 * n).max(65536.0) {
+            // Few enough cells for a table: a histogram instead of a sort.
+            let table: Vec<AtomicU32> = (0..dims.element_product()).map(|_| AtomicU32::new(0)).collect();
+            positions.par_iter().for_each(|&p| {
+                let c = cell(p);
+                table[((c.z * dims.y + c.y) * dims.x + c.x) as usize].fetch_add(1, Ordering::Relaxed);
+            });
+            table.into_iter().map(|c| c.into_inner() as u64).filter(|&c| c > 0).collect()
+        } else {
+            positions
+                .par_iter()
+                .map(|&p| {
+                    let c = cell(p);
+                    (c.x << 42) | (c.y << 21) | c.z
+                })
+                .collect_into_vec(&mut keys);
+            keys.par_sort_unstable();
+            keys.chunk_by(|a, b| a == b).map(|run| run.len() as u64).collect()
+        };
         counts.sort_unstable();
         let target = AUTO_H0_PERCENTILE * n;
         let mut cumulative = 0.0;
@@ -280,19 +311,15 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
             }
         })
         .collect();
-    let (mut skipped_nonfinite, mut outside) = (0u64, 0u64);
-    let mut positions = Vec::with_capacity(fates.len());
-    let mut masses = Vec::with_capacity(fates.len());
-    for fate in fates {
-        match fate {
-            Fate::Keep(q, m) => {
-                positions.push(q);
-                masses.push(m);
-            }
-            Fate::NonFinite => skipped_nonfinite += 1,
-            Fate::Outside => outside += 1,
-        }
-    }
+    let skipped_nonfinite = fates.par_iter().filter(|f| matches!(f, Fate::NonFinite)).count() as u64;
+    let outside = fates.par_iter().filter(|f| matches!(f, Fate::Outside)).count() as u64;
+    let (positions, masses): (Vec<Vec3>, Vec<f32>) = fates
+        .par_iter()
+        .filter_map(|f| match *f {
+            Fate::Keep(q, m) => Some((q, m)),
+            _ => None,
+        })
+        .unzip();
 
     // Cells are only used to gather each brick's candidate particles, so their edge follows
     // the support radius (a brick plus its margin spans a few cells) within 2..16 voxels, and
@@ -316,38 +343,42 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
     for c in 0..ncells {
         start[c + 1] += start[c];
     }
+    // The scatter writes indices only; positions and masses follow in parallel.
     let mut next = start.clone();
-    let mut sorted_pos = vec![Vec3::ZERO; positions.len()];
-    let mut sorted_mass = vec![0.0f32; positions.len()];
+    let mut order = vec![0u32; positions.len()];
     for (i, &id) in ids.iter().enumerate() {
         let slot = &mut next[id as usize];
-        sorted_pos[*slot as usize] = positions[i];
-        sorted_mass[*slot as usize] = masses[i];
+        order[*slot as usize] = i as u32;
         *slot += 1;
     }
+    let sorted_pos: Vec<Vec3> = order.par_iter().map(|&i| positions[i as usize]).collect();
+    let sorted_mass: Vec<f32> = order.par_iter().map(|&i| masses[i as usize]).collect();
     cells.start = start;
 
     // Bricks touched by some particle's support box: a dense bit per brick of the grid.
     let brick_dims = (dims + (BRICK_DIM - 1)) / BRICK_DIM;
-    let mut marked = vec![false; brick_dims.as_i64vec3().element_product() as usize];
-    for &p in &sorted_pos {
-        let lo = (p - support).ceil().as_ivec3().max(IVec3::ZERO);
-        let hi = (p + support).floor().as_ivec3().min(dims - 1);
+    let marked: Vec<AtomicBool> = (0..brick_dims.as_i64vec3().element_product()).map(|_| AtomicBool::new(false)).collect();
+    sorted_pos.par_iter().for_each(|&p| {
+        let lo = ceil_i(p - support).max(IVec3::ZERO);
+        let hi = floor_i(p + support).min(dims - 1);
         if lo.cmpgt(hi).any() {
-            continue;
+            return;
         }
         let (blo, bhi) = (lo / BRICK_DIM, hi / BRICK_DIM);
         for bz in blo.z..=bhi.z {
             for by in blo.y..=bhi.y {
                 let row = ((bz * brick_dims.y + by) * brick_dims.x) as usize;
-                marked[row + blo.x as usize..=row + bhi.x as usize].fill(true);
+                for m in &marked[row + blo.x as usize..=row + bhi.x as usize] {
+                    m.store(true, Ordering::Relaxed);
+                }
             }
         }
-    }
+    });
     let bricks = marked
-        .iter()
+        .into_iter()
+        .map(AtomicBool::into_inner)
         .enumerate()
-        .filter(|(_, &m)| m)
+        .filter(|&(_, m)| m)
         .map(|(i, _)| {
             let i = i as i32;
             let (bx, by, bz) = (i % brick_dims.x, (i / brick_dims.x) % brick_dims.y, i / (brick_dims.x * brick_dims.y));

@@ -75,6 +75,10 @@ pub struct Volume<T: Voxel> {
     nodes: FxHashMap<IVec3, Box<[u32; NODE_SLOTS]>>,
 }
 
+fn assert_brick_origin(origin: IVec3) {
+    assert_eq!(origin, brick_origin(origin), "brick origin {origin} is not a multiple of {BRICK_DIM}");
+}
+
 #[inline]
 fn node_key(ijk: IVec3) -> IVec3 {
     ijk >> (BRICK_LOG2 + NODE_LOG2) as i32
@@ -139,7 +143,7 @@ impl<T: Voxel> Volume<T> {
 
     /// Inserts (or replaces) the brick at `origin`, a multiple of 8 on every axis.
     pub fn insert_brick(&mut self, origin: IVec3, values: &[T], active: &BrickMask) {
-        assert_eq!(origin, brick_origin(origin), "brick origin {origin} is not a multiple of {BRICK_DIM}");
+        assert_brick_origin(origin);
         assert_eq!(values.len(), BRICK_VOXELS, "a brick holds {BRICK_VOXELS} values");
         let index = self.brick_index_or_insert(origin);
         self.values[index * BRICK_VOXELS..(index + 1) * BRICK_VOXELS].copy_from_slice(values);
@@ -148,6 +152,17 @@ impl<T: Voxel> Volume<T> {
 
     fn brick_index_or_insert(&mut self, ijk: IVec3) -> usize {
         let n = self.origins.len();
+        let index = self.index_or_register(ijk);
+        if index == n {
+            self.values.extend(std::iter::repeat_n(self.background, BRICK_VOXELS));
+        }
+        index
+    }
+
+    /// The index of the brick holding `ijk`; a new brick gets the next index, an origin and an
+    /// empty mask, but no values (the caller provides them).
+    fn index_or_register(&mut self, ijk: IVec3) -> usize {
+        let n = self.origins.len();
         let slot = &mut self.nodes.entry(node_key(ijk)).or_insert_with(|| Box::new([NO_BRICK; NODE_SLOTS]))
             [node_slot(ijk)];
         if *slot != NO_BRICK {
@@ -155,7 +170,6 @@ impl<T: Voxel> Volume<T> {
         }
         *slot = n as u32;
         self.origins.push(brick_origin(ijk));
-        self.values.extend(std::iter::repeat_n(self.background, BRICK_VOXELS));
         self.masks.push([0; 8]);
         n
     }
@@ -283,20 +297,30 @@ impl<T: Voxel> Volume<T> {
     where
         F: Fn(IVec3, &mut [T]) -> BrickMask + Sync,
     {
-        let computed: Vec<(IVec3, Vec<T>, BrickMask)> = origins
-            .par_iter()
-            .filter_map(|&origin| {
-                let mut values = vec![background; BRICK_VOXELS];
-                let mask = fill(origin, &mut values);
-                mask.iter().any(|&w| w != 0).then_some((origin, values, mask))
-            })
+        // Filled in place, in parallel, then compacted: a copy of every brick through a
+        // per-brick buffer, and the fresh pages of both, cost more than the fill itself on
+        // millions of voxels.
+        let mut values = vec![background; origins.len() * BRICK_VOXELS];
+        let masks: Vec<BrickMask> = values
+            .par_chunks_mut(BRICK_VOXELS)
+            .zip(origins.par_iter())
+            .map(|(values, &origin)| fill(origin, values))
             .collect();
         let mut volume = Volume::new(transform, background);
-        volume.origins.reserve(computed.len());
-        volume.values.reserve(computed.len() * BRICK_VOXELS);
-        for (origin, values, mask) in computed {
-            volume.insert_brick(origin, &values, &mask);
+        volume.values = values;
+        for (from, (&origin, mask)) in origins.iter().zip(&masks).enumerate() {
+            if mask.iter().all(|&w| w == 0) {
+                continue;
+            }
+            // As insert_brick: a repeated origin replaces the earlier brick.
+            assert_brick_origin(origin);
+            let to = volume.index_or_register(origin);
+            if to != from {
+                volume.values.copy_within(from * BRICK_VOXELS..(from + 1) * BRICK_VOXELS, to * BRICK_VOXELS);
+            }
+            volume.masks[to] = *mask;
         }
+        volume.values.truncate(volume.origins.len() * BRICK_VOXELS);
         volume
     }
 
