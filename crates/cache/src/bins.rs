@@ -15,6 +15,9 @@ pub struct PhotonBins {
     starts: Vec<u32>,
     /// Photon indices sorted by cell.
     order: Vec<u32>,
+    /// Positions relative to `origin`, in `order`'s order: a cell's run is contiguous in
+    /// memory, so a search streams through it (indexing by photon number instead, as the
+    /// photons lie in path order, made every candidate a cache miss).
     local: Vec<Vec3>,
 }
 
@@ -53,7 +56,7 @@ impl PhotonBins {
             order[fill[id as usize] as usize] = i as u32;
             fill[id as usize] += 1;
         }
-        bins.local = positions.iter().map(|&p| (p - lo).as_vec3()).collect();
+        bins.local = order.iter().map(|&i| (positions[i as usize] - lo).as_vec3()).collect();
         bins.starts = starts;
         bins.order = order;
         bins
@@ -84,7 +87,8 @@ impl PhotonBins {
         &self.order
     }
 
-    /// Photon positions relative to [`PhotonBins::origin`], by photon index.
+    /// Photon positions relative to [`PhotonBins::origin`], in [`PhotonBins::order`]'s order
+    /// (entry j is photon `order()[j]`).
     pub fn local_positions(&self) -> &[Vec3] {
         &self.local
     }
@@ -114,8 +118,8 @@ impl PhotonBins {
                 // A row of cells along z is one contiguous run.
                 let a = self.starts[self.cell_id(IVec3::new(x, y, lo.z))] as usize;
                 let b = self.starts[self.cell_id(IVec3::new(x, y, hi.z)) + 1] as usize;
-                for &i in &self.order[a..b] {
-                    let d2 = (self.local[i as usize] - q).length_squared();
+                for (&i, &l) in self.order[a..b].iter().zip(&self.local[a..b]) {
+                    let d2 = (l - q).length_squared();
                     if d2 <= r2 {
                         f(i, d2);
                     }
@@ -140,16 +144,17 @@ impl PhotonBins {
         let max_shell = (max_radius / self.cell).ceil() as i32 + 1;
         let visit = |heap: &mut BinaryHeap<(u32, u32)>, c: IVec3| {
             let id = self.cell_id(c);
-            for &i in &self.order[self.starts[id] as usize..self.starts[id + 1] as usize] {
-                let d2 = (self.local[i as usize] - q).length_squared();
+            let run = self.starts[id] as usize..self.starts[id + 1] as usize;
+            for (&i, &l) in self.order[run.clone()].iter().zip(&self.local[run]) {
+                let d2 = (l - q).length_squared();
                 if d2 > max_r2 {
                     continue;
                 }
                 if heap.len() < k {
                     heap.push((d2.to_bits(), i));
-                } else if d2 < f32::from_bits(heap.peek().unwrap().0) {
-                    heap.pop();
-                    heap.push((d2.to_bits(), i));
+                } else if let Some(mut top) = heap.peek_mut().filter(|top| d2 < f32::from_bits(top.0)) {
+                    // Replacing the top in place sifts once (pop then push sifted twice).
+                    *top = (d2.to_bits(), i);
                 }
             }
         };

@@ -184,12 +184,12 @@ impl<'a> GpuBaker<'a> {
         let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - origin).as_vec3().extend(0.0).to_array()).collect();
         let (starts, sorted, dims, cell) = match bins {
             Some(b) => {
-                let local = b.local_positions();
                 let sorted: Vec<GpuPhoton> = b
                     .order()
                     .iter()
-                    .map(|&i| GpuPhoton {
-                        position: local[i as usize].to_array(),
+                    .zip(b.local_positions())
+                    .map(|(&i, l)| GpuPhoton {
+                        position: l.to_array(),
                         index: i,
                         power: photons.power[i as usize].to_array(),
                         dir: photons.dir[i as usize].to_array(),
