@@ -6,6 +6,9 @@
 //   asl2  predict, density
 //   asl3  predict, correct, density
 //   knn   knn, density
+// With conserve-mass the host runs the passes before density over every chunk first, keeps
+// the lengths, runs `mass` (one invocation per particle: its kernel sum S over the grid), and
+// then density per chunk with the masses m / S.
 // The per-point functions mirror crates/density/src/kernel.rs line by line, and distances are
 // formed as on the CPU ((voxel index as f32) - p, then (dx^2 + dy^2) + dz^2), so counts agree
 // with the CPU and the brute-force reference, and densities to summation order. Densities
@@ -43,8 +46,15 @@ struct DensityUniforms {
     voxel_count: u32,
     first_brick: u32,
     method: u32,
+    // Particles (the mass pass's invocations).
+    particle_count: u32,
+    // The mass pass's slab: z planes plane_first.. of each particle's support box, at most
+    // plane_count of them (the host splits the box on adapters that cap loop iterations).
+    plane_first: u32,
+    plane_count: u32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> u: DensityUniforms;
@@ -60,6 +70,18 @@ struct DensityUniforms {
 @group(0) @binding(5) var<storage, read_write> h_out: array<f32>;
 @group(0) @binding(6) var<storage, read_write> rho_out: array<f32>;
 @group(0) @binding(7) var<storage, read_write> used_out: array<u32>;
+
+// The mass pass's own group (its pipeline binds group 0 with the uniforms and particles
+// only, so no pipeline exceeds eight storage buffers):
+// Final smoothing length (index units) per voxel of every proposed brick, in proposal order;
+// 0 where no pass evaluates the voxel.
+@group(1) @binding(0) var<storage, read> lengths: array<f32>;
+// Per brick of the grid (x fastest, then y, z): its proposal index, or 0xffffffff.
+@group(1) @binding(1) var<storage, read> brick_slot: array<u32>;
+// Per particle: S = sum over grid points x of m4_shape(|x - p| / h(x)) / (pi h(x)^3).
+@group(1) @binding(2) var<storage, read_write> kernel_sum: array<f32>;
+
+const PI: f32 = 3.14159265358979;
 
 // ---- kernel.rs twins ----
 
@@ -297,4 +319,57 @@ fn density(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: 
     h_out[i] = h;
     rho_out[i] = acc_rho;
     used_out[i] = acc_count;
+}
+
+// conserve-mass: particle i's kernel sum over the grid with the final lengths, the terms the
+// density pass will give it (without its mass; host crate: cpu.rs splat_weights, the same
+// sum splatted per brick). A gather over the grid points of the particle's support box, since
+// the per-voxel passes cannot scatter into a particle's sum without float atomics.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn mass(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+        @builtin(local_invocation_index) lid: u32) {
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (i >= u.particle_count) {
+        return;
+    }
+    let p = particles[i].xyz;
+    let r0 = KAPPA * u.h0;
+    let lo = max(vec3<i32>(ceil(p - vec3<f32>(r0))), vec3<i32>(0));
+    let hi = min(vec3<i32>(floor(p + vec3<f32>(r0))), u.grid_dims - 1);
+    let brick_dims = (u.grid_dims + 7) / 8;
+    // A later slab adds to the sum so far (one invocation per particle per dispatch, so no
+    // two write it at once).
+    var sum = 0.0;
+    if (u.plane_first > 0u) {
+        sum = kernel_sum[i];
+    }
+    let z_lo = lo.z + i32(u.plane_first);
+    let z_hi = min(hi.z, z_lo + i32(u.plane_count) - 1);
+    // Summed by row, then plane, then slab: a support ~60 points across has ~10^5 terms,
+    // and one running f32 sum drifts ~1e-4 from the CPU's (which sums per brick in lanes,
+    // then in f64).
+    for (var z = z_lo; z <= z_hi; z++) {
+        var plane = 0.0;
+        for (var y = lo.y; y <= hi.y; y++) {
+            var row = 0.0;
+            for (var x = lo.x; x <= hi.x; x++) {
+                let ijk = vec3<i32>(x, y, z);
+                let b = ijk / 8;
+                let slot = brick_slot[(b.z * brick_dims.y + b.y) * brick_dims.x + b.x];
+                if (slot == 0xffffffffu) {
+                    continue;
+                }
+                let l = ijk % 8;
+                let h = lengths[slot * BRICK_VOXELS + u32((l.x << 6u) | (l.y << 3u) | l.z)];
+                let r = KAPPA * h;
+                let r2 = dist2(vec3<f32>(ijk), p);
+                if (h > 0.0 && r2 < r * r) {
+                    row += m4_shape(sqrt(r2) * (1.0 / h)) / (PI * h * h * h);
+                }
+            }
+            plane += row;
+        }
+        sum += plane;
+    }
+    kernel_sum[i] = sum;
 }

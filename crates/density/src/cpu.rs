@@ -31,6 +31,8 @@ use crate::{BrickResult, Keep, PointParams};
 struct Scratch {
     /// (index-space position, mass) of the particles whose support reaches the brick.
     parts: Vec<(Vec3, f32)>,
+    /// Their indices in `Prepared` order (the conserve-mass sums are per particle).
+    index: Vec<u32>,
     count: [u32; BRICK_VOXELS],
     /// Per-voxel squared support radius of the pass being run (0 = skip the voxel).
     radius2: [f32; BRICK_VOXELS],
@@ -42,6 +44,7 @@ impl Scratch {
     fn new() -> Scratch {
         Scratch {
             parts: Vec::new(),
+            index: Vec::new(),
             count: [0; BRICK_VOXELS],
             radius2: [0.0; BRICK_VOXELS],
             lists: Vec::new(),
@@ -50,20 +53,84 @@ impl Scratch {
 }
 
 /// Runs the method over every proposed brick; bricks with no density are dropped.
-pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, pp: &PointParams, keep: &Keep) -> Vec<BrickResult> {
-    prep.bricks
+///
+/// With `conserve_mass` the lengths cannot feed the density pass at once: every particle's
+/// kernel sum S_q needs the final h of every voxel its support reaches, in other bricks too.
+/// So the bricks' lengths are kept, the S pass splats per brick into (particle, partial)
+/// lists, the lists are summed per particle in brick order (fixed, so runs are
+/// bit-identical), and the density pass then reads the kept lengths and the masses m / S.
+pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bool, pp: &PointParams, keep: &Keep) -> Vec<BrickResult> {
+    let density = |masses: &[f32], lengths: Option<&[Option<Lengths>]>| -> Vec<BrickResult> {
+        prep.bricks
+            .par_iter()
+            .enumerate()
+            .map_init(Scratch::new, |scratch, (i, &origin)| {
+                let known = match lengths {
+                    Some(all) => Some(all[i].as_ref()?),
+                    None => None,
+                };
+                let Visit::Sums((rho, h, used)) = brick(prep, method, pp, origin, scratch, Stage::Density(masses, known))? else { unreachable!() };
+                keep.brick(i, origin, rho, h, used, pp)
+            })
+            .flatten()
+            .collect()
+    };
+    if !conserve_mass {
+        return density(&prep.masses, None);
+    }
+    let lengths: Vec<Option<Lengths>> = prep
+        .bricks
         .par_iter()
-        .enumerate()
-        .map_init(Scratch::new, |scratch, (i, &origin)| {
-            let (rho, h, used) = brick(prep, method, pp, origin, scratch)?;
-            keep.brick(i, origin, rho, h, used, pp)
+        .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Lengths)? {
+            Visit::Lengths(h) => Some(h),
+            _ => unreachable!(),
         })
-        .flatten()
-        .collect()
+        .collect();
+    let partials: Vec<Vec<(u32, f32)>> = prep
+        .bricks
+        .par_iter()
+        .zip(&lengths)
+        .map_init(Scratch::new, |scratch, (&origin, h)| match brick(prep, method, pp, origin, scratch, Stage::Weights(h.as_ref()?))? {
+            Visit::Weights(list) => Some(list),
+            _ => unreachable!(),
+        })
+        .map(Option::unwrap_or_default)
+        .collect();
+    let mut sums = vec![0.0f64; prep.positions.len()];
+    for &(q, partial) in partials.iter().flatten() {
+        sums[q as usize] += partial as f64;
+    }
+    drop(partials);
+    let masses = crate::normalised_masses(prep, pp, &sums);
+    density(&masses, Some(&lengths))
 }
 
 /// A brick's raw sums: rho, h and used per voxel.
 type Sums = (Box<[f32; BRICK_VOXELS]>, Box<[f32; BRICK_VOXELS]>, Box<[u32; BRICK_VOXELS]>);
+
+/// A brick's final smoothing lengths (index units), kept between the conserve-mass passes:
+/// 0 at voxels no pass evaluates (outside the grid, or no particle within kappa*h0).
+type Lengths = Box<[f32; BRICK_VOXELS]>;
+
+/// What one visit of a brick does after gathering its particles.
+#[derive(Clone, Copy)]
+enum Stage<'a> {
+    /// The method's passes, then the density with these masses (per particle, `Prepared`
+    /// order), from the given lengths instead when they were kept.
+    Density(&'a [f32], Option<&'a Lengths>),
+    /// The method's passes only, their lengths kept (conserve-mass).
+    Lengths,
+    /// Each particle's kernel sum over the brick with the kept lengths (conserve-mass).
+    Weights(&'a Lengths),
+}
+
+/// A visit's result, by [`Stage`].
+enum Visit {
+    Sums(Sums),
+    Lengths(Lengths),
+    /// (particle index, partial S) of the particles with a term in the brick.
+    Weights(Vec<(u32, f32)>),
+}
 
 /// The voxels of a brick that lie inside the grid: local indices 0..n on each axis.
 #[inline]
@@ -136,10 +203,12 @@ fn column_mut<T, const L: usize>(a: &mut [T; BRICK_VOXELS], row: usize) -> &mut 
     (&mut a[row..row + L]).try_into().unwrap()
 }
 
-/// Gathers the particles whose support (radius r, index units) reaches the brick's voxels.
+/// Gathers the particles whose support (radius r, index units) reaches the brick's voxels,
+/// with their `masses` and their indices.
 #[inline(always)]
-fn gather(prep: &Prepared, origin: IVec3, n: IVec3, r: f32, out: &mut Vec<(Vec3, f32)>) {
+fn gather(prep: &Prepared, masses: &[f32], origin: IVec3, n: IVec3, r: f32, out: &mut Vec<(Vec3, f32)>, index: &mut Vec<u32>) {
     out.clear();
+    index.clear();
     let cells = &prep.cells;
     let lo = origin.as_vec3();
     let hi = (origin + n - 1).as_vec3();
@@ -153,7 +222,8 @@ fn gather(prep: &Prepared, origin: IVec3, n: IVec3, r: f32, out: &mut Vec<(Vec3,
                 // Distance from p to the brick's box of voxel points.
                 let d = (lo - p).max(p - hi).max(Vec3::ZERO);
                 if d.length_squared() < r2 {
-                    out.push((p, prep.masses[i]));
+                    out.push((p, masses[i]));
+                    index.push(i as u32);
                 }
             }
         }
@@ -176,6 +246,15 @@ fn splat_count<const L: usize>(parts: &[(Vec3, f32)], r_max: f32, radius2: &[f32
     }
 }
 
+/// m4_shape(sqrt(r2) * inv_h) where r2 < rad2, else 0, and 1 or 0 for "inside": a bit mask
+/// rather than a select, so the loops stay branch-free and vectorise.
+#[inline(always)]
+fn masked_shape(r2: f32, rad2: f32, inv_h: f32) -> (f32, u32) {
+    let inside = ((r2 < rad2) as u32).wrapping_neg();
+    let w = m4_shape(r2.sqrt() * inv_h);
+    (f32::from_bits(w.to_bits() & inside), inside & 1)
+}
+
 /// Density pass: rho[v] += m * m4_shape(r / h[v]) and used[v] += 1 where r^2 < radius2[v].
 #[inline(always)]
 #[allow(clippy::too_many_arguments)] // the pass's inputs and outputs, each a plain array
@@ -196,57 +275,122 @@ fn splat_density<const L: usize>(
             let (rad2, ih) = (column::<_, L>(radius2, row), column::<_, L>(inv_h, row));
             let (rho, used) = (column_mut::<_, L>(rho, row), column_mut::<_, L>(used, row));
             for i in 0..L {
-                let r2 = dxy2[i] + dz2[i];
-                // All-ones where inside, else zero: a bit mask rather than a select, so the
-                // loop stays branch-free and vectorises.
-                let inside = ((r2 < rad2[i]) as u32).wrapping_neg();
-                let w = m4_shape(r2.sqrt() * ih[i]);
-                rho[i] += m * f32::from_bits(w.to_bits() & inside);
-                used[i] += inside & 1;
+                let (w, inside) = masked_shape(dxy2[i] + dz2[i], rad2[i], ih[i]);
+                rho[i] += m * w;
+                used[i] += inside;
             }
         });
+    }
+}
+
+/// conserve-mass S pass: each particle's sum over the brick's voxels of the density pass's
+/// terms without the mass, m4_shape(r / h[v]) * norm[v] (norm = 1 / (pi h^3), index units),
+/// pushed as (particle index, partial) where it has any.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)] // the pass's inputs and output, as splat_density's
+fn splat_weights<const L: usize>(
+    parts: &[(Vec3, f32)],
+    index: &[u32],
+    r_max: f32,
+    radius2: &[f32; BRICK_VOXELS],
+    inv_h: &[f32; BRICK_VOXELS],
+    norm: &[f32; BRICK_VOXELS],
+    origin: IVec3,
+    n: IVec3,
+    out: &mut Vec<(u32, f32)>,
+) {
+    for (&(p, _), &q) in parts.iter().zip(index) {
+        let dz2 = dz2_column::<L>(p, origin);
+        let mut acc = [0.0f32; L];
+        for_columns_near::<L>(p, r_max, origin, n, |row, dxy2| {
+            let dxy2 = spread::<L>(dxy2);
+            let (rad2, ih, c) = (column::<_, L>(radius2, row), column::<_, L>(inv_h, row), column::<_, L>(norm, row));
+            for i in 0..L {
+                acc[i] += masked_shape(dxy2[i] + dz2[i], rad2[i], ih[i]).0 * c[i];
+            }
+        });
+        let partial: f32 = acc.iter().sum();
+        if partial > 0.0 {
+            out.push((q, partial));
+        }
     }
 }
 
 /// The per-brick work, compiled three times: for the baseline target, for AVX2, where each z
 /// column of 8 voxels is a single vector op, and for AVX-512 (picked at run time). No FMA
 /// contraction happens in any (Rust does not fuse), so all give bit-identical results.
-fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
+fn brick(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch, stage: Stage) -> Option<Visit> {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx512f") {
         // SAFETY: the CPU has just been checked for AVX-512F.
-        return unsafe { brick_avx512(prep, method, pp, origin, s) };
+        return unsafe { brick_avx512(prep, method, pp, origin, s, stage) };
     }
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has just been checked for AVX2.
-        return unsafe { brick_avx2(prep, method, pp, origin, s) };
+        return unsafe { brick_avx2(prep, method, pp, origin, s, stage) };
     }
-    brick_impl::<ROW>(prep, method, pp, origin, s)
+    brick_impl::<ROW>(prep, method, pp, origin, s, stage)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn brick_avx2(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
-    brick_impl::<ROW>(prep, method, pp, origin, s)
+unsafe fn brick_avx2(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch, stage: Stage) -> Option<Visit> {
+    brick_impl::<ROW>(prep, method, pp, origin, s, stage)
 }
 
-/// The density pass 16 lanes wide: two z columns, neighbours in y, per step.
+/// The density (and conserve-mass S) pass 16 lanes wide: two z columns, neighbours in y, per
+/// step.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn brick_avx512(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
-    brick_impl::<{ 2 * ROW }>(prep, method, pp, origin, s)
+unsafe fn brick_avx512(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch, stage: Stage) -> Option<Visit> {
+    brick_impl::<{ 2 * ROW }>(prep, method, pp, origin, s, stage)
 }
 
-/// Gather, then the method's passes.
+/// Gather, then the stage's passes: the method's (unless the lengths were kept), then the
+/// density or the conserve-mass S pass.
 #[inline(always)]
-fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch) -> Option<Sums> {
+fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams, origin: IVec3, s: &mut Scratch, stage: Stage) -> Option<Visit> {
     let n = valid_extent(prep, origin);
-    let r0 = KAPPA * pp.h0;
-    gather(prep, origin, n, r0, &mut s.parts);
+    let masses = match stage {
+        Stage::Density(masses, _) => masses,
+        _ => &prep.masses,
+    };
+    gather(prep, masses, origin, n, KAPPA * pp.h0, &mut s.parts, &mut s.index);
     if s.parts.is_empty() {
         return None;
     }
+    let (h, reached) = match stage {
+        Stage::Density(_, Some(kept)) | Stage::Weights(kept) => {
+            let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| kept[v] > 0.0);
+            (Box::new(std::array::from_fn(|v| if reached[v] { kept[v] } else { pp.h0 })), reached)
+        }
+        Stage::Density(_, None) | Stage::Lengths => lengths(method, pp, origin, n, s),
+    };
+    if matches!(stage, Stage::Lengths) {
+        return Some(Visit::Lengths(Box::new(std::array::from_fn(|v| if reached[v] { h[v] } else { 0.0 }))));
+    }
+
+    // Final pass: the density (or S) with each voxel's h.
+    let r_max = set_radii(&h, &reached, &mut s.radius2);
+    let inv_h: [f32; BRICK_VOXELS] = std::array::from_fn(|v| 1.0 / h[v]);
+    if matches!(stage, Stage::Weights(_)) {
+        let norm: [f32; BRICK_VOXELS] = std::array::from_fn(|v| pp.index_norm(h[v]));
+        let mut out = Vec::new();
+        splat_weights::<L>(&s.parts, &s.index, r_max, &s.radius2, &inv_h, &norm, origin, n, &mut out);
+        return Some(Visit::Weights(out));
+    }
+    let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
+    let mut used = Box::new([0u32; BRICK_VOXELS]);
+    splat_density::<L>(&s.parts, r_max, &s.radius2, &inv_h, origin, n, &mut rho, &mut used);
+    Some(Visit::Sums((rho, h, used)))
+}
+
+/// The method's passes over a gathered brick: h per voxel (index units), and which voxels
+/// any pass evaluates.
+#[inline(always)]
+fn lengths(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &mut Scratch) -> (Box<[f32; BRICK_VOXELS]>, [bool; BRICK_VOXELS]) {
+    let r0 = KAPPA * pp.h0;
     // Voxels outside the grid, and voxels with no particle within kappa*h0 (zero density),
     // get radius 0: no pass touches them, and they do not hold a later pass's radius at h0.
     let mut reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| brick_local(v).cmplt(n).all());
@@ -299,15 +443,7 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
             }
         }
     }
-
-    // Final pass: the density with each voxel's h.
-    let r_max = set_radii(&h, &reached, &mut s.radius2);
-    let inv_h: [f32; BRICK_VOXELS] = std::array::from_fn(|v| 1.0 / h[v]);
-    let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
-    let mut used = Box::new([0u32; BRICK_VOXELS]);
-    splat_density::<L>(&s.parts, r_max, &s.radius2, &inv_h, origin, n, &mut rho, &mut used);
-
-    Some((rho, h, used))
+    (h, reached)
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

@@ -45,7 +45,10 @@ struct GpuDensityParams {
     voxel_count: u32,
     first_brick: u32,
     method: u32,
-    _pad: [u32; 2],
+    particle_count: u32,
+    plane_first: u32,
+    plane_count: u32,
+    _pad: [u32; 3],
 }
 
 fn method_code(method: Method) -> u32 {
@@ -69,7 +72,13 @@ fn passes(method: Method) -> &'static [&'static str] {
 
 /// Runs the method's passes over every proposed brick, in chunks; bricks with no density are
 /// dropped, the rest come back in proposal order.
-pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method, pp: &PointParams, keep: &Keep) -> Result<Vec<BrickResult>, GpuError> {
+///
+/// With `conserve_mass` the passes before `density` run over every chunk first and their
+/// lengths come back to the host; the `mass` pass then sums each particle's kernel over the
+/// grid from them (a whole-grid buffer of lengths), the host turns the sums into masses m / S
+/// ([`crate::normalised_masses`], shared with the CPU) and uploads them, and `density` runs
+/// per chunk on the kept lengths.
+pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method, conserve_mass: bool, pp: &PointParams, keep: &Keep) -> Result<Vec<BrickResult>, GpuError> {
     if prep.bricks.is_empty() {
         return Ok(Vec::new());
     }
@@ -87,7 +96,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&prep.masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
     let bricks: Vec<[i32; 4]> = prep.bricks.iter().map(|o| [o.x, o.y, o.z, 0]).collect();
     let cells = &prep.cells;
-    let mut uniforms = GpuDensityParams {
+    let uniforms = GpuDensityParams {
         cell_origin: cells.origin.to_array(),
         cell_edge: cells.edge,
         cell_dims: cells.dims.to_array(),
@@ -100,7 +109,10 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         voxel_count: 0,
         first_brick: 0,
         method: method_code(method),
-        _pad: [0; 2],
+        particle_count: prep.positions.len() as u32,
+        plane_first: 0,
+        plane_count: 0,
+        _pad: [0; 3],
     };
 
     let uniform_buffer = ctx.uniform_buffer("density params", &uniforms)?;
@@ -138,14 +150,8 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         .collect::<Result<Vec<_>, GpuError>>()?;
 
     let mut results = Vec::new();
-    for (chunk, origins) in prep.bricks.chunks(chunk_bricks).enumerate() {
-        let voxels = (origins.len() * BRICK_VOXELS) as u64;
-        uniforms.first_brick = (chunk * chunk_bricks) as u32;
-        uniforms.voxel_count = voxels as u32;
-        ctx.queue.write_buffer(&uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
-        for (entry, pipeline) in &pipelines {
-            ctx.dispatch_1d(entry, pipeline, &[&group], voxels, WORKGROUP_SIZE)?;
-        }
+    // Reads a chunk's sums back as per-brick results (bricks with no density dropped).
+    let collect = |chunk: usize, origins: &[glam::IVec3], results: &mut Vec<BrickResult>| -> Result<(), GpuError> {
         let rho: Vec<f32> = ctx.read_buffer(&rho)?;
         let h: Vec<f32> = ctx.read_buffer(&h)?;
         let used: Vec<u32> = ctx.read_buffer(&used)?;
@@ -158,8 +164,103 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
             let used: Box<[u32; BRICK_VOXELS]> = Box::new(used[span.clone()].try_into().expect("one brick"));
             results.extend(keep.brick(chunk * chunk_bricks + b, origin, brick(&rho[span.clone()]), brick(&h[span]), used, pp));
         }
+        Ok(())
+    };
+    // Sets the uniforms for chunk `chunk` and runs `pipelines` over its voxels.
+    let run = |chunk: usize, bricks: usize, pipelines: &[(&str, wgpu::ComputePipeline)]| -> Result<(), GpuError> {
+        let mut chunk_uniforms = uniforms;
+        chunk_uniforms.first_brick = (chunk * chunk_bricks) as u32;
+        chunk_uniforms.voxel_count = (bricks * BRICK_VOXELS) as u32;
+        ctx.queue.write_buffer(&uniform_buffer, 0, bytemuck::bytes_of(&chunk_uniforms));
+        for (entry, pipeline) in pipelines {
+            ctx.dispatch_1d(entry, pipeline, &[&group], (bricks * BRICK_VOXELS) as u64, WORKGROUP_SIZE)?;
+        }
+        Ok(())
+    };
+    let (length_passes, density_pass) = pipelines.split_at(pipelines.len() - 1);
+    let chunks: Vec<&[glam::IVec3]> = prep.bricks.chunks(chunk_bricks).collect();
+    if conserve_mass {
+        // The lengths of every proposed brick, 0 where nothing is evaluated (as the CPU keeps
+        // them); usl's are h0 wherever the mass pass looks (inside the grid).
+        let mut lengths = Vec::with_capacity(prep.bricks.len() * BRICK_VOXELS);
+        let mut n0_all = Vec::new();
+        for (chunk, origins) in chunks.iter().enumerate() {
+            let voxels = origins.len() * BRICK_VOXELS;
+            if method == Method::Usl {
+                lengths.resize(lengths.len() + voxels, pp.h0);
+                continue;
+            }
+            run(chunk, origins.len(), length_passes)?;
+            let h_chunk: Vec<f32> = ctx.read_buffer(&h)?;
+            let n0_chunk: Vec<u32> = ctx.read_buffer(&n0)?;
+            lengths.extend(h_chunk[..voxels].iter().zip(&n0_chunk[..voxels]).map(|(&h, &n)| if n > 0 { h } else { 0.0 }));
+            n0_all.extend_from_slice(&n0_chunk[..voxels]);
+        }
+        let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &uniform_buffer, &particle_buffer, &lengths)?;
+        let masses = crate::normalised_masses(prep, pp, &sums);
+        let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
+        ctx.queue.write_buffer(&particle_buffer, 0, bytemuck::cast_slice(&particles));
+        // The density pass reads each voxel's h and n0 (reached) from the chunk's buffers.
+        if method != Method::Usl {
+            for (chunk, origins) in chunks.iter().enumerate() {
+                let span = chunk * chunk_bricks * BRICK_VOXELS..(chunk * chunk_bricks + origins.len()) * BRICK_VOXELS;
+                ctx.queue.write_buffer(&h, 0, bytemuck::cast_slice(&lengths[span.clone()]));
+                ctx.queue.write_buffer(&n0, 0, bytemuck::cast_slice(&n0_all[span]));
+                run(chunk, origins.len(), density_pass)?;
+                collect(chunk, origins, &mut results)?;
+            }
+            return Ok(results);
+        }
+    }
+
+    for (chunk, origins) in chunks.iter().enumerate() {
+        run(chunk, origins.len(), if conserve_mass { density_pass } else { &pipelines })?;
+        collect(chunk, origins, &mut results)?;
     }
     Ok(results)
+}
+
+/// conserve-mass: each particle's kernel sum over the grid (the `mass` pass, one invocation
+/// per particle) from the final `lengths` of every proposed brick, in proposal order.
+#[allow(clippy::too_many_arguments)] // the pass's buffers, shared with the other passes
+fn kernel_sums(
+    ctx: &GpuContext,
+    prep: &Prepared,
+    pp: &PointParams,
+    source: &str,
+    mut uniforms: GpuDensityParams,
+    uniform_buffer: &wgpu::Buffer,
+    particle_buffer: &wgpu::Buffer,
+    lengths: &[f32],
+) -> Result<Vec<f64>, GpuError> {
+    // The support's bounding box spans at most `side` grid points a side. A software adapter
+    // ends an invocation's loops silently past its cap (an h0 of ~10 voxels already needs
+    // 41^3 iterations), so there the box goes in slabs of z planes, a dispatch each.
+    let side = (2.0 * crate::kernel::KAPPA * pp.h0).floor() as u32 + 1;
+    let loops = |planes: u32| planes as u64 * (side as u64 * side as u64 + side as u64 + 1) + 1;
+    let work = "a particle's kernel sum over a slab of its support box";
+    let mut planes = side;
+    while planes > 1 && ctx.check_loop_bound(loops(planes), work, "").is_err() {
+        planes = planes.div_ceil(2);
+    }
+    ctx.check_loop_bound(loops(planes), work, "or a smaller --h0")?;
+
+    let (slots, _) = crate::brick_slots(prep);
+    let length_buffer = ctx.storage_buffer("density lengths", lengths)?;
+    let slot_buffer = ctx.storage_buffer("density brick slots", &slots)?;
+    let sum_buffer = ctx.storage_buffer_zeroed("density kernel sums", prep.positions.len() as u64 * 4)?;
+    let particle_layout = ctx.bind_group_layout("density mass particles", &[uniform_entry(0), storage_entry(1, true)])?;
+    let mass_layout = ctx.bind_group_layout("density mass", &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false)])?;
+    let particle_group = ctx.buffer_bind_group("density mass particles", &particle_layout, &[uniform_buffer, particle_buffer])?;
+    let mass_group = ctx.buffer_bind_group("density mass", &mass_layout, &[&length_buffer, &slot_buffer, &sum_buffer])?;
+    let pipeline = ctx.compute_pipeline("mass", source, "mass", &[&particle_layout, &mass_layout])?;
+    uniforms.plane_count = planes;
+    for first in (0..side).step_by(planes as usize) {
+        uniforms.plane_first = first;
+        ctx.queue.write_buffer(uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+        ctx.dispatch_1d("mass", &pipeline, &[&particle_group, &mass_group], prep.positions.len() as u64, WORKGROUP_SIZE)?;
+    }
+    Ok(ctx.read_buffer::<f32>(&sum_buffer)?.into_iter().map(f64::from).collect())
 }
 
 /// An upper bound on the particle-loop iterations of one invocation: the most particles in
@@ -223,7 +324,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuDensityParams>(), 80);
+        assert_eq!(size_of::<GpuDensityParams>(), 96);
     }
 
     #[test]

@@ -55,6 +55,13 @@
 //!   estimates with h varying between grid points, which is not exactly mass conserving where
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
 //!   +0.5..4% on the analytic test scenes, see the accuracy example.
+//!   `conserve_mass` (`--conserve-mass`, off by default) makes it exact at the cost of one more
+//!   kernel pass once h(x) is final: each particle's kernel summed over the grid as the density
+//!   pass will weigh it, S_q = sum_x W(|x - x_q|, h(x)) dV, and rho(x) = sum_q (m_q / S_q)
+//!   W(|x - x_q|, h(x)), so sum_x rho dV = sum_q m_q to rounding ([`normalised_masses`] has the
+//!   rule for particles near the grid's edge). On the CPU the S pass splats per brick like the
+//!   others and the per-(brick, particle) partials are summed in brick order (bit-identical
+//!   between runs); the GPU gathers per particle over the grid points of its support box.
 //!
 //! # Measured (examples/accuracy.rs and benches/estimate.rs reproduce these)
 //!
@@ -104,7 +111,7 @@ mod setup;
 
 use std::time::{Duration, Instant};
 
-use glam::{DVec3, IVec3};
+use glam::{DVec3, IVec3, Vec3};
 use nimbus_gpu::{GpuContext, GpuError};
 use nimbus_volume::{brick_local, brick_offset, BrickMask, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
@@ -159,6 +166,42 @@ impl PointParams {
         let h = h_index as f64 * self.voxel_size;
         (1.0 / (std::f64::consts::PI * h * h * h)) as f32
     }
+
+    /// 1 / (pi h^3) for h in index units, in index units: W dV with dV = one voxel, the
+    /// weight of a kernel term in the conserve-mass sums S_q.
+    #[inline]
+    pub fn index_norm(&self, h_index: f32) -> f32 {
+        let h = h_index as f64;
+        (1.0 / (std::f64::consts::PI * h * h * h)) as f32
+    }
+}
+
+/// conserve-mass: the masses the density pass uses, m_q / S_q, from each particle's kernel
+/// sum over the grid S_q = sum_x m4_shape(|x - x_q| / h(x)) / (pi h(x)^3) (index units, so
+/// dV = 1), as the backends accumulated it.
+///
+/// Only a particle whose whole support (radius kappa*h0, h0 bounding every h(x)) reaches no
+/// grid point outside the grid is normalised: one that explicit bounds cut keeps its mass,
+/// or the grid would pull the mass of its outside part inside. With the default bounds
+/// (padded by kappa*h0) every particle qualifies. A sum that is not positive and finite
+/// (no grid point within reach) leaves the mass as it is.
+pub(crate) fn normalised_masses(prep: &Prepared, pp: &PointParams, sums: &[f64]) -> Vec<f32> {
+    let r0 = kernel::KAPPA * pp.h0;
+    let dims = prep.grid.dims.as_vec3();
+    prep.positions
+        .iter()
+        .zip(&prep.masses)
+        .zip(sums)
+        .map(|((&p, &m), &s)| {
+            // Grid points lie at integer indices 0..dims-1, and the support is open (r < r0).
+            let interior = (p - r0).cmpgt(Vec3::splat(-1.0)).all() && (p + r0).cmplt(dims).all();
+            if interior && s.is_finite() && s > 0.0 {
+                (m as f64 / s) as f32
+            } else {
+                m
+            }
+        })
+        .collect()
 }
 
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -212,14 +255,14 @@ pub struct DensityOutput {
 /// Estimates the density on the CPU (rayon over bricks, splat passes): [`prepare`], the
 /// method's passes, then the finishing step shared with [`estimate_gpu`].
 pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp, keep| Ok(cpu::estimate_bricks(prep, params.method, pp, keep)))
+    estimate_with(particles, params, |prep, pp, keep| Ok(cpu::estimate_bricks(prep, params.method, params.conserve_mass, pp, keep)))
 }
 
 /// Estimates the density on the GPU (one wgpu invocation per voxel and pass, gathering from
 /// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
 /// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
 pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, pp, keep)?))
+    estimate_with(particles, params, |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, params.conserve_mass, pp, keep)?))
 }
 
 /// The pipeline every backend runs: prepare, the backend's passes (per-brick sums), results
@@ -314,16 +357,24 @@ impl Keep {
     }
 }
 
-/// Per proposed brick, the voxels whose footprint holds a particle (its nearest grid point).
-fn occupancy(prep: &Prepared) -> Vec<BrickMask> {
-    let dims = prep.grid.dims;
-    let brick_dims = (dims + (BRICK_DIM - 1)) / BRICK_DIM;
-    let brick_id = |o: IVec3| ((o.z / BRICK_DIM * brick_dims.y + o.y / BRICK_DIM) * brick_dims.x + o.x / BRICK_DIM) as usize;
-    // Dense brick -> proposal table: one O(1) lookup per particle.
+/// A dense table over the grid's bricks (x fastest, then y, z) of each brick's index in
+/// `Prepared::bricks` (u32::MAX where none was proposed), and the table entry of the brick
+/// holding a voxel.
+pub(crate) fn brick_slots(prep: &Prepared) -> (Vec<u32>, impl Fn(IVec3) -> usize) {
+    let brick_dims = (prep.grid.dims + (BRICK_DIM - 1)) / BRICK_DIM;
+    let brick_id = move |o: IVec3| ((o.z / BRICK_DIM * brick_dims.y + o.y / BRICK_DIM) * brick_dims.x + o.x / BRICK_DIM) as usize;
     let mut slot = vec![u32::MAX; brick_dims.as_i64vec3().element_product() as usize];
     for (i, &origin) in prep.bricks.iter().enumerate() {
         slot[brick_id(origin)] = i as u32;
     }
+    (slot, brick_id)
+}
+
+/// Per proposed brick, the voxels whose footprint holds a particle (its nearest grid point).
+fn occupancy(prep: &Prepared) -> Vec<BrickMask> {
+    let dims = prep.grid.dims;
+    // Dense brick -> proposal table: one O(1) lookup per particle.
+    let (slot, brick_id) = brick_slots(prep);
     let marks: Vec<(u32, usize)> = prep
         .positions
         .par_iter()

@@ -92,6 +92,10 @@ pub struct DensityParams {
     pub smoothing_length: bool,
     /// Also output the number of particles used at each voxel.
     pub neighbour_count: bool,
+    /// Normalise each particle's mass by its kernel's sum over the grid, so the grid holds
+    /// exactly the particles' mass where h varies steeply (one more kernel pass; see the
+    /// crate docs). Off: design.md's gather form.
+    pub conserve_mass: bool,
 }
 
 /// The default N* (design.md's, the paper's). Measured against the alternatives in
@@ -117,6 +121,7 @@ impl Default for DensityParams {
             active_tolerance: 1e-6,
             smoothing_length: false,
             neighbour_count: false,
+            conserve_mass: false,
         }
     }
 }
