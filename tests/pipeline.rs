@@ -175,6 +175,25 @@ fn metadata_carries_parameters_down_the_chain() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--conserve-mass`: the grid holds the particles' mass (2000 of mass 1), `-v` says the
+/// option is on, and the output's nimbus record carries it.
+#[test]
+fn conserve_mass_is_applied_shown_and_recorded() {
+    let dir = scratch("conserve");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let d = dir.join("d.vdb");
+    let out = run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--conserve-mass", "-v"]).arg("-o").arg(&d));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(log.contains("conserve mass true"), "{log}");
+    let file = nimbus_vdb::VdbFile::open(&d).unwrap();
+    let meta = nimbus_cli::PipelineMeta::of(&file);
+    assert_eq!(meta.tool_value("particles2vdb", "conserve_mass").as_deref(), Some("true"));
+    let mass: f64 = meta.tool_value("particles2vdb", "grid_mass").unwrap().parse().unwrap();
+    assert!((mass / 2000.0 - 1.0).abs() < 1e-4, "grid mass {mass}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn quality_presets_set_the_tools_and_flags_override_them() {
     let dir = scratch("quality");

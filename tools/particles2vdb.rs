@@ -39,6 +39,10 @@ struct Args {
     /// Mass of each particle without a mass attribute.
     #[arg(long, default_value_t = 1.0)]
     mass: f32,
+    /// Normalise each particle's mass by its kernel's sum over the grid, so the grid holds
+    /// exactly the particles' mass where smoothing lengths vary steeply (one more kernel pass).
+    #[arg(long)]
+    conserve_mass: bool,
     /// Voxel edge (world units).
     #[arg(long, conflicts_with = "resolution")]
     voxel_size: Option<f64>,
@@ -127,6 +131,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         h_min: args.h_min,
         relax: args.relax,
         mass: args.mass,
+        conserve_mass: args.conserve_mass,
         resolution: match args.voxel_size {
             Some(v) => Resolution::VoxelSize(v),
             None => Resolution::Longest(args.resolution.unwrap_or(256)),
@@ -176,11 +181,12 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     })?;
     let s = &output.stats;
     log.verbose(format!(
-        "method {}, h0 {:.6} ({}), voxel {:.6}, grid mass {:.6}, max density {:.6}",
+        "method {}, h0 {:.6} ({}), voxel {:.6}, conserve mass {}, grid mass {:.6}, max density {:.6}",
         method.name(),
         output.grid.h0,
         if h0 == H0::Auto { "auto" } else { "given" },
         output.grid.voxel_size,
+        args.conserve_mass,
         s.grid_mass,
         s.max_density
     ));
@@ -213,6 +219,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         ("h_min", format!("{}", output.grid.h_min)),
         ("voxel_size", format!("{}", output.grid.voxel_size)),
         ("mass", args.mass.to_string()),
+        ("conserve_mass", args.conserve_mass.to_string()),
         ("noise", args.noise.to_string()),
         ("noise_scale", args.noise_scale.to_string()),
         ("particles", s.particles.to_string()),
