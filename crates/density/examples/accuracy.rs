@@ -7,8 +7,8 @@
 //! prints the relative L2 error against the true density over every grid point
 //! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
 //! particles used (mean, std over occupied voxels) and the time. usl runs over an h0 sweep;
-//! asl3 over N* and h_min. Backend timings (CPU and GPU, the benchmark scenes) are the
-//! `estimate` bench's table.
+//! asl3 over N* and h_min, and with conserve-mass at N* 32 and 96. Backend timings (CPU and
+//! GPU, the benchmark scenes) are the `estimate` bench's table.
 
 use std::time::Instant;
 
@@ -98,6 +98,16 @@ fn accuracy(scene: Scene) {
     // N* at the default h_min (h0 auto follows N*), then h_min at the default N*.
     for n_star in [16, 32, 48, 64, 96, 128] {
         rows.push(run(&particles, &truth, format!("asl3 N*={n_star}"), DensityParams { method: Method::Asl3, neighbours: n_star, ..base.clone() }));
+    }
+    // conserve-mass (grid mass exactly the particles', one more kernel pass) at the default N*
+    // and at the one that meets the accuracy goal on the steep scenes.
+    for n_star in [32, 96] {
+        rows.push(run(
+            &particles,
+            &truth,
+            format!("asl3 N*={n_star} conserve-mass"),
+            DensityParams { method: Method::Asl3, neighbours: n_star, conserve_mass: true, ..base.clone() },
+        ));
     }
     for h_min in [0.5, 1.25, 1.5, 1.75, 2.0] {
         rows.push(run(

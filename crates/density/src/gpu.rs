@@ -8,6 +8,11 @@
 //! particles of the cells overlapping the support's bounding box, a constant factor (the box
 //! over the sphere, with cells of about one support radius) above the splat's pairs, still
 //! O(N) per pass for bounded h0.
+//!
+//! conserve-mass adds the one pass that is not per voxel: `mass`, one invocation per particle
+//! summing its kernel over the grid points of its support box. It reads the final lengths of
+//! every proposed brick at once (a whole-grid buffer and a dense brick -> slot table, where the
+//! other passes see one chunk), so the lengths come back to the host between the passes.
 
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError};
