@@ -391,12 +391,12 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
     Some(Visit::Sums((rho, h, used)))
 }
 
-/// The method's passes over a gathered brick: h per voxel (index units), and which voxels
-/// any pass evaluates. A function of its own, compiled per target as [`brick`] is: inlined
-/// into `brick_impl` with the stages' other passes, the counting loops' closures stopped being
-/// inlined and ran unvectorised (plume, asl3: passes 0.36 -> 0.60 s).
+/// h per voxel (index units), and which voxels any pass evaluates.
 type HReached = (Box<[f32; BRICK_VOXELS]>, [bool; BRICK_VOXELS]);
 
+/// The method's passes over a gathered brick. A function of its own, compiled per target as
+/// [`brick`] is: inlined into `brick_impl` with the stages' other passes, the counting loops'
+/// closures stopped being inlined and ran unvectorised (plume, asl3: passes 0.36 -> 0.60 s).
 fn lengths(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &mut Scratch) -> HReached {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx512f") {

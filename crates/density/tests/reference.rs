@@ -284,6 +284,22 @@ fn cpu_and_gpu_agree_conserving_mass() {
     backends_agree(ctx, &random_clumpy(1000, 9), params, 2000);
 }
 
+/// The CPU sums the S partials per particle in brick order, not in the order rayon's threads
+/// finish them: repeated runs give bit-identical densities.
+#[test]
+fn conserving_mass_is_deterministic() {
+    let particles = random_clumpy(3000, 13);
+    let params = DensityParams { resolution: Resolution::VoxelSize(0.4), conserve_mass: true, ..Default::default() };
+    let (a, b) = (estimate_cpu(&particles, &params).unwrap(), estimate_cpu(&particles, &params).unwrap());
+    assert_eq!(a.density.active_voxel_count(), b.density.active_voxel_count());
+    for brick in a.density.bricks() {
+        for (v, &rho) in brick.values.iter().enumerate() {
+            let ijk = brick.origin + nimbus_volume::brick_local(v);
+            assert_eq!(b.density.get(ijk).to_bits(), rho.to_bits(), "at {ijk}");
+        }
+    }
+}
+
 /// A support 61 grid points across: on a software adapter the GPU's kernel sums go in eight
 /// slabs of z planes (one would overrun its loop cap), and still give the CPU's masses.
 #[test]
