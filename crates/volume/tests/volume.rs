@@ -381,12 +381,17 @@ proptest! {
         if len > 0.0 {
             prop_assert!((t - (t0 + len)).abs() < 1e-9);
         }
-        // Every point of every segment is bounded by its segment's majorant.
+        // Every point of every segment is bounded by its segment's majorant, up to rounding
+        // at cell faces: a point recomputed as o + d t inside a sliver of a segment at a face
+        // crossing can land a rounding error across the face and read the next voxel with a
+        // weight of ~1e-15 (a CI run found 6.5e-15 past a zero bound, the case kept in
+        // volume.proptest-regressions). Harmless to tracking, which would treat ~1e-15 as empty.
+        const FACE_ROUNDING: f32 = 1e-9;
         for s in &segs {
             for k in 0..5 {
                 let tt = s.t_start + (s.t_end - s.t_start) * (k as f64 + 0.5) / 5.0;
                 let p = DVec3::new(ox, oy, oz) + d * tt;
-                prop_assert!(v.sample_index(p) <= s.majorant, "{} > {} at t={}", v.sample_index(p), s.majorant, tt);
+                prop_assert!(v.sample_index(p) <= s.majorant + FACE_ROUNDING, "{} > {} at t={}", v.sample_index(p), s.majorant, tt);
             }
         }
     }
