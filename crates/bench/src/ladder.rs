@@ -330,13 +330,15 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
 fn mark_pareto(rows: &mut [Row]) {
     let snapshot = rows.to_vec();
     for row in rows.iter_mut() {
-        row.pareto = !snapshot.iter().any(|o| {
-            o.scene == row.scene
-                && o.total_s() <= row.total_s()
-                && o.relative_rmse <= row.relative_rmse
-                && (o.total_s() < row.total_s() || o.relative_rmse < row.relative_rmse)
-        });
+        row.pareto = !snapshot.iter().any(|o| o.scene == row.scene && dominates(o, row));
     }
+}
+
+/// `a` is at least as fast and as accurate as `b`, and strictly better in one.
+fn dominates(a: &Row, b: &Row) -> bool {
+    a.total_s() <= b.total_s()
+        && a.relative_rmse <= b.relative_rmse
+        && (a.total_s() < b.total_s() || a.relative_rmse < b.relative_rmse)
 }
 
 /// Fills [`Row::delta_rmse_at_equal_time`] for the rungs that do not delta-track.
@@ -347,7 +349,7 @@ fn mark_delta_at_equal_time(rows: &mut [Row]) {
         let delta: Vec<&Row> = snapshot.iter().filter(|o| o.scene == row.scene && o.rung.distance == "delta").collect();
         let mut front: Vec<(f64, f64)> = delta
             .iter()
-            .filter(|o| !delta.iter().any(|d| d.total_s() <= o.total_s() && d.relative_rmse < o.relative_rmse))
+            .filter(|o| !delta.iter().any(|d| dominates(d, o)))
             .map(|o| (o.total_s(), o.relative_rmse))
             .collect();
         front.sort_by(|a, b| a.0.total_cmp(&b.0));
