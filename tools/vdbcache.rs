@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, MultipleEstimator};
 use nimbus_cli::{
     read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
 };
@@ -36,6 +36,10 @@ struct Args {
     /// or the --quality preset's).
     #[arg(long)]
     cache_scale: Option<f64>,
+    /// Li_multiple's own cache voxel edge in density voxels (default: --cache-scale).
+    /// Multiple scattering is smoother than single, so it can take a coarser lattice.
+    #[arg(long, value_name = "SCALE")]
+    multiple_scale: Option<f64>,
     /// Photons per multiple-scattering estimate, adaptive radius (default 64, or the
     /// --quality preset's).
     #[arg(long, conflicts_with = "radius")]
@@ -46,6 +50,15 @@ struct Args {
     /// Fixed gather radius (world units) instead of --gather-neighbours.
     #[arg(long)]
     radius: Option<f64>,
+    /// Estimate multiple scattering by up to N paths traced from each cache voxel instead of
+    /// gathering photons: unbiased, and needs no photons (vdbphoton can be left out of the
+    /// chain). Voxels the eye sees through the medium get fewer paths, in proportion to the
+    /// transmittance toward the eye (at least one).
+    #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"])]
+    paths: Option<u32>,
+    /// Random seed of --paths (default: what the file records, else 0).
+    #[arg(long)]
+    seed: Option<u64>,
     /// Largest adaptive gather radius, in density voxels.
     #[arg(long, default_value_t = 12.0)]
     max_radius: f64,
@@ -112,6 +125,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
         step: args.step,
         cache_scale: args.cache_scale.or(preset.map(|q| q.cache_scale)).unwrap_or(2.0),
+        multiple_scale: args.multiple_scale,
         single: !args.no_single,
         multiple: !args.no_multiple,
         gather: match args.radius {
@@ -121,11 +135,16 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                 max_radius: args.max_radius * voxel,
             },
         },
+        estimator: match args.paths {
+            Some(per_voxel) => MultipleEstimator::Paths { per_voxel },
+            None => MultipleEstimator::Photons,
+        },
+        seed: args.seed.or(meta.seed()).unwrap_or(0),
         min_transmittance: args.min_transmittance,
     };
     params.validate().map_err(Failure::usage)?;
-    if params.multiple && photons.is_empty() {
-        log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first)");
+    if params.multiple && params.estimator == MultipleEstimator::Photons && photons.is_empty() {
+        log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first, or use --paths)");
     }
     let device = args.common.compute_device(&log)?;
     let (cache, stats) = log
@@ -139,8 +158,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                 r.as_ref()
                     .map(|(_, s)| {
                         format!(
-                            "baked {} cache voxels of {} candidates ({} out of view, {} empty), {} photons gathered",
-                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.photons_gathered
+                            "baked {} cache voxels of {} candidates ({} out of view, {} empty), {} photons gathered, {} paths traced",
+                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.photons_gathered, s.paths
                         )
                     })
                     .unwrap_or_default()
@@ -165,10 +184,12 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let record = [
         ("step", params.step.to_string()),
         ("cache_scale", params.cache_scale.to_string()),
+        ("multiple_scale", params.multiple_scale().to_string()),
         ("gather", match params.gather {
             Gather::Radius(r) => format!("radius:{r}"),
             Gather::Neighbours { k, max_radius } => format!("neighbours:{k}:{max_radius}"),
         }),
+        ("multiple_estimator", params.estimator.describe()),
         ("single", (cache.li_single.is_some()).to_string()),
         ("multiple", (cache.li_multiple.is_some()).to_string()),
         ("candidates", stats.candidates.to_string()),
@@ -176,6 +197,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         ("culled_view", stats.culled_view.to_string()),
         ("culled_empty", stats.culled_empty.to_string()),
         ("photons_gathered", stats.photons_gathered.to_string()),
+        ("paths", stats.paths.to_string()),
+        ("seed", params.seed.to_string()),
     ];
     MetaWriter::new(&mut file)
         .density_grid(&grid)?

@@ -14,7 +14,7 @@
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, PhotonBins, EMPTY_BALL_FRACTION};
+use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, MultipleEstimator, PhotonBins, EMPTY_BALL_FRACTION};
 use nimbus_tracking::DensityMedium;
 use nimbus_volume::MajorantGrid;
 use rayon::prelude::*;
@@ -87,9 +87,12 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         step: 1.0,
         cache_scale: 1.2,
+        multiple_scale: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 64, max_radius: 12.0 * VOXEL },
+        estimator: MultipleEstimator::Photons,
+        seed: 0,
         min_transmittance: 1e-4,
     }
 }

@@ -6,12 +6,15 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{Camera, Light, Medium};
+use nimbus_optics::{Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{DensityMedium, MediumRay};
+use nimbus_tracking::{trace_path, DensityMedium, MediumRay};
 use nimbus_volume::{MajorantGrid, Volume};
 
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, PhotonBins};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
+
+/// Random-number domain of the path-traced multiple scattering ("CAPT").
+pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
 
 /// Single scattering toward the camera at world point `x`:
 /// sum over lights of p(w_light, w_out) E T_light(x).
@@ -142,6 +145,39 @@ pub fn li_multiple(
     (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
 }
 
+/// Li_multiple at `x` toward `w_out` by `paths` paths: each leaves x in a direction drawn
+/// from the phase function about the camera ray's direction (-w_out), so the phase weight
+/// cancels, and gathers all the light the path scatters toward x (its first collision is
+/// x's second scattering). `medium`'s majorant must suit delta tracking
+/// ([`MajorantGrid::for_tracking`]).
+pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DVec3, w_out: Vec3, paths: u32, rng: &mut Rng) -> Vec3 {
+    let phase = optics.phase();
+    // At the eye itself there is no camera ray; any axis serves.
+    let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
+    let mut sum = Vec3::ZERO;
+    for _ in 0..paths {
+        let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
+        sum += trace_path(medium, optics, lights, x, dir, PATH_MAX_DEPTH, rng).total();
+    }
+    sum / paths.max(1) as f32
+}
+
+/// Paths for the voxel at `x`: `per_voxel` times the transmittance toward the eye, rounded
+/// up, at least one. The march weighs the voxel's Li by that transmittance, so this spreads
+/// the paths where they lower the image's error most (for equal per-path variance, the
+/// image's variance sum T^2 var / n is least for n proportional to T); the one path keeps
+/// every voxel an unbiased, if noisy, estimate for other views. The transmittance is taken
+/// from `reach` in front of x (the reach of the cache's interpolation): the march reads a
+/// voxel's value wherever its interpolation weight is non-zero, and a voxel just behind a
+/// cloud's visible surface is seen there through clear air, though its own centre is not.
+#[allow(clippy::too_many_arguments)]
+pub fn paths_for_voxel(medium: DensityMedium, eye: DVec3, x: DVec3, reach: f64, per_voxel: u32, step: f64, cutoff: f64) -> u32 {
+    let to_eye = eye - x;
+    let distance = to_eye.length();
+    let t = if distance > reach { MediumRay::new(medium, x, to_eye / distance, reach, distance).transmittance(step, cutoff) } else { 1.0 };
+    ((per_voxel as f64 * t).ceil() as u32).clamp(1, per_voxel.max(1))
+}
+
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
 pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
     (camera.eye() - x).normalize_or_zero().as_vec3()
@@ -153,33 +189,62 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
     let mut stats = plan.stats.clone();
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
+    if let Some(p) = &own_plan {
+        stats.add(&p.stats);
+    }
+    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);
-    let positions = plan.voxel_positions();
     let camera = &params.camera;
 
     let mut nonfinite = 0;
-    let mut bake = |f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+    let mut bake = |plan: &CachePlan, f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+        let positions = plan.voxel_positions();
         let values: Vec<Vec3> = positions.par_iter().map_init(Vec::new, |scratch, &x| f(x, toward_eye(camera, x), scratch)).collect();
         let (volume, bad) = plan.volume_of(&values);
         nonfinite += bad;
         volume
     };
     let li_single = params.bakes_single().then(|| {
-        bake(&|x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
+        bake(&plan, &|x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
     });
-    let li_multiple = params.bakes_multiple(photons).then(|| {
-        let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
-        let gathered = AtomicU64::new(0);
-        let empty_below = empty_ball_density(&majorant);
-        let volume = bake(&|x, w_out, scratch| {
-            let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
-            gathered.fetch_add(used as u64, Ordering::Relaxed);
-            li
-        });
-        stats.photons_gathered = gathered.into_inner();
-        volume
-    });
+    let li_multiple = match params.estimator {
+        _ if !params.bakes_multiple(photons) => None,
+        MultipleEstimator::Photons => {
+            let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
+            let gathered = AtomicU64::new(0);
+            let empty_below = empty_ball_density(&majorant);
+            let volume = bake(multiple_plan, &|x, w_out, scratch| {
+                let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
+                gathered.fetch_add(used as u64, Ordering::Relaxed);
+                li
+            });
+            stats.photons_gathered = gathered.into_inner();
+            Some(volume)
+        }
+        MultipleEstimator::Paths { per_voxel } => {
+            let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
+            let paths_medium = DensityMedium { majorant: &tracking, ..medium };
+            let traced = AtomicU64::new(0);
+            let reach = multiple_plan.transform.voxel_size().length();
+            let values: Vec<Vec3> = multiple_plan
+                .voxel_positions()
+                .par_iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    let paths = paths_for_voxel(paths_medium, camera.eye(), x, reach, per_voxel, step, params.min_transmittance);
+                    traced.fetch_add(paths as u64, Ordering::Relaxed);
+                    let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
+                    li_multiple_paths(paths_medium, &params.medium, &params.lights, x, toward_eye(camera, x), paths, &mut rng)
+                })
+                .collect();
+            let (volume, bad) = multiple_plan.volume_of(&values);
+            nonfinite += bad;
+            stats.paths = traced.into_inner();
+            Some(volume)
+        }
+    };
     stats.nonfinite = nonfinite;
     Ok((IlluminationCache { li_single, li_multiple }, stats))
 }

@@ -10,7 +10,7 @@ use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS};
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, PhotonBins};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins};
 
 /// The cache kernels, `shaders/cache.wgsl`.
 pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
@@ -87,6 +87,9 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     params.validate()?;
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons);
+    if multiple && matches!(params.estimator, MultipleEstimator::Paths { .. }) {
+        return Err(CacheError::Param("path-traced multiple scattering runs on the CPU backend only so far (use --device cpu)".into()));
+    }
     if let Gather::Neighbours { k, .. } = params.gather {
         if multiple && k > GPU_MAX_NEIGHBOURS {
             return Err(CacheError::Param(format!(

@@ -33,7 +33,7 @@ mod gpu;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::{bake_cpu, gather_cell, li_multiple, li_single, mean_density_in_ball, toward_eye, EMPTY_BALL_FRACTION};
+pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, paths_for_voxel, toward_eye, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use plan::{cache_transform, CachePlan};
 
@@ -49,6 +49,36 @@ pub enum Gather {
     Radius(f64),
 }
 
+/// How Li_multiple is estimated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MultipleEstimator {
+    /// The photon map's radiance estimate (the paper's method), over the ball
+    /// [`CacheParams::gather`] chooses. Biased by the ball's size, and its error falls slowly
+    /// with the photon count (as the k-nearest-neighbour density estimate's does, about
+    /// N^-0.3 on the bundled cloud).
+    Photons,
+    /// Paths traced from each cache voxel ([`li_multiple_paths`]): unbiased per voxel, its
+    /// error falling as 1/sqrt(paths), and needs no photons. `per_voxel` paths where the eye
+    /// sees the voxel through clear air, fewer (at least one) where it sees it through the
+    /// medium: in proportion to the transmittance toward the eye, which is what the march
+    /// weighs the voxel by.
+    Paths { per_voxel: u32 },
+}
+
+impl MultipleEstimator {
+    /// The text form for metadata and `-v`: `photons` or `paths:N`.
+    pub fn describe(self) -> String {
+        match self {
+            MultipleEstimator::Photons => "photons".into(),
+            MultipleEstimator::Paths { per_voxel } => format!("paths:{per_voxel}"),
+        }
+    }
+}
+
+/// Most collisions of a path-traced multiple-scattering estimate: the reference path
+/// tracer's default, which roulette makes a negligible truncation.
+pub const PATH_MAX_DEPTH: u32 = 512;
+
 /// Everything a bake depends on; the CPU and GPU backends read the same struct.
 #[derive(Clone, Debug)]
 pub struct CacheParams {
@@ -59,9 +89,17 @@ pub struct CacheParams {
     pub step: f64,
     /// Cache voxel edge in density voxels (>= 1 coarser).
     pub cache_scale: f64,
+    /// Li_multiple's own voxel edge in density voxels, where it differs from `cache_scale`:
+    /// multiple scattering is smoother than single (whose shadows are as sharp as the
+    /// density), so a coarser lattice serves it at a fraction of the voxels.
+    pub multiple_scale: Option<f64>,
     pub single: bool,
     pub multiple: bool,
     pub gather: Gather,
+    /// Where Li_multiple comes from: the photons, or paths traced from the voxels.
+    pub estimator: MultipleEstimator,
+    /// Seed of the path-traced estimate (voxel i draws from `Rng(seed, i)`).
+    pub seed: u64,
     /// Shadow rays stop once transmittance falls below this.
     pub min_transmittance: f64,
 }
@@ -84,6 +122,8 @@ pub struct BakeStats {
     pub culled_empty: u64,
     pub baked: u64,
     pub photons_gathered: u64,
+    /// Paths traced for the path-traced multiple scattering.
+    pub paths: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
     pub nonfinite: u64,
 }
@@ -96,10 +136,25 @@ pub enum CacheError {
     Gpu(#[from] nimbus_gpu::GpuError),
 }
 
+impl BakeStats {
+    /// Counts over two lattices (Li_multiple on its own): the voxel counts add up.
+    pub fn add(&mut self, other: &BakeStats) {
+        self.candidates += other.candidates;
+        self.culled_view += other.culled_view;
+        self.culled_empty += other.culled_empty;
+        self.baked += other.baked;
+    }
+}
+
 impl CacheParams {
     /// The Simpson step toward the lights in world units.
     pub fn single_step(&self, density: &Volume<f32>) -> f64 {
         self.step * density.transform().voxel_size().min_element()
+    }
+
+    /// Li_multiple's voxel edge in density voxels.
+    pub fn multiple_scale(&self) -> f64 {
+        self.multiple_scale.unwrap_or(self.cache_scale)
     }
 
     /// Whether single scattering is asked for and can be non-zero.
@@ -107,9 +162,15 @@ impl CacheParams {
         self.single && !self.medium.is_non_scattering() && !self.lights.is_empty()
     }
 
-    /// Whether multiple scattering is asked for and has photons to gather.
+    /// Whether multiple scattering is asked for and has something to estimate it from:
+    /// photons to gather, or lights for the paths to reach.
     pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
-        self.multiple && !self.medium.is_non_scattering() && !photons.is_empty()
+        self.multiple
+            && !self.medium.is_non_scattering()
+            && match self.estimator {
+                MultipleEstimator::Photons => !photons.is_empty(),
+                MultipleEstimator::Paths { .. } => !self.lights.is_empty(),
+            }
     }
 
     pub fn validate(&self) -> Result<(), CacheError> {
@@ -123,6 +184,7 @@ impl CacheParams {
         };
         positive("--step", self.step)?;
         positive("--cache-scale", self.cache_scale)?;
+        positive("--multiple-scale", self.multiple_scale())?;
         match self.gather {
             Gather::Neighbours { k, max_radius } => {
                 if k == 0 {
@@ -131,6 +193,9 @@ impl CacheParams {
                 positive("gather max radius", max_radius)?;
             }
             Gather::Radius(r) => positive("--radius", r)?,
+        }
+        if self.estimator == (MultipleEstimator::Paths { per_voxel: 0 }) {
+            return Err(CacheError::Param("--paths must be at least 1".into()));
         }
         if !(0.0..1.0).contains(&self.min_transmittance) {
             return Err(CacheError::Param(format!("--min-transmittance must be in [0,1), got {}", self.min_transmittance)));

@@ -7,7 +7,9 @@ use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::BakeStats;
+use nimbus_photon::PhotonMap;
+
+use crate::{BakeStats, CacheParams};
 
 /// The cache lattice: the density lattice scaled by `scale`, so cache voxel c sits at density
 /// index scale * c and both share the origin.
@@ -86,6 +88,15 @@ impl CachePlan {
             }
         }
         CachePlan { transform, bricks, stats }
+    }
+
+    /// Li_multiple's own plan, where it has its own lattice (`multiple_scale`) and will be
+    /// baked; None where it shares `single`'s.
+    pub fn for_multiple(density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, single: &CachePlan, photons: &PhotonMap) -> Option<CachePlan> {
+        let scale = params.multiple_scale();
+        (params.bakes_multiple(photons) && scale != params.cache_scale)
+            .then(|| CachePlan::new(density, majorant, &params.camera, scale))
+            .filter(|p| p.transform != single.transform)
     }
 
     pub fn mask_of(&self, origin: IVec3) -> Option<&BrickMask> {

@@ -1,5 +1,5 @@
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, MultipleEstimator};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_volume::{Transform, Volume};
@@ -27,9 +27,12 @@ fn params(camera: Camera) -> CacheParams {
         camera,
         step: 0.25,
         cache_scale: 1.0,
+        multiple_scale: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 32, max_radius: 1.0 },
+        estimator: MultipleEstimator::Photons,
+        seed: 0,
         min_transmittance: 0.0,
     }
 }

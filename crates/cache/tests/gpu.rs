@@ -2,7 +2,7 @@
 //! voxels, values to float tolerance.
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -37,9 +37,12 @@ fn params(v: &Volume<f32>) -> CacheParams {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         step: 0.5,
         cache_scale: 1.5,
+        multiple_scale: None,
         single: true,
         multiple: true,
         gather: Gather::Neighbours { k: 32, max_radius: 0.6 },
+        estimator: MultipleEstimator::Photons,
+        seed: 0,
         min_transmittance: 1e-4,
     }
 }
@@ -153,6 +156,7 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
         gather: Gather::Neighbours { k: 8, max_radius: 0.15 },
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         cache_scale: 2.0,
+        multiple_scale: None,
         ..params(&v)
     };
     match bake_gpu(ctx, &v, &map, &p) {

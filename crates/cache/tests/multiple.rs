@@ -30,3 +30,37 @@ fn li_multiple_approaches_a_path_traced_reference_as_photons_increase() {
     assert!(fine < 0.15, "160k photons: mean relative error {fine}");
     assert!(fine < coarse, "error grows with photons: {coarse} -> {fine}");
 }
+
+#[test]
+fn path_traced_li_multiple_matches_the_reference_to_its_noise() {
+    let points: Vec<DVec3> = POINTS.iter().map(|&p| DVec3::from_array(p)).collect();
+    let traced = THICK.path_traced(1.0 / 24.0, 16_000, 5, &points);
+    for (p, (v, e)) in points.iter().zip(&traced) {
+        let (r, re) = THICK.reference(*p, 100_000, 1);
+        // The voxelized sphere's one-voxel surface ramp differs from the exact sphere by a
+        // little: 2% of slack for it, plus four standard errors of both estimates.
+        let tolerance = 0.02 * r + 4.0 * (e * e + re * re).sqrt();
+        eprintln!("{p}: paths {v:.5} +- {e:.5}, reference {r:.5} +- {re:.5}");
+        assert!((v - r).abs() < tolerance, "at {p}: path-traced {v} against reference {r} (tolerance {tolerance})");
+        assert!(*e < 0.05 * v, "path-traced noise {e} at {p}: the batches disagree");
+    }
+}
+
+#[test]
+fn baked_paths_agree_with_the_reference_where_the_eye_sees() {
+    // Points on the camera's side (the default camera looks from -Y), where voxels get most
+    // of their paths.
+    let points: Vec<DVec3> = [[0.0, -0.6, 0.0], [0.0, -0.5, 0.4], [0.3, -0.5, -0.3]].iter().map(|&p| DVec3::from_array(p)).collect();
+    let baked = THICK.baked_paths(1.0 / 8.0, 1.0, 256, 3, &points);
+    for (p, b) in points.iter().zip(&baked) {
+        let (r, _) = THICK.reference(*p, 100_000, 2);
+        eprintln!("{p}: baked {b:.5}, reference {r:.5}");
+        // The cache lattice's interpolation and the coarse voxelization (1/8 of the radius)
+        // add to the paths' noise: 15%.
+        assert!((b / r - 1.0).abs() < 0.15, "at {p}: baked {b} against reference {r}");
+    }
+    let again = THICK.baked_paths(1.0 / 8.0, 1.0, 256, 3, &points);
+    assert_eq!(baked, again, "same seed, same cache");
+    let other = THICK.baked_paths(1.0 / 8.0, 1.0, 256, 4, &points);
+    assert_ne!(baked, other, "the seed reaches the paths");
+}

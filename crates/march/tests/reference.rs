@@ -4,7 +4,7 @@
 mod common;
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator};
 use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
@@ -63,9 +63,12 @@ fn single_scattering_matches_the_cached_chain() {
         camera,
         step: 0.5,
         cache_scale: 1.0,
+        multiple_scale: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
+        estimator: MultipleEstimator::Photons,
+        seed: 0,
         min_transmittance: 0.0,
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();

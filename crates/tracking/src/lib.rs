@@ -18,6 +18,9 @@
 //!   unbiased;
 //! - [`MediumRay::transmittance_ratio`]: ratio tracking, an unbiased transmittance estimate.
 //!
+//! On these, [`trace_path`] traces a volumetric path with next-event estimation: the
+//! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering.
+//!
 //! The WGSL twin is `shaders/tracking.wgsl` ([`TRACKING_WGSL`], with [`GpuMajorantInfo`] and
 //! [`majorant_buffer`] for the host side).
 //!
@@ -26,8 +29,10 @@
 //! same in both).
 
 mod gpu;
+mod path;
 
 pub use gpu::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;
 use nimbus_optics::Rng;

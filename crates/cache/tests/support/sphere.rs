@@ -7,7 +7,7 @@
 #![allow(dead_code)]
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather};
+use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator};
 use nimbus_optics::{sample_uniform_sphere, Camera, Light, Medium, Rng};
 use nimbus_photon::{trace_cpu, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -116,13 +116,73 @@ impl Sphere {
             camera: Camera::default_for_bounds(lo, hi).unwrap(),
             step: 0.5,
             cache_scale: 1.0,
+            multiple_scale: None,
             single: false,
             multiple: true,
             gather: Gather::Neighbours { k, max_radius: 0.5 * self.radius },
+            estimator: MultipleEstimator::Photons,
+            seed: 0,
             min_transmittance: 1e-4,
         };
         let (cache, _) = bake_cpu(&density, &map, &params).unwrap();
         let li = cache.li_multiple.expect("photons were stored");
+        points.iter().map(|&p| li.sample_world(p).x as f64).collect()
+    }
+}
+
+impl Sphere {
+    /// Li_multiple at `points` by [`nimbus_cache::li_multiple_paths`] straight (no cache
+    /// lattice): `paths` paths each, through the voxelized sphere. Returns (mean, standard
+    /// error) per point from 8 independent batches.
+    pub fn path_traced(&self, voxel: f64, paths: u32, seed: u64, points: &[DVec3]) -> Vec<(f64, f64)> {
+        use nimbus_tracking::DensityMedium;
+        use nimbus_volume::MajorantGrid;
+        let density = self.voxelized(voxel);
+        let optics = self.medium();
+        let majorant = MajorantGrid::for_tracking(&density, optics.extinction);
+        let medium = DensityMedium { density: &density, majorant: &majorant, extinction: optics.extinction };
+        let lights = [Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()];
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| {
+                let batches: Vec<f64> = (0..8u64)
+                    .into_par_iter()
+                    .map(|b| {
+                        let mut rng = Rng::new(seed, i as u64 * 8 + b);
+                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, p, Vec3::X, paths / 8, &mut rng).x as f64
+                    })
+                    .collect();
+                let mean = batches.iter().sum::<f64>() / 8.0;
+                let var = batches.iter().map(|b| (b - mean).powi(2)).sum::<f64>() / 7.0;
+                (mean, (var / 8.0).sqrt())
+            })
+            .collect()
+    }
+
+    /// Li_multiple baked by paths (`per_voxel` each, the eye far enough that every voxel gets
+    /// about that many), read at `points`.
+    pub fn baked_paths(&self, voxel: f64, cache_scale: f64, per_voxel: u32, seed: u64, points: &[DVec3]) -> Vec<f64> {
+        let density = self.voxelized(voxel);
+        let light = Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap();
+        let (lo, hi) = density.world_bounds().unwrap();
+        let params = CacheParams {
+            medium: self.medium(),
+            lights: vec![light],
+            camera: Camera::default_for_bounds(lo, hi).unwrap(),
+            step: 0.5,
+            cache_scale,
+            multiple_scale: None,
+            single: false,
+            multiple: true,
+            gather: Gather::Neighbours { k: 1, max_radius: 1.0 },
+            estimator: MultipleEstimator::Paths { per_voxel },
+            seed,
+            min_transmittance: 1e-4,
+        };
+        let (cache, stats) = bake_cpu(&density, &nimbus_photon::PhotonMap::default(), &params).unwrap();
+        assert!(stats.paths >= stats.baked && stats.paths <= stats.baked * per_voxel as u64, "{stats:?}");
+        let li = cache.li_multiple.expect("paths need no photons");
         points.iter().map(|&p| li.sample_world(p).x as f64).collect()
     }
 }

@@ -109,7 +109,8 @@ pub fn reference_tile_pixels() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::reference::{RATIO_ROULETTE, REFERENCE_DOMAIN, ROULETTE_FROM_DEPTH};
+    use crate::reference::REFERENCE_DOMAIN;
+        use nimbus_tracking::{RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
     #[test]
     fn layout_and_constants_match_the_wgsl() {

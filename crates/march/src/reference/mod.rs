@@ -4,12 +4,13 @@
 //! Per camera sample (jittered over the pixel, box filter):
 //! - the camera ray's transmittance to the background by ratio tracking (so alpha and the
 //!   background term are smooth, not the 0/1 of a delta-tracked escape);
-//! - a path: free flights by delta tracking against the majorant grid; at each real
-//!   collision the throughput takes the albedo (sigma_s / sigma_t), next-event estimation
-//!   adds each light's `E p(w_light, w_out) T` with T by ratio tracking, then HG picks the
-//!   next direction. Russian roulette on the throughput from the fourth bounce; `max_depth`
-//!   bounds the collisions (a truncation the defaults make negligible: every bounce costs at
-//!   least the albedo, and roulette ends paths long before 512).
+//! - a path ([`nimbus_tracking::trace_path`]): free flights by delta tracking against the
+//!   majorant grid; at each real collision the throughput takes the albedo (sigma_s /
+//!   sigma_t), next-event estimation adds each light's `E p(w_light, w_out) T` with T by
+//!   ratio tracking, then HG picks the next direction. Russian roulette on the throughput
+//!   from the third bounce; `max_depth` bounds the collisions (a truncation the defaults make
+//!   negligible: every bounce costs at least the albedo, and roulette ends paths long before
+//!   512).
 //!
 //! Lights are suns and points (delta lights), so next-event estimation is the only way light
 //! enters the path and needs no MIS. Paths that escape add nothing: the background is seen
@@ -46,10 +47,6 @@ pub(crate) fn sample_stream(pixel: u64, sample: u32) -> u64 {
     (u64::from(sample) << 32) | pixel
 }
 
-/// Bounce from which Russian roulette may end a path.
-pub(crate) const ROULETTE_FROM_DEPTH: u32 = 3;
-/// Ratio-tracking estimates below this go to Russian roulette (kept unbiased).
-pub(crate) const RATIO_ROULETTE: f64 = 0.05;
 
 /// Everything a reference render depends on; the CPU and GPU backends read the same struct.
 #[derive(Clone, Debug)]

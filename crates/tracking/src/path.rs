@@ -1,0 +1,82 @@
+//! Volumetric path tracing: the light a path gathers by next-event estimation at each of its
+//! collisions. The reference path tracer (vdbmarch --reference) starts its paths at the eye;
+//! vdbcache's path-traced multiple scattering starts them at a cache voxel.
+
+use glam::{DVec3, Vec3};
+use nimbus_optics::{Light, Medium, Rng};
+
+use crate::{DensityMedium, FreePath, MediumRay};
+
+/// Bounce from which Russian roulette may end a path.
+pub const ROULETTE_FROM_DEPTH: u32 = 3;
+/// Ratio-tracking estimates below this go to Russian roulette (kept unbiased).
+pub const RATIO_ROULETTE: f64 = 0.05;
+
+/// One path's light, split by the collision it was scattered at: the first (`single`) and
+/// every later one (`multiple`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PathLight {
+    pub single: Vec3,
+    pub multiple: Vec3,
+}
+
+impl PathLight {
+    pub fn total(self) -> Vec3 {
+        self.single + self.multiple
+    }
+}
+
+/// The radiance arriving at `origin` from direction `-dir` (unit, world), scattered in the
+/// medium, estimated by one path: free flights by delta tracking against the majorant grid;
+/// at each real collision the throughput takes the albedo (sigma_s / sigma_t) and next-event
+/// estimation adds each light's `E p(w_light, w_out) T`, with T by ratio tracking; then
+/// Henyey-Greenstein picks the next direction. Russian roulette on the throughput from
+/// [`ROULETTE_FROM_DEPTH`]; at most `max_depth` collisions.
+///
+/// Lights are suns and points (delta lights), so next-event estimation is the only way light
+/// enters a path and needs no MIS; paths that escape add nothing.
+pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], origin: DVec3, dir: DVec3, max_depth: u32, rng: &mut Rng) -> PathLight {
+    let phase = optics.phase();
+    let mut light = PathLight::default();
+    let (mut x, mut w) = (origin, dir);
+    let mut beta = Vec3::ONE;
+    for depth in 1..=max_depth {
+        let FreePath::Interaction(t) = MediumRay::new(medium, x, w, 0.0, f64::INFINITY).sample_delta(rng) else {
+            break;
+        };
+        x += w * t;
+        beta *= optics.albedo;
+        let w_out = -w.as_vec3();
+        let mut direct = Vec3::ZERO;
+        for l in lights {
+            let incident = l.incident(x);
+            if incident.irradiance == Vec3::ZERO {
+                continue;
+            }
+            let shadow = MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance);
+            let tr = shadow.transmittance_ratio(rng, RATIO_ROULETTE) as f32;
+            if tr > 0.0 {
+                direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
+            }
+        }
+        if depth == 1 {
+            light.single += beta * direct;
+        } else {
+            light.multiple += beta * direct;
+        }
+        if depth >= ROULETTE_FROM_DEPTH {
+            let q = beta.max_element();
+            if q <= 0.0 {
+                break;
+            }
+            if q < 1.0 {
+                if rng.next_f32() >= q {
+                    break;
+                }
+                beta /= q;
+            }
+        }
+        w = phase.sample(w.as_vec3(), rng.next_vec2()).as_dvec3().normalize();
+    }
+    light
+}
