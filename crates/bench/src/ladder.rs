@@ -53,11 +53,22 @@ pub struct Rung {
     /// March step over the default (a third of a voxel diagonal).
     pub step_factor: f64,
     pub spp: u32,
+    /// `vdbcache --paths`: multiple scattering by this many paths per cache voxel instead of
+    /// photons (then `photons` is 0 and vdbphoton is not run); 0 for photons.
+    pub paths: u32,
+    /// `vdbcache --multiple-scale` (None: the cache scale).
+    pub multiple_scale: Option<f64>,
 }
 
 impl Rung {
     fn new(name: &str, photons: u64, distance: &'static str, neighbours: u32, cache_scale: f64, step_factor: f64, spp: u32) -> Rung {
-        Rung { name: name.into(), photons, distance, neighbours, cache_scale, step_factor, spp }
+        Rung { name: name.into(), photons, distance, neighbours, cache_scale, step_factor, spp, paths: 0, multiple_scale: None }
+    }
+
+    /// The chain without photons: vdbcache traces `paths` per voxel on a Li_multiple lattice
+    /// `multiple_scale` density voxels wide.
+    fn paths(name: &str, paths: u32, cache_scale: f64, multiple_scale: f64) -> Rung {
+        Rung { photons: 0, distance: "none", neighbours: 0, paths, multiple_scale: Some(multiple_scale), ..Rung::new(name, 0, "none", 0, cache_scale, 1.0, 1) }
     }
 }
 
@@ -126,6 +137,16 @@ fn ladder(quick: bool) -> Vec<Rung> {
         vary("step x0.5", &|r| r.step_factor = 0.5),
         vary("spp 4", &|r| r.spp = 4),
     ]);
+    // Multiple scattering by paths from the cache voxels instead of photons: the paths per
+    // voxel, on Li_multiple lattices 4 and 2 density voxels wide (single scattering keeps the
+    // default cache scale 2).
+    rungs.extend([
+        Rung::paths("paths 32", 32, 2.0, 4.0),
+        Rung::paths("paths 128", 128, 2.0, 4.0),
+        Rung::paths("paths 512", 512, 2.0, 4.0),
+        Rung::paths("paths 32 fine", 32, 2.0, 2.0),
+        Rung::paths("paths 128 fine", 128, 2.0, 2.0),
+    ]);
     // "delta 50k" repeats "photons 50k"; keep one.
     rungs.retain(|r| r.name != "delta 50k");
     rungs
@@ -145,8 +166,9 @@ pub struct Row {
     pub corrected_rmse: f64,
     pub mean_ratio: f64,
     pub pareto: bool,
-    /// For a rung whose photons are not delta-tracked: the error delta tracking reaches in the
-    /// same total time, read off the scene's delta-tracked Pareto front (log-log
+    /// For a rung whose photons are not delta-tracked (another distance mode, or paths instead
+    /// of photons): the error the delta-tracked photon chain reaches in the same total time,
+    /// read off the scene's delta-tracked Pareto front (log-log
     /// interpolation between its neighbours in time; `None` outside the front's time span or
     /// for delta rungs). The paper's Eq. 1 and Eq. 2 compared at equal time, as issue 7 asks.
     pub delta_rmse_at_equal_time: Option<f64>,
@@ -273,23 +295,40 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
     let mut rows = Vec::new();
     let default_step = scene.voxel * 3f64.sqrt() / 3.0;
     for rung in ladder(args.quick) {
-        let pkey = (rung.photons, rung.distance);
-        if !photon_runs.contains_key(&pkey) {
-            let out = path(&format!("photons-{}-{}.vdb", rung.photons, rung.distance));
-            let mut a = vec![density.display().to_string()];
-            a.extend(strings(scene.optics));
-            a.extend(["--photons".into(), rung.photons.to_string(), "--distance".into(), rung.distance.into()]);
-            a.extend(["-o".into(), out.display().to_string()]);
-            let s = run_tool(&args.bin, "vdbphoton", &a, &path("vdbphoton.log"))?;
-            photon_runs.insert(pkey, (out, s));
-        }
-        let (photons, photon_s) = photon_runs[&pkey].clone();
-        let ckey = format!("{}-{}-{}-{}", rung.photons, rung.distance, rung.neighbours, rung.cache_scale);
+        let (input, photon_s) = if rung.paths > 0 {
+            (density.clone(), 0.0)
+        } else {
+            let pkey = (rung.photons, rung.distance);
+            if !photon_runs.contains_key(&pkey) {
+                let out = path(&format!("photons-{}-{}.vdb", rung.photons, rung.distance));
+                let mut a = vec![density.display().to_string()];
+                a.extend(strings(scene.optics));
+                a.extend(["--photons".into(), rung.photons.to_string(), "--distance".into(), rung.distance.into()]);
+                a.extend(["-o".into(), out.display().to_string()]);
+                let s = run_tool(&args.bin, "vdbphoton", &a, &path("vdbphoton.log"))?;
+                photon_runs.insert(pkey, (out, s));
+            }
+            photon_runs[&pkey].clone()
+        };
+        let ckey = match rung.multiple_scale {
+            _ if rung.paths == 0 => format!("{}-{}-{}-{}", rung.photons, rung.distance, rung.neighbours, rung.cache_scale),
+            ms => format!("paths-{}-{}-{}", rung.paths, rung.cache_scale, ms.unwrap_or(rung.cache_scale)),
+        };
         if !cache_runs.contains_key(&ckey) {
             let out = path(&format!("cache-{ckey}.vdb"));
-            let mut a = vec![photons.display().to_string()];
+            let mut a = vec![input.display().to_string()];
             a.extend(camera.clone());
-            a.extend(["--gather-neighbours".into(), rung.neighbours.to_string(), "--cache-scale".into(), rung.cache_scale.to_string()]);
+            a.extend(["--cache-scale".into(), rung.cache_scale.to_string()]);
+            if rung.paths > 0 {
+                // Straight from the density: the optics vdbphoton would have recorded.
+                a.extend(strings(scene.optics));
+                a.extend(["--paths".into(), rung.paths.to_string()]);
+            } else {
+                a.extend(["--gather-neighbours".into(), rung.neighbours.to_string()]);
+            }
+            if let Some(ms) = rung.multiple_scale {
+                a.extend(["--multiple-scale".into(), ms.to_string()]);
+            }
             a.extend(["-o".into(), out.display().to_string()]);
             let s = run_tool(&args.bin, "vdbcache", &a, &path("vdbcache.log"))?;
             cache_runs.insert(ckey.clone(), (out, s));
@@ -373,13 +412,15 @@ fn interpolate_log_log(points: &[(f64, f64)], x: f64) -> Option<f64> {
 }
 
 /// The table's columns: (CSV name, Markdown heading).
-const COLUMNS: [(&str, &str); 17] = [
+const COLUMNS: [(&str, &str); 19] = [
     ("scene", "scene"),
     ("rung", "rung"),
     ("photons", "photons"),
     ("distance", "distance"),
     ("neighbours", "K"),
+    ("paths", "paths"),
     ("cache_scale", "cache scale"),
+    ("multiple_scale", "MS scale"),
     ("step_factor", "step x"),
     ("spp", "spp"),
     ("photon_s", "vdbphoton s"),
@@ -390,7 +431,7 @@ const COLUMNS: [(&str, &str); 17] = [
     ("corrected_rmse", "less ref. noise"),
     ("mean_ratio", "mean ratio"),
     ("pareto", "Pareto"),
-    ("delta_rmse_at_equal_time", "delta at equal time"),
+    ("delta_rmse_at_equal_time", "delta photons at equal time"),
 ];
 
 /// A row's values in [`COLUMNS`] order.
@@ -402,7 +443,9 @@ fn fields(r: &Row) -> Vec<String> {
         g.photons.to_string(),
         g.distance.to_string(),
         g.neighbours.to_string(),
+        g.paths.to_string(),
         g.cache_scale.to_string(),
+        g.multiple_scale.unwrap_or(g.cache_scale).to_string(),
         g.step_factor.to_string(),
         g.spp.to_string(),
         format!("{:.2}", r.photon_s),

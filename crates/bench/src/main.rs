@@ -4,7 +4,9 @@
 //! reference once with `vdbmarch --reference` (cached in `out/bench/`, re-rendered when its
 //! command line or the density changes), then runs the nimbus chain
 //! (`vdbphoton | vdbcache | vdbmarch`) over a ladder of quality settings: photon count and
-//! distance mode, gather neighbours, cache scale, march step, spp, and the three presets.
+//! distance mode, gather neighbours, cache scale, march step, spp, and the three presets; and
+//! the chain without photons (`vdbcache --paths | vdbmarch`, multiple scattering by paths
+//! traced from the cache voxels) over paths per voxel and Li_multiple's lattice.
 //! Each rung's stage times are wall-clock times of the tools as a user runs them (VDB
 //! reading and writing included); its error is measured against the reference:
 //!
