@@ -194,6 +194,64 @@ fn conserve_mass_is_applied_shown_and_recorded() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// The chain without photons: `vdbcache --paths` straight from the density, piped. The image
+/// has multiple scattering in it, the cache file records the estimator, `-v` counts the paths,
+/// a different seed gives a different (but close) image, and `--paths 0` is a usage error.
+#[test]
+fn paths_replace_photons_in_the_chain() {
+    let dir = scratch("paths");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 4000);
+    let d_bytes = pipe("particles2vdb", &[DENSITY, &["--format", "ply"]].concat(), &std::fs::read(&ply).unwrap());
+    let optics = ["--extinction", "6", "--sun", "dir=0.3,0.4,-0.8,irradiance=2"];
+    let cache = |seed: &str| pipe("vdbcache", &[&optics[..], &["--width", "32", "--height", "24", "--paths", "8", "--multiple-scale", "3", "--seed", seed]].concat(), &d_bytes);
+    let c = dir.join("c.vdb");
+    std::fs::write(&c, cache("1")).unwrap();
+    let mean_multiple = |cache: &Path| {
+        let e = cache.with_extension("exr");
+        run(Command::new(bin("vdbmarch")).arg(cache).args(["--aovs", "-o"]).arg(&e));
+        let file = exr::prelude::read_all_flat_layers_from_file(&e).unwrap();
+        let r = file
+            .layer_data
+            .iter()
+            .flat_map(|l| l.channel_data.list.iter())
+            .find(|c| c.name.to_string() == "multiple.R")
+            .expect("a multiple.R channel");
+        let values: Vec<f32> = r.sample_data.values_as_f32().collect();
+        assert!(values.iter().all(|v| v.is_finite()));
+        values.iter().map(|&v| v as f64).sum::<f64>() / values.len() as f64
+    };
+    let one = mean_multiple(&c);
+    assert!(one > 0.0, "paths put multiple scattering into the image");
+    let c2 = dir.join("c2.vdb");
+    std::fs::write(&c2, cache("2")).unwrap();
+    let two = mean_multiple(&c2);
+    assert_ne!(one, two, "the seed reaches the paths");
+    assert!((one / two - 1.0).abs() < 0.2, "two seeds agree in the mean: {one} {two}");
+
+    let file = nimbus_vdb::VdbFile::open(&c).unwrap();
+    let meta = nimbus_cli::PipelineMeta::of(&file);
+    assert_eq!(meta.tool_value("vdbcache", "multiple_estimator").as_deref(), Some("paths:8"));
+    assert_eq!(meta.tool_value("vdbcache", "multiple_scale").as_deref(), Some("3"));
+    let paths: u64 = meta.tool_value("vdbcache", "paths").unwrap().parse().unwrap();
+    let baked: u64 = meta.tool_value("vdbcache", "baked").unwrap().parse().unwrap();
+    assert!(paths > 0 && paths <= 8 * baked, "{paths} paths over {baked} voxels");
+    let li = file.read_vec3("Li_multiple").unwrap();
+    let single = file.read_vec3("Li_single").unwrap();
+    assert_ne!(li.transform(), single.transform(), "Li_multiple on its own lattice");
+
+    let v = dir.join("v.vdb");
+    std::fs::write(&v, &d_bytes).unwrap();
+    let out = run(Command::new(bin("vdbcache")).arg(&v).args(optics).args(["--width", "16", "--height", "12", "--paths", "4", "-v", "-o"]).arg(dir.join("v-out.vdb")));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(log.contains("paths traced") && !log.contains(" 0 paths traced"), "{log}");
+    assert!(!log.contains("no photons"), "no warning about photons: {log}");
+    let bad = Command::new(bin("vdbcache")).arg(&v).args(["--paths", "0", "-o"]).arg(dir.join("bad.vdb")).output().unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(!dir.join("bad.vdb").exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn quality_presets_set_the_tools_and_flags_override_them() {
     let dir = scratch("quality");

@@ -8,6 +8,15 @@
 //!   volume radiance estimate over the photons in a ball around x (radius fixed, or the
 //!   distance to the K-th nearest photon), divided by the mean scattering coefficient over
 //!   the same ball: the ratio stays stable at thin edges where sigma_s(x) itself is near zero.
+//!   That is the paper's estimator ([`MultipleEstimator::Photons`]). Or, with no photons at
+//!   all ([`MultipleEstimator::Paths`], `vdbcache --paths N`), the mean of N paths traced
+//!   from x ([`li_multiple_paths`] over [`nimbus_tracking::trace_path`], the reference path
+//!   tracer's own), N scaled down by the transmittance toward the eye ([`paths_for_voxel`]).
+//!   Unbiased per voxel, so its error falls as 1/sqrt(N), where the photon estimate's falls
+//!   as the k-nearest-neighbour density estimate's (about N^-0.3 on the bundled cloud, whose
+//!   error it leaves noise-limited). Li_multiple may take its own, coarser lattice
+//!   (`multiple_scale`): the interpolation then bends it low where it curves, at the cloud's
+//!   visible surface (the bundled cloud's mean: -1.5% at 2 density voxels, -3% at 4).
 //!
 //! `w_out` points from the voxel toward the camera's eye, so the cache holds what that camera
 //! sees. The cache lattice may be coarser than the density lattice (`cache_scale`); the
