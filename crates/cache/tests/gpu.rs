@@ -176,7 +176,7 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
 }
 
 /// Voxel by voxel over the two caches' shared lattice: how many voxels, how many agree to
-/// 1e-3 (relative to the peak), and the mean and standard error of the difference (GPU -
+/// 1e-4 of their own value (1e-6 of the peak near zero), and the mean and standard error of the difference (GPU -
 /// CPU) of the red channel. Distinct voxels draw from distinct streams, so the differences
 /// are independent and their mean is zero within a few standard errors if the two agree
 /// in distribution.
@@ -195,7 +195,7 @@ fn paired_differences(cpu: &Volume<Vec3>, gpu: &Volume<Vec3>) -> (usize, usize, 
     }
     let n = pairs.len();
     let peak = pairs.iter().map(|p| p.0.max(p.1)).fold(0.0, f64::max);
-    let same = pairs.iter().filter(|(c, g)| (c - g).abs() <= 1e-3 * peak).count();
+    let same = pairs.iter().filter(|(c, g)| (c - g).abs() <= 1e-4 * c.abs().max(g.abs()) + 1e-6 * peak).count();
     let mean_cpu = pairs.iter().map(|p| p.0).sum::<f64>() / n as f64;
     let d: Vec<f64> = pairs.iter().map(|(c, g)| g - c).collect();
     let mean = d.iter().sum::<f64>() / n as f64;
@@ -232,7 +232,7 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let (a, b) = (cpu_stats.paths as f64, gpu_stats.paths as f64);
     assert!(a > n as f64 && a < (n * per_voxel as usize) as f64, "the eye sees some voxels through clear air, not all: {a} paths");
     assert!((a - b).abs() <= 2e-3 * a, "paths traced: CPU {a}, GPU {b}");
-    eprintln!("{n} voxels, {same} the same to 1e-3 of the peak; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
+    eprintln!("{n} voxels, {same} the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
     assert!(n > 500 && level > 0.0);
     assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
     // The same stream per voxel (seed, voxel, domain): most voxels' paths take the very same
