@@ -261,3 +261,46 @@ fn li_multiple_takes_its_own_lattice_on_the_gpu_as_on_the_cpu() {
     eprintln!("multiple on its own lattice: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
     assert!(peak > 0.0 && worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
 }
+
+/// Paths of 512 collisions each (albedo 1, so roulette never ends them, in a cube 300 mean
+/// free paths across, which they never leave), with shadow rays toward six suns at every
+/// collision: more loop iterations per SIMD group than a software adapter (llvmpipe: 65535)
+/// runs whole, even at one path per voxel. A software adapter must refuse; any other must
+/// trace the CPU's count of paths.
+#[test]
+fn paths_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in -5..5 {
+        for y in -5..5 {
+            for z in -5..5 {
+                v.set(IVec3::new(x, y, z), 300.0);
+            }
+        }
+    }
+    let (lo, hi) = v.world_bounds().unwrap();
+    let suns = [(0.3, 0.2, -1.0), (-0.5, 0.1, -0.8), (0.1, -0.9, -0.3), (0.7, 0.7, 0.1), (-0.2, 0.4, 0.9), (0.0, 0.0, 1.0)];
+    let p = CacheParams {
+        medium: Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 },
+        lights: suns.iter().map(|&(x, y, z)| Light::sun(Vec3::new(x, y, z).normalize(), Vec3::ONE).unwrap()).collect(),
+        camera: Camera::default_for_bounds(lo, hi).unwrap(),
+        single: false,
+        cache_scale: 2.0,
+        multiple_scale: None,
+        estimator: MultipleEstimator::Paths { per_voxel: 4 },
+        ..params(&v)
+    };
+    let none = PhotonMap::default();
+    match bake_gpu(ctx, &v, &none, &p) {
+        Err(e) if ctx.loop_cap().is_some() => {
+            let e = e.to_string();
+            assert!(e.contains("paths") && e.contains("65535") && e.contains("--device cpu"), "{e}");
+        }
+        Err(e) => panic!("a hardware adapter should bake it: {e}"),
+        Ok((_, gpu_stats)) => {
+            let (_, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
+            assert_eq!(gpu_stats.paths, cpu_stats.paths);
+            assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
+        }
+    }
+}
