@@ -1,18 +1,28 @@
 // vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0, sampled exactly) + optics.wgsl
-// + tracking.wgsl + the host-generated constants (CACHE_MAX_NEIGHBOURS, BALL_SHELLS,
-// BALL_DIRECTIONS, from crates/cache/src/cpu.rs) + this file. Mirrors crates/cache/src/cpu.rs:
+// + tracking.wgsl + path.wgsl + the host-generated constants (CACHE_MAX_NEIGHBOURS,
+// CACHE_PATHS_DOMAIN, BALL_SHELLS, BALL_DIRECTIONS, from crates/cache/src/cpu.rs) + this
+// file. Mirrors crates/cache/src/cpu.rs:
 // - bake_single: li_single, one Simpson shadow ray per light (track_transmittance);
 // - bake_multiple: li_multiple, the photons' radiance estimate over the k nearest (the same
 //   shell-by-shell bounded search over the same counting-sort bins as PhotonBins::nearest,
 //   with the same max-heap order) or within a fixed radius, divided by the mean sigma_s over
-//   the ball (the same 42-point quadrature).
+//   the ball (the same 42-point quadrature);
+// - bake_path_counts then bake_paths: li_multiple_paths, paths_for_voxel's count of paths
+//   from the voxel (path.wgsl's trace_path, the first direction by HG about the camera ray),
+//   drawing from the CPU's stream: voxel i's Rng (seed, i, CACHE_PATHS_DOMAIN), one stream
+//   for all its paths in turn, kept in path_rngs between dispatches. The host binds the
+//   tracking majorant (MajorantGrid::for_tracking) for these, the plain one for the others.
+//   The CPU decides in f64 and this in f32, so a path can take another turn now and then:
+//   the two agree in distribution, not voxel for voxel.
 // Positions are f32 relative to the host's origin, which is the photon bins' origin when
 // there are photons, so bin-local positions are the very f32 values the CPU compares.
-// Composed after nimbus_gpu::LoopGuard::wgsl (binding 7 of group 1): every voxel ends with
-// loop_guard_check(), so a software adapter that cut a shadow ray or a photon search short
-// says so.
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 8 of group 1): every voxel ends with
+// loop_guard_check(), so a software adapter that cut a shadow ray, a photon search or a path
+// short says so. llvmpipe (lavapipe) ends any loop of a SIMD group after 65535 iterations
+// counted over the whole invocation, so each bake_paths dispatch traces a few paths per
+// voxel (as reference.wgsl does a few samples per pixel), adding to what earlier ones left.
 
 struct CacheUniforms {
     medium: Medium,
@@ -38,8 +48,19 @@ struct CacheUniforms {
     max_shell: i32,
     // Mean density below which a ball counts as empty (cpu.rs EMPTY_BALL_FRACTION).
     empty_below: f32,
+    // Path-traced Li_multiple: the seed (lo, hi), the most paths per voxel (--paths), the
+    // most collisions per path (PATH_MAX_DEPTH), the distance in front of a voxel from which
+    // its transmittance toward the eye is taken (the multiple lattice's voxel diagonal), and
+    // the paths first_path .. first_path + path_count of this dispatch.
+    seed: vec2<u32>,
+    per_voxel: u32,
+    max_depth: u32,
+    reach: f32,
+    first_path: u32,
+    path_count: u32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
 }
 
 // Photons sorted by bin; `index` is the photon's number in the map (the CPU's tie-break).
@@ -68,9 +89,15 @@ const GATHER_RADIUS: u32 = 1u;
 @group(1) @binding(4) var<storage, read> bin_starts: array<u32>;
 @group(1) @binding(5) var<storage, read> photons: array<CachePhoton>;
 @group(1) @binding(6) var<storage, read_write> out: array<CacheOut>;
+// Each voxel's path Rng between the dispatches of bake_paths.
+@group(1) @binding(7) var<storage, read_write> path_rngs: array<Rng>;
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
+}
+
+fn path_light(index: u32) -> Light {
+    return lights[index];
 }
 
 // Unit direction toward the eye (zero at the eye, as normalize_or_zero).
@@ -308,6 +335,61 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
 }
 
 // ---------------------------------------------------------------------------------------
+// Multiple scattering by paths (cpu.rs li_multiple_paths, paths_for_voxel).
+
+// paths_for_voxel: per_voxel times the transmittance toward the eye from `reach` in front of
+// x, rounded up, at least one.
+fn paths_for_voxel(x: vec3<f32>) -> u32 {
+    let to_eye = params.eye - x;
+    let distance = length(to_eye);
+    var t = 1.0;
+    if (distance > params.reach) {
+        let dir = to_eye / distance;
+        // Starting the ray at reach in front rather than at t = reach: the Simpson panels
+        // split at the same voxel planes either way.
+        let ray = path_track_ray(x + dir * params.reach, dir, params.medium.extinction);
+        t = track_transmittance(ray, params.grid, distance - params.reach, params.step, params.cutoff);
+    }
+    return clamp(u32(ceil(f32(params.per_voxel) * t)), 1u, max(params.per_voxel, 1u));
+}
+
+// The first of a voxel's dispatches: its path count (kept in `used`), its Rng, a zero sum.
+fn start_paths(v: u32) {
+    out[v] = CacheOut(vec3<f32>(0.0), paths_for_voxel(points[v].xyz));
+    path_rngs[v] = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
+}
+
+// Paths first_path .. first_path + path_count of voxel v (those it has), added to its sum;
+// the dispatch that traces its last path divides by the count.
+fn continue_paths(v: u32) {
+    let n = out[v].used;
+    if (params.first_path >= n) {
+        return;
+    }
+    let x = points[v].xyz;
+    let w_out = toward_eye(x);
+    // At the eye itself there is no camera ray; any axis serves.
+    var axis = vec3<f32>(0.0, 0.0, 1.0);
+    if (any(w_out != vec3<f32>(0.0))) {
+        axis = -w_out;
+    }
+    var rng = path_rngs[v];
+    var sum = out[v].li;
+    let end = min(params.first_path + params.path_count, n);
+    for (var p = params.first_path; p < end; p = p + 1u) {
+        // From the phase function about the camera ray's direction: the phase weight cancels.
+        let dir = normalize(hg_sample(params.medium.g, axis, rng_next_vec2(&rng)).w_out);
+        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, &rng);
+        sum = sum + (path.single + path.multiple);
+    }
+    if (end == n) {
+        sum = sum / f32(n);
+    }
+    out[v].li = sum;
+    path_rngs[v] = rng;
+}
+
+// ---------------------------------------------------------------------------------------
 
 const WORKGROUP_SIZE: u32 = 64u;
 
@@ -334,5 +416,29 @@ fn bake_multiple(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let v = params.first + i;
     let x = points[v].xyz;
     out[v] = li_multiple(x, toward_eye(x));
+    loop_guard_check();
+}
+
+// Path-traced Li_multiple in dispatches: first this one (path counts, Rngs), then bake_paths
+// once per path_count paths. `params.grid` is the tracking majorant here.
+@compute @workgroup_size(64)
+fn bake_path_counts(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                    @builtin(local_invocation_index) local: u32) {
+    let i = dispatch_linear_index(wg, nwg, local, WORKGROUP_SIZE);
+    if (i >= params.count) {
+        return;
+    }
+    start_paths(params.first + i);
+    loop_guard_check();
+}
+
+@compute @workgroup_size(64)
+fn bake_paths(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+              @builtin(local_invocation_index) local: u32) {
+    let i = dispatch_linear_index(wg, nwg, local, WORKGROUP_SIZE);
+    if (i >= params.count) {
+        return;
+    }
+    continue_paths(params.first + i);
     loop_guard_check();
 }

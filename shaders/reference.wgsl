@@ -1,11 +1,11 @@
 // vdbmarch --reference on the GPU: one invocation per pixel (nimbus_march::render_reference_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl +
-// this file. Mirrors crates/march/src/reference/cpu.rs draw for draw: sample s of pixel i
-// draws from the Rng (seed, (i, s), REFERENCE_DOMAIN); per sample the pixel jitter, the camera ray's transmittance by
-// ratio tracking, then the path: delta-tracked free flights, albedo at each collision,
-// next-event estimation toward every light with ratio-tracked shadow rays, Russian roulette
-// from ROULETTE_FROM_DEPTH, HG scattering. Positions are f32 relative to the camera's eye.
+// path.wgsl + this file. Mirrors crates/march/src/reference/cpu.rs draw for draw: sample s of
+// pixel i draws from the Rng (seed, (i, s), REFERENCE_DOMAIN); per sample the pixel jitter,
+// the camera ray's transmittance by ratio tracking, then the path from the eye (path.wgsl's
+// trace_path, the twin of nimbus_tracking::trace_path). Positions are f32 relative to the
+// camera's eye.
 // Each dispatch takes samples first_sample .. first_sample + sample_count of its tile's
 // pixels and adds them to what earlier dispatches left in `pixels`; the last one divides by
 // spp. Few samples per dispatch, because llvmpipe (lavapipe) ends any loop of a SIMD group
@@ -44,8 +44,6 @@ struct PixelOut {
 }
 
 const REFERENCE_DOMAIN: u32 = 0x52454650u;
-const ROULETTE_FROM_DEPTH: u32 = 3u;
-const RATIO_ROULETTE: f32 = 0.05;
 
 @group(1) @binding(0) var<uniform> params: ReferenceUniforms;
 @group(1) @binding(1) var<storage, read> lights: array<Light>;
@@ -56,57 +54,8 @@ fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
 }
 
-fn track_ray(x: vec3<f32>, w: vec3<f32>) -> TrackRay {
-    let to_index = volume_info.world_to_index;
-    return TrackRay((to_index * vec4<f32>(x, 1.0)).xyz, (to_index * vec4<f32>(w, 0.0)).xyz, params.medium.extinction);
-}
-
-// One path from the eye along `dir`: (single, multiple) in a PixelOut.
-fn trace_path(dir: vec3<f32>, rng: ptr<function, Rng>) -> PixelOut {
-    let m = params.medium;
-    var out = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0);
-    var x = params.camera.eye;
-    var w = dir;
-    var beta = vec3<f32>(1.0);
-    for (var depth = 1u; depth <= params.max_depth; depth = depth + 1u) {
-        let t = track_sample_delta(track_ray(x, w), params.grid, rng);
-        if (t < 0.0) {
-            break;
-        }
-        x = x + w * t;
-        beta = beta * m.albedo;
-        var direct = vec3<f32>(0.0);
-        for (var i = 0u; i < params.light_count; i = i + 1u) {
-            let inc = light_incident(lights[i], x);
-            if (all(inc.irradiance == vec3<f32>(0.0))) {
-                continue;
-            }
-            let tr = track_transmittance_ratio(track_ray(x, inc.to_light), params.grid, min(inc.distance, TRACK_FAR),
-                                               RATIO_ROULETTE, rng);
-            if (tr > 0.0) {
-                direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
-            }
-        }
-        if (depth == 1u) {
-            out.single = out.single + beta * direct;
-        } else {
-            out.multiple = out.multiple + beta * direct;
-        }
-        if (depth >= ROULETTE_FROM_DEPTH) {
-            let q = max(beta.x, max(beta.y, beta.z));
-            if (q <= 0.0) {
-                break;
-            }
-            if (q < 1.0) {
-                if (rng_next_f32(rng) >= q) {
-                    break;
-                }
-                beta = beta / q;
-            }
-        }
-        w = normalize(hg_sample(m.g, w, rng_next_vec2(rng)).w_out);
-    }
-    return out;
+fn path_light(index: u32) -> Light {
+    return lights[index];
 }
 
 const WORKGROUP_SIZE: u32 = 64u;
@@ -130,9 +79,10 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         var rng = rng_new(params.seed, vec2<u32>(index, s), REFERENCE_DOMAIN);
         let j = vec2<f32>(rng_next_f64_as_f32(&rng), rng_next_f64_as_f32(&rng));
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
-        sum.transmittance = sum.transmittance + track_transmittance_ratio(track_ray(params.camera.eye, dir), params.grid,
-                                                                          TRACK_FAR, RATIO_ROULETTE, &rng);
-        let path = trace_path(dir, &rng);
+        let m = params.medium;
+        sum.transmittance = sum.transmittance + track_transmittance_ratio(path_track_ray(params.camera.eye, dir, m.extinction),
+                                                                          params.grid, TRACK_FAR, RATIO_ROULETTE, &rng);
+        let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, &rng);
         sum.single = sum.single + path.single;
         sum.multiple = sum.multiple + path.multiple;
     }

@@ -5,6 +5,11 @@
 //! a fine reference: Simpson step / 4 for single scattering, 4x the photons for multiple.
 //!
 //!     CARGO_TARGET_DIR=... cargo bench -p nimbus-cache --bench bake [-- quick]
+//!     CARGO_TARGET_DIR=... cargo bench -p nimbus-cache --bench bake -- paths
+//!
+//! `paths` times only path-traced multiple scattering (`--paths 16`, Li_multiple on its own
+//! lattice twice as coarse) on a plume scaled down to 48 x 48 x 96, small enough for
+//! lavapipe, against 256 paths per voxel on the CPU.
 //!
 //! Times are end to end (plan, bins, uploads, kernels, read-back, volume assembly), median
 //! of 3 (`quick`: one run, fewer photons); photon tracing is not included. References are
@@ -14,12 +19,12 @@
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, MultipleEstimator, PhotonBins, EMPTY_BALL_FRACTION};
+use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_multiple_paths, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, MultipleEstimator, PhotonBins, EMPTY_BALL_FRACTION};
 use nimbus_tracking::DensityMedium;
 use nimbus_volume::MajorantGrid;
 use rayon::prelude::*;
 use nimbus_optics::noise::fbm3;
-use nimbus_optics::{Camera, Light, Medium};
+use nimbus_optics::{Camera, Light, Medium, Rng};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{brick_local, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 
@@ -64,10 +69,10 @@ fn cloud_deck() -> Volume<f32> {
     })
 }
 
-/// A rising plume: a column widening with height, turbulent, fading at the top.
-fn plume() -> Volume<f32> {
-    let dims = IVec3::new(96, 96, 192);
-    let centre = DVec3::new(48.0, 48.0, 0.0) * VOXEL;
+/// A rising plume: a column widening with height, turbulent, fading at the top; `dims`
+/// (x = y, z twice that) scales it.
+fn plume(dims: IVec3) -> Volume<f32> {
+    let centre = DVec3::new(dims.x as f64 / 2.0, dims.y as f64 / 2.0, 0.0) * VOXEL;
     let height = dims.z as f64 * VOXEL;
     analytic(dims, |p| {
         let h = p.z / height;
@@ -190,12 +195,43 @@ fn rows(
     }
 }
 
+/// The `paths` table: path-traced Li_multiple on each backend, against many more paths.
+fn paths_rows() {
+    let v = plume(IVec3::new(48, 48, 96));
+    let per_voxel = 16;
+    let p = CacheParams {
+        single: false,
+        multiple: true,
+        multiple_scale: Some(2.4),
+        estimator: MultipleEstimator::Paths { per_voxel },
+        seed: 1,
+        ..params(&v, 60.0)
+    };
+    let tracking = MajorantGrid::for_tracking(&v, p.medium.extinction);
+    let medium = DensityMedium { density: &v, majorant: &tracking, extinction: p.medium.extinction };
+    let part = format!("multiple (paths {per_voxel}; ref 256 paths)");
+    rows(3, "plume 48x48x96", &part, &v, &PhotonMap::default(), &p, |c| c.li_multiple.as_ref().unwrap(), &|x, w_out| {
+        // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
+        let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
+        li_multiple_paths(medium, &p.medium, &p.lights, x, w_out, 256, &mut Rng::new(99, index))
+    });
+}
+
 fn main() {
+    if std::env::args().any(|a| a == "paths") {
+        println!("| scene | voxels baked | part | backend | median s | vs cpu | mean err | max err / peak |");
+        println!("|---|---|---|---|---|---|---|---|");
+        paths_rows();
+        if let Some(ctx) = nimbus_gpu::test_context() {
+            println!("GPU: {}; CPU: {} rayon threads", ctx.info, rayon::current_num_threads());
+        }
+        return;
+    }
     let quick = std::env::args().any(|a| a == "quick");
     let (photons, runs): (u64, usize) = if quick { (25_000, 1) } else { (100_000, 3) };
     println!("| scene | voxels baked | part | backend | median s | vs cpu | mean err | max err / peak |");
     println!("|---|---|---|---|---|---|---|---|");
-    let scenes: Vec<(&str, Volume<f32>, f32)> = vec![("cloud 339x361x42", cloud_deck(), 30.0), ("plume 96x96x192", plume(), 60.0)];
+    let scenes: Vec<(&str, Volume<f32>, f32)> = vec![("cloud 339x361x42", cloud_deck(), 30.0), ("plume 96x96x192", plume(IVec3::new(96, 96, 192)), 60.0)];
     for (name, v, extinction) in scenes {
         let base = params(&v, extinction);
         let none = PhotonMap::default();

@@ -1,16 +1,17 @@
 //! The GPU backend: one wgpu invocation per planned cache voxel (`shaders/cache.wgsl`), over
-//! the same [`CachePlan`] and [`PhotonBins`] as the CPU backend.
+//! the same [`CachePlan`]s and [`PhotonBins`] as the CPU backend; path-traced Li_multiple
+//! through `shaders/path.wgsl`, the reference path tracer's paths.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{GpuLight, GpuMedium, OPTICS_WGSL};
+use nimbus_optics::{split_u64, GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
-use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS};
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins};
+use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
 
 /// The cache kernels, `shaders/cache.wgsl`.
 pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
@@ -22,8 +23,8 @@ pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 const WORKGROUP_SIZE: u32 = 64;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
-/// Group 1 binding of the [`LoopGuard`] flag (after the 7 buffers).
-const GUARD_BINDING: u32 = 7;
+/// Group 1 binding of the [`LoopGuard`] flag (after the 8 buffers).
+const GUARD_BINDING: u32 = 8;
 
 /// WGSL `CacheUniforms`.
 #[repr(C)]
@@ -45,7 +46,13 @@ struct GpuCacheParams {
     gather_mode: u32,
     max_shell: i32,
     empty_below: f32,
-    _pad: [u32; 2],
+    seed: [u32; 2],
+    per_voxel: u32,
+    max_depth: u32,
+    reach: f32,
+    first_path: u32,
+    path_count: u32,
+    _pad: [u32; 3],
 }
 
 /// WGSL `CachePhoton`.
@@ -68,12 +75,13 @@ struct GpuOut {
     used: u32,
 }
 
-/// The CPU's quadrature and the heap bound as WGSL constants, so the two cannot drift apart.
+/// The CPU's quadrature, the heap bound and the paths' random-number domain as WGSL constants, so the two cannot drift apart.
 fn constants_wgsl() -> String {
     let shells: Vec<String> = BALL_SHELLS.iter().map(|s| format!("{s:?}")).collect();
     let dirs: Vec<String> = BALL_DIRECTIONS.iter().map(|d| format!("vec3<f32>({:?}, {:?}, {:?})", d[0], d[1], d[2])).collect();
     format!(
         "const CACHE_MAX_NEIGHBOURS: u32 = {GPU_MAX_NEIGHBOURS}u;\n\
+         const CACHE_PATHS_DOMAIN: u32 = {CACHE_PATHS_DOMAIN}u;\n\
          var<private> BALL_SHELLS: array<f32, 3> = array<f32, 3>({});\n\
          var<private> BALL_DIRECTIONS: array<vec3<f32>, 14> = array<vec3<f32>, 14>({});\n",
         shells.join(", "),
@@ -81,17 +89,15 @@ fn constants_wgsl() -> String {
     )
 }
 
-/// Bakes the cache on the GPU: the same plan, shadow rays, photon search and estimator as
-/// [`crate::bake_cpu`], in f32.
+/// Bakes the cache on the GPU: the same plans, shadow rays, photon search, paths and
+/// estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons);
-    if multiple && matches!(params.estimator, MultipleEstimator::Paths { .. }) {
-        return Err(CacheError::Param("path-traced multiple scattering runs on the CPU backend only so far (use --device cpu)".into()));
-    }
+    let gathers = multiple && params.estimator == MultipleEstimator::Photons;
     if let Gather::Neighbours { k, .. } = params.gather {
-        if multiple && k > GPU_MAX_NEIGHBOURS {
+        if gathers && k > GPU_MAX_NEIGHBOURS {
             return Err(CacheError::Param(format!(
                 "the GPU backend gathers at most {GPU_MAX_NEIGHBOURS} neighbours, got {k} (use --device cpu)"
             )));
@@ -100,37 +106,66 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
     let mut stats = plan.stats.clone();
-    let bins = multiple.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
+    if let Some(p) = &own_plan {
+        stats.add(&p.stats);
+    }
+    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
+    let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
     // Bin-local positions are then exactly the CPU's f32 values.
     let origin = match (&bins, density.world_bounds()) {
         (Some(b), _) => b.origin(),
         (None, Some((lo, hi))) => 0.5 * (lo + hi),
         (None, None) => DVec3::ZERO,
     };
-    let positions = plan.voxel_positions();
-    let baker = (!positions.is_empty() && (single || multiple))
-        .then(|| GpuBaker::new(ctx, density, &majorant, photons, bins.as_ref(), params, origin, &positions))
-        .transpose()?;
+    let kernel = match params.estimator {
+        MultipleEstimator::Photons => Kernel::Photons,
+        MultipleEstimator::Paths { per_voxel } => Kernel::Paths { per_voxel, reach: multiple_plan.transform.voxel_size().length() },
+    };
+    let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
+    let baker = work.then(|| GpuBaker::new(ctx, density, &majorant, photons, bins.as_ref(), params, origin)).transpose()?;
 
     let mut nonfinite = 0;
-    let mut run = |entry: &str| -> Result<Volume<Vec3>, CacheError> {
+    let mut run = |kernel: Kernel, plan: &CachePlan| -> Result<Volume<Vec3>, CacheError> {
         let out = match &baker {
-            Some(b) => b.run(entry)?,
+            Some(b) => b.run(kernel, &plan.voxel_positions())?,
             None => Vec::new(),
         };
         let values: Vec<Vec3> = out.iter().map(|o| Vec3::from(o.li)).collect();
         let (volume, bad) = plan.volume_of(&values);
         nonfinite += bad;
-        if entry == "bake_multiple" {
-            stats.photons_gathered = out.iter().map(|o| o.used as u64).sum();
+        let used = out.iter().map(|o| o.used as u64).sum();
+        match kernel {
+            Kernel::Single => {}
+            Kernel::Photons => stats.photons_gathered = used,
+            Kernel::Paths { .. } => stats.paths = used,
         }
         Ok(volume)
     };
-    let li_single = single.then(|| run("bake_single")).transpose()?;
-    let li_multiple = multiple.then(|| run("bake_multiple")).transpose()?;
+    let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
+    let li_multiple = multiple.then(|| run(kernel, multiple_plan)).transpose()?;
     stats.nonfinite = nonfinite;
     Ok((IlluminationCache { li_single, li_multiple }, stats))
 }
+
+/// What one [`GpuBaker::run`] bakes.
+#[derive(Clone, Copy, Debug)]
+enum Kernel {
+    /// Li_single (`bake_single`).
+    Single,
+    /// Li_multiple from the photons (`bake_multiple`).
+    Photons,
+    /// Li_multiple by paths (`bake_path_counts`, then `bake_paths` in passes of
+    /// [`PATHS_PER_DISPATCH`]); `reach` is the multiple lattice's voxel diagonal.
+    Paths { per_voxel: u32, reach: f64 },
+}
+
+/// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
+/// enough that lavapipe's loop limit (see cache.wgsl) is far off for ordinary media.
+const PATHS_PER_DISPATCH: u32 = 4;
+
+/// Bytes of one WGSL `Rng` in a storage array (vec2, vec4, vec4, u32; 16-byte aligned).
+const GPU_RNG_BYTES: u64 = 64;
 
 /// Everything uploaded once per bake.
 struct GpuBaker<'a> {
@@ -140,10 +175,13 @@ struct GpuBaker<'a> {
     volume_group: wgpu::BindGroup,
     source: String,
     uniforms: GpuCacheParams,
-    buffers: [wgpu::Buffer; 5],
-    out: wgpu::Buffer,
+    origin: DVec3,
+    /// The majorant for the Simpson shadow rays, and lights, bin starts, photons by bin.
+    majorant: wgpu::Buffer,
+    buffers: [wgpu::Buffer; 3],
+    /// The paths' majorant (MajorantGrid::for_tracking), where paths are traced.
+    tracking: Option<(wgpu::Buffer, GpuMajorantInfo)>,
     guard: LoopGuard,
-    voxels: u64,
     _volume: GpuVolume,
 }
 
@@ -157,7 +195,6 @@ impl<'a> GpuBaker<'a> {
         bins: Option<&PhotonBins>,
         params: &CacheParams,
         origin: DVec3,
-        positions: &[DVec3],
     ) -> Result<Self, GpuError> {
         let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
         volume.set_world_origin(ctx, origin);
@@ -174,17 +211,17 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(4, true),
                 storage_entry(5, true),
                 storage_entry(6, false),
+                storage_entry(7, false),
                 guard.layout_entry(),
             ],
         )?;
         let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
             constants_wgsl(),
             guard.wgsl(1)
         ));
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
-        let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - origin).as_vec3().extend(0.0).to_array()).collect();
         let (starts, sorted, dims, cell) = match bins {
             Some(b) => {
                 let sorted: Vec<GpuPhoton> = b
@@ -224,10 +261,22 @@ impl<'a> GpuBaker<'a> {
             gather_mode,
             max_shell: (radius / cell).ceil() as i32 + 1,
             empty_below: empty_ball_density(majorant) as f32,
-            _pad: [0; 2],
+            seed: split_u64(params.seed),
+            per_voxel: 0,
+            max_depth: PATH_MAX_DEPTH,
+            reach: 0.0,
+            first_path: 0,
+            path_count: PATHS_PER_DISPATCH,
+            _pad: [0; 3],
+        };
+        let tracking = match params.estimator {
+            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons) => {
+                let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
+                Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background())))
+            }
+            _ => None,
         };
         let lights_buffer = if lights.is_empty() { ctx.storage_buffer("cache lights", &[GpuLight::zeroed()])? } else { ctx.storage_buffer("cache lights", &lights)? };
-        let voxels = positions.len() as u64;
         Ok(GpuBaker {
             ctx,
             layout,
@@ -235,40 +284,58 @@ impl<'a> GpuBaker<'a> {
             volume_group,
             source,
             uniforms,
-            buffers: [
-                majorant_buffer(ctx, majorant)?,
-                lights_buffer,
-                ctx.storage_buffer("cache voxels", &points)?,
-                ctx.storage_buffer("photon bin starts", &starts)?,
-                ctx.storage_buffer("photons by bin", &sorted)?,
-            ],
-            out: ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
+            origin,
+            majorant: majorant_buffer(ctx, majorant)?,
+            buffers: [lights_buffer, ctx.storage_buffer("photon bin starts", &starts)?, ctx.storage_buffer("photons by bin", &sorted)?],
+            tracking,
             guard,
-            voxels,
             _volume: volume,
         })
     }
 
-    /// Runs kernel `entry` over every voxel, in dispatches of [`CHUNK`], and reads back.
-    fn run(&self, entry: &str) -> Result<Vec<GpuOut>, GpuError> {
+    /// Runs `kernel` over the voxels at `positions`, in dispatches of at most [`CHUNK`]
+    /// voxels (and [`PATHS_PER_DISPATCH`] paths), and reads back.
+    fn run(&self, kernel: Kernel, positions: &[DVec3]) -> Result<Vec<GpuOut>, GpuError> {
         let ctx = self.ctx;
-        let pipeline = ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout])?;
-        let mut first = 0;
-        while first < self.voxels {
-            let count = (self.voxels - first).min(CHUNK);
-            let uniforms = GpuCacheParams { first: first as u32, count: count as u32, ..self.uniforms };
-            let uniform_buffer = ctx.uniform_buffer("cache params", &uniforms)?;
-            let [a, b, c, d, e] = &self.buffers;
-            let group = self.guard.buffer_bind_group(ctx, "cache", &self.layout, &[&uniform_buffer, a, b, c, d, e, &self.out])?;
-            ctx.dispatch_1d(entry, &pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
-            first += count;
+        let voxels = positions.len() as u64;
+        if voxels == 0 {
+            return Ok(Vec::new());
         }
-        let work = match entry {
-            "bake_single" => "a cache voxel's shadow rays",
-            _ => "a cache voxel's photon search",
+        let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect();
+        let points = ctx.storage_buffer("cache voxels", &points)?;
+        let out = ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?;
+        // (entry, first path) in order; the same voxels' state passes between them in `out`
+        // and the Rng buffer.
+        let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
+            Kernel::Single => (vec![("bake_single", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's shadow rays", "or a longer --step"),
+            Kernel::Photons => (vec![("bake_multiple", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's photon search", "or fewer --gather-neighbours"),
+            Kernel::Paths { per_voxel, reach } => {
+                let (buffer, grid) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
+                let passes = std::iter::once(("bake_path_counts", 0)).chain((0..per_voxel).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
+                let uniforms = GpuCacheParams { grid: *grid, per_voxel, reach: reach as f32, ..self.uniforms };
+                (passes, voxels * GPU_RNG_BYTES, uniforms, buffer, "a cache voxel's paths", "or a longer --step")
+            }
         };
-        self.guard.check(ctx, work, "or a longer --step (shadow rays) or fewer --gather-neighbours")?;
-        ctx.read_buffer(&self.out)
+        let rngs = ctx.storage_buffer_zeroed("cache path rngs", rng_bytes)?;
+        let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
+        for &(entry, first_path) in &passes {
+            if !pipelines.iter().any(|(e, _)| *e == entry) {
+                pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout])?));
+            }
+            let pipeline = &pipelines.iter().find(|(e, _)| *e == entry).expect("compiled above").1;
+            let mut first = 0;
+            while first < voxels {
+                let count = (voxels - first).min(CHUNK);
+                let dispatch = GpuCacheParams { first: first as u32, count: count as u32, first_path, ..uniforms };
+                let uniform_buffer = ctx.uniform_buffer("cache params", &dispatch)?;
+                let [lights, starts, sorted] = &self.buffers;
+                let group = self.guard.buffer_bind_group(ctx, "cache", &self.layout, &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs])?;
+                ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
+                first += count;
+            }
+        }
+        self.guard.check(ctx, work, remedy)?;
+        ctx.read_buffer(&out)
     }
 }
 
@@ -278,7 +345,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuCacheParams>(), 144);
+        assert_eq!(size_of::<GpuCacheParams>(), 176);
         assert_eq!(size_of::<GpuPhoton>(), 48);
         assert_eq!(size_of::<GpuOut>(), 16);
     }

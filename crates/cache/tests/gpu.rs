@@ -174,3 +174,133 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
         }
     }
 }
+
+/// Voxel by voxel over the two caches' shared lattice: how many voxels, how many agree to
+/// 1e-4 of their own value (1e-6 of the peak near zero), and the mean and standard error of the difference (GPU -
+/// CPU) of the red channel. Distinct voxels draw from distinct streams, so the differences
+/// are independent and their mean is zero within a few standard errors if the two agree
+/// in distribution.
+fn paired_differences(cpu: &Volume<Vec3>, gpu: &Volume<Vec3>) -> (usize, usize, f64, f64, f64) {
+    assert_eq!(cpu.transform(), gpu.transform());
+    assert_eq!(cpu.active_voxel_count(), gpu.active_voxel_count());
+    let mut pairs = Vec::new();
+    for brick in cpu.bricks() {
+        for (offset, c) in brick.values.iter().enumerate() {
+            let ijk = brick.origin + nimbus_volume::brick_local(offset);
+            if cpu.is_active(ijk) {
+                assert!(gpu.is_active(ijk), "{ijk} baked on one backend only");
+                pairs.push((c.x as f64, gpu.get(ijk).x as f64));
+            }
+        }
+    }
+    let n = pairs.len();
+    let peak = pairs.iter().map(|p| p.0.max(p.1)).fold(0.0, f64::max);
+    let same = pairs.iter().filter(|(c, g)| (c - g).abs() <= 1e-4 * c.abs().max(g.abs()) + 1e-6 * peak).count();
+    let mean_cpu = pairs.iter().map(|p| p.0).sum::<f64>() / n as f64;
+    let d: Vec<f64> = pairs.iter().map(|(c, g)| g - c).collect();
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    (n, same, mean_cpu, mean, (var / n as f64).sqrt())
+}
+
+#[test]
+fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let per_voxel = 8;
+    // Li_multiple on its own, coarser lattice (the voxel count stays small for lavapipe);
+    // no photons at all: paths need none.
+    let p = CacheParams {
+        single: false,
+        cache_scale: 1.5,
+        multiple_scale: Some(2.5),
+        estimator: MultipleEstimator::Paths { per_voxel },
+        seed: 5,
+        ..params(&v)
+    };
+    let none = PhotonMap::default();
+    let (cpu, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
+    let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
+    eprintln!("CPU {cpu_stats:?}\nGPU {gpu_stats:?}");
+    assert_eq!(gpu_stats.baked, cpu_stats.baked);
+    assert_eq!(gpu_stats.nonfinite, 0);
+    assert!(cpu.li_single.is_none() && gpu.li_single.is_none());
+    // The same count rule: an f32 transmittance may round a count across an integer now and
+    // then, no more.
+    let (cpu, gpu) = (cpu.li_multiple.unwrap(), gpu.li_multiple.unwrap());
+    let (n, same, level, mean, se) = paired_differences(&cpu, &gpu);
+    let (a, b) = (cpu_stats.paths as f64, gpu_stats.paths as f64);
+    assert!(a > n as f64 && a < (n * per_voxel as usize) as f64, "the eye sees some voxels through clear air, not all: {a} paths");
+    assert!((a - b).abs() <= 2e-3 * a, "paths traced: CPU {a}, GPU {b}");
+    eprintln!("{n} voxels, {same} the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
+    assert!(n > 500 && level > 0.0);
+    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+    // The same stream per voxel (seed, voxel, domain): most voxels' paths take the very same
+    // turns; f32 decides a few of them otherwise.
+    assert!(same as f64 >= 0.5 * n as f64, "only {same} of {n} voxels agree: not the CPU's random numbers?");
+    // Another seed gives other paths (the seed reaches the GPU).
+    let (other, _) = bake_gpu(ctx, &v, &none, &CacheParams { seed: 6, ..p.clone() }).unwrap();
+    let (_, same_other, ..) = paired_differences(&cpu, &other.li_multiple.unwrap());
+    assert!((same_other as f64) < 0.5 * n as f64, "seed 6 agrees with seed 5 at {same_other} of {n} voxels");
+}
+
+#[test]
+fn li_multiple_takes_its_own_lattice_on_the_gpu_as_on_the_cpu() {
+    let v = lumpy_ball();
+    let p = CacheParams { multiple_scale: Some(3.0), ..params(&v) };
+    let map = photons(&v, &p);
+    let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
+    let (single, multiple) = (gpu.li_single.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
+    assert_eq!(single.transform(), cpu.li_single.as_ref().unwrap().transform());
+    assert_eq!(multiple.transform(), cpu.li_multiple.as_ref().unwrap().transform());
+    assert_ne!(single.transform(), multiple.transform(), "Li_multiple has its own lattice");
+    assert!(multiple.active_voxel_count() < single.active_voxel_count() / 3);
+    let (worst, peak, _) = compare(cpu.li_single.as_ref().unwrap(), single);
+    assert!(peak > 0.0 && worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), multiple);
+    eprintln!("multiple on its own lattice: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(peak > 0.0 && worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+}
+
+/// Paths of 512 collisions each (albedo 1, so roulette never ends them, in a cube 300 mean
+/// free paths across, which they never leave), with shadow rays toward six suns at every
+/// collision: more loop iterations per SIMD group than a software adapter (llvmpipe: 65535)
+/// runs whole, even at one path per voxel. A software adapter must refuse; any other must
+/// trace the CPU's count of paths.
+#[test]
+fn paths_longer_than_a_software_adapter_runs_are_refused() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in -5..5 {
+        for y in -5..5 {
+            for z in -5..5 {
+                v.set(IVec3::new(x, y, z), 300.0);
+            }
+        }
+    }
+    let (lo, hi) = v.world_bounds().unwrap();
+    let suns = [(0.3, 0.2, -1.0), (-0.5, 0.1, -0.8), (0.1, -0.9, -0.3), (0.7, 0.7, 0.1), (-0.2, 0.4, 0.9), (0.0, 0.0, 1.0)];
+    let p = CacheParams {
+        medium: Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 },
+        lights: suns.iter().map(|&(x, y, z)| Light::sun(Vec3::new(x, y, z).normalize(), Vec3::ONE).unwrap()).collect(),
+        camera: Camera::default_for_bounds(lo, hi).unwrap(),
+        single: false,
+        cache_scale: 2.0,
+        multiple_scale: None,
+        estimator: MultipleEstimator::Paths { per_voxel: 4 },
+        ..params(&v)
+    };
+    let none = PhotonMap::default();
+    match bake_gpu(ctx, &v, &none, &p) {
+        Err(e) if ctx.loop_cap().is_some() => {
+            let e = e.to_string();
+            assert!(e.contains("paths") && e.contains("65535") && e.contains("--device cpu"), "{e}");
+        }
+        Err(e) => panic!("a hardware adapter should bake it: {e}"),
+        Ok((_, gpu_stats)) => {
+            let (_, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
+            assert_eq!(gpu_stats.paths, cpu_stats.paths);
+            assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
+        }
+    }
+}

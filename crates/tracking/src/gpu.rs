@@ -1,6 +1,7 @@
 //! The GPU side of this crate: `shaders/tracking.wgsl` (the WGSL twin of the majorant DDA and
 //! the free-path samplers) and the host data it reads, shared by every stage shader that
-//! walks rays through the density.
+//! walks rays through the density; `shaders/path.wgsl` (the twin of [`crate::trace_path`]),
+//! shared by the reference path tracer and vdbcache's path-traced multiple scattering.
 
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{wgpu, GpuContext, GpuError};
@@ -8,6 +9,10 @@ use nimbus_volume::MajorantGrid;
 
 /// `shaders/tracking.wgsl`: plain functions, no bindings; stage shaders concatenate it.
 pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
+
+/// `shaders/path.wgsl`: `trace_path` and its constants, no bindings; composed after
+/// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`.
+pub const PATH_WGSL: &str = include_str!("../../../shaders/path.wgsl");
 
 /// WGSL `MajorantGridInfo` (tracking.wgsl).
 #[repr(C)]
@@ -42,5 +47,12 @@ mod tests {
     fn layout_matches_the_wgsl_struct() {
         assert_eq!(size_of::<super::GpuMajorantInfo>(), 32);
         assert!(super::TRACKING_WGSL.contains("struct MajorantGridInfo"));
+    }
+
+    #[test]
+    fn path_constants_match_the_wgsl() {
+        use crate::{RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
+        assert!(super::PATH_WGSL.contains(&format!("const ROULETTE_FROM_DEPTH: u32 = {ROULETTE_FROM_DEPTH}u;")));
+        assert!(super::PATH_WGSL.contains(&format!("const RATIO_ROULETTE: f32 = {RATIO_ROULETTE:?};")));
     }
 }

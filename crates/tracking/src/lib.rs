@@ -22,7 +22,8 @@
 //! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering.
 //!
 //! The WGSL twin is `shaders/tracking.wgsl` ([`TRACKING_WGSL`], with [`GpuMajorantInfo`] and
-//! [`majorant_buffer`] for the host side).
+//! [`majorant_buffer`] for the host side), and `shaders/path.wgsl` ([`PATH_WGSL`]) that of
+//! [`trace_path`].
 //!
 //! Rays are given in world space with a unit direction, so every distance is a world length;
 //! they are carried into index space once (the transform is affine, so the parameter t is the
@@ -31,7 +32,7 @@
 mod gpu;
 mod path;
 
-pub use gpu::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+pub use gpu::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;

@@ -3,7 +3,7 @@
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use super::ReferenceParams;
@@ -62,7 +62,7 @@ pub fn render_reference_gpu(
         "reference",
         &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), guard.layout_entry()],
     )?;
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
@@ -110,13 +110,12 @@ pub fn reference_tile_pixels() -> u64 {
 mod tests {
     use super::*;
     use crate::reference::REFERENCE_DOMAIN;
-        use nimbus_tracking::{RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
+    /// The path's constants are checked where they live (nimbus_tracking's path.wgsl test).
     #[test]
     fn layout_and_constants_match_the_wgsl() {
         assert_eq!(size_of::<GpuReferenceParams>() % 16, 0);
         assert!(REFERENCE_WGSL.contains(&format!("REFERENCE_DOMAIN: u32 = 0x{REFERENCE_DOMAIN:08x}u")));
-        assert!(REFERENCE_WGSL.contains(&format!("ROULETTE_FROM_DEPTH: u32 = {ROULETTE_FROM_DEPTH}u")));
-        assert!(REFERENCE_WGSL.contains(&format!("RATIO_ROULETTE: f32 = {RATIO_ROULETTE}")));
+        assert!(REFERENCE_WGSL.contains("fn path_light(index: u32) -> Light"));
     }
 }

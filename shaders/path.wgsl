@@ -1,0 +1,84 @@
+// Volumetric path tracing: the WGSL twin of nimbus_tracking::trace_path, shared by the
+// reference path tracer (shaders/reference.wgsl: paths from the eye) and vdbcache's
+// path-traced multiple scattering (shaders/cache.wgsl: paths from a cache voxel).
+//
+// Composed after volume.wgsl (the density is the default volume at group 0), optics.wgsl and
+// tracking.wgsl. The stage shader provides, besides tracking.wgsl's majorant_fetch,
+//     fn path_light(index: u32) -> Light
+// returning light `index` of the scene (usually from a storage buffer); what else differs
+// between the two users (where the path starts, the medium, the majorant grid, which must
+// suit delta tracking: MajorantGrid::for_tracking, the depth bound, the light count) comes in
+// as arguments. Positions are f32 world positions relative to the stage's origin (the volume
+// was told of it by GpuVolume::set_world_origin).
+//
+// The CPU decides in f64 and this in f32, so a path can take another turn now and then: the
+// two agree in distribution (to Monte Carlo error), not path for path.
+
+// Bounce from which Russian roulette may end a path (nimbus_tracking::ROULETTE_FROM_DEPTH).
+const ROULETTE_FROM_DEPTH: u32 = 3u;
+// Ratio-tracking estimates below this go to Russian roulette (nimbus_tracking::RATIO_ROULETTE).
+const RATIO_ROULETTE: f32 = 0.05;
+
+// One path's light, split by the collision it was scattered at: the first (single) and every
+// later one (multiple).
+struct PathLight {
+    single: vec3<f32>,
+    multiple: vec3<f32>,
+}
+
+// The ray from world point x along unit world direction w, in index space.
+fn path_track_ray(x: vec3<f32>, w: vec3<f32>, extinction: f32) -> TrackRay {
+    let to_index = volume_info.world_to_index;
+    return TrackRay((to_index * vec4<f32>(x, 1.0)).xyz, (to_index * vec4<f32>(w, 0.0)).xyz, extinction);
+}
+
+// The radiance arriving at `origin` from direction -dir, scattered in the medium, by one
+// path: delta-tracked free flights, albedo at each collision, next-event estimation toward
+// every light with ratio-tracked shadow rays, Russian roulette from ROULETTE_FROM_DEPTH, HG
+// scattering; at most `max_depth` collisions.
+fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
+              rng: ptr<function, Rng>) -> PathLight {
+    var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0));
+    var x = origin;
+    var w = dir;
+    var beta = vec3<f32>(1.0);
+    for (var depth = 1u; depth <= max_depth; depth = depth + 1u) {
+        let t = track_sample_delta(path_track_ray(x, w, m.extinction), grid, rng);
+        if (t < 0.0) {
+            break;
+        }
+        x = x + w * t;
+        beta = beta * m.albedo;
+        var direct = vec3<f32>(0.0);
+        for (var i = 0u; i < light_count; i = i + 1u) {
+            let inc = light_incident(path_light(i), x);
+            if (all(inc.irradiance == vec3<f32>(0.0))) {
+                continue;
+            }
+            let tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid, min(inc.distance, TRACK_FAR),
+                                               RATIO_ROULETTE, rng);
+            if (tr > 0.0) {
+                direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
+            }
+        }
+        if (depth == 1u) {
+            out.single = out.single + beta * direct;
+        } else {
+            out.multiple = out.multiple + beta * direct;
+        }
+        if (depth >= ROULETTE_FROM_DEPTH) {
+            let q = max(beta.x, max(beta.y, beta.z));
+            if (q <= 0.0) {
+                break;
+            }
+            if (q < 1.0) {
+                if (rng_next_f32(rng) >= q) {
+                    break;
+                }
+                beta = beta / q;
+            }
+        }
+        w = normalize(hg_sample(m.g, w, rng_next_vec2(rng)).w_out);
+    }
+    return out;
+}
