@@ -29,6 +29,26 @@ pub const THICK: Sphere = Sphere { radius: 1.0, sigma_t: 4.0, albedo: 0.99 };
 pub const POINTS: [[f64; 3]; 5] = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.5], [0.0, 0.0, -0.5], [0.5, 0.0, 0.0], [0.0, 0.3, 0.75]];
 
 impl Sphere {
+    /// A bake of Li_multiple alone over `density` (this sphere voxelized), the sun above, the
+    /// default camera.
+    fn multiple_only(&self, density: &Volume<f32>, cache_scale: f64, gather: Gather, estimator: MultipleEstimator, seed: u64) -> CacheParams {
+        let (lo, hi) = density.world_bounds().unwrap();
+        CacheParams {
+            medium: self.medium(),
+            lights: vec![Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()],
+            camera: Camera::default_for_bounds(lo, hi).unwrap(),
+            step: 0.5,
+            cache_scale,
+            multiple_scale: None,
+            single: false,
+            multiple: true,
+            gather,
+            estimator,
+            seed,
+            min_transmittance: 1e-4,
+        }
+    }
+
     /// Distance from `p` (inside) along unit `d` to the surface.
     fn exit(&self, p: DVec3, d: DVec3) -> f64 {
         let b = p.dot(d);
@@ -109,21 +129,7 @@ impl Sphere {
             ..PhotonParams::default()
         };
         let (map, _) = trace_cpu(&density, &trace).unwrap();
-        let (lo, hi) = density.world_bounds().unwrap();
-        let params = CacheParams {
-            medium: self.medium(),
-            lights: vec![light],
-            camera: Camera::default_for_bounds(lo, hi).unwrap(),
-            step: 0.5,
-            cache_scale: 1.0,
-            multiple_scale: None,
-            single: false,
-            multiple: true,
-            gather: Gather::Neighbours { k, max_radius: 0.5 * self.radius },
-            estimator: MultipleEstimator::Photons,
-            seed: 0,
-            min_transmittance: 1e-4,
-        };
+        let params = self.multiple_only(&density, 1.0, Gather::Neighbours { k, max_radius: 0.5 * self.radius }, MultipleEstimator::Photons, 0);
         let (cache, _) = bake_cpu(&density, &map, &params).unwrap();
         let li = cache.li_multiple.expect("photons were stored");
         points.iter().map(|&p| li.sample_world(p).x as f64).collect()
@@ -160,26 +166,11 @@ impl Sphere {
             .collect()
     }
 
-    /// Li_multiple baked by paths (`per_voxel` each, the eye far enough that every voxel gets
-    /// about that many), read at `points`.
+    /// Li_multiple baked by paths (`per_voxel` where the default camera, looking from -Y, sees
+    /// a voxel through clear air; fewer behind the medium), read at `points`.
     pub fn baked_paths(&self, voxel: f64, cache_scale: f64, per_voxel: u32, seed: u64, points: &[DVec3]) -> Vec<f64> {
         let density = self.voxelized(voxel);
-        let light = Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap();
-        let (lo, hi) = density.world_bounds().unwrap();
-        let params = CacheParams {
-            medium: self.medium(),
-            lights: vec![light],
-            camera: Camera::default_for_bounds(lo, hi).unwrap(),
-            step: 0.5,
-            cache_scale,
-            multiple_scale: None,
-            single: false,
-            multiple: true,
-            gather: Gather::Neighbours { k: 1, max_radius: 1.0 },
-            estimator: MultipleEstimator::Paths { per_voxel },
-            seed,
-            min_transmittance: 1e-4,
-        };
+        let params = self.multiple_only(&density, cache_scale, Gather::Neighbours { k: 1, max_radius: 1.0 }, MultipleEstimator::Paths { per_voxel }, seed);
         let (cache, stats) = bake_cpu(&density, &nimbus_photon::PhotonMap::default(), &params).unwrap();
         assert!(stats.paths >= stats.baked && stats.paths <= stats.baked * per_voxel as u64, "{stats:?}");
         let li = cache.li_multiple.expect("paths need no photons");
