@@ -515,3 +515,39 @@ fn degenerate_particle_sets() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `vdbcache --paths` straight from the density, under the extreme media and densities the
+/// photon chain is held to above: each finishes with finite grids and image.
+#[test]
+fn path_traced_multiple_scattering_under_extremes() {
+    let dir = scratch("paths");
+    let paths = |tag: &str, density: &Path, cache: &[&str]| -> f64 {
+        let (c, e) = (dir.join(format!("{tag}-c.vdb")), dir.join(format!("{tag}.exr")));
+        let start = Instant::now();
+        run_file("vdbcache", density, &[&["--width", "16", "--height", "12", "--paths", "4", "-q"], cache].concat(), &c).expect_ok();
+        eprintln!("--paths, {tag}: {:?}", start.elapsed());
+        assert_vdb_finite(&c);
+        run_file("vdbmarch", &c, SMALL_IMAGE, &e).expect_ok();
+        assert_exr_finite(&e)
+    };
+    let cube = dir.join("cube.vdb");
+    density_vdb(&cube, 6, uniform(20.0), 0.1, DVec3::ZERO);
+    assert!(paths("plain", &cube, &[]) > 0.0, "the cube is lit");
+    assert_eq!(paths("a0", &cube, &["--albedo", "0"]), 0.0, "albedo 0 scatters nothing");
+    // Albedo 1: the throughput never falls, so roulette never ends a path; the depth cap does.
+    paths("a1", &cube, &["--albedo", "1"]);
+    for g in ["0.999", "-0.999"] {
+        paths(&format!("g{g}"), &cube, &["--g", g]);
+    }
+    let thin = dir.join("thin.vdb");
+    density_vdb(&thin, 6, uniform(1e-9), 0.1, DVec3::ZERO);
+    paths("thin", &thin, &[]);
+    let thick = dir.join("thick.vdb");
+    density_vdb(&thick, 6, uniform(1e9), 0.1, DVec3::ZERO);
+    paths("thick", &thick, &[]);
+    let mixed = dir.join("mixed.vdb");
+    density_vdb(&mixed, 6, |ijk| if (ijk.x + ijk.y + ijk.z) % 2 == 0 { 1e9 } else { 1e-9 }, 0.1, DVec3::ZERO);
+    paths("mixed", &mixed, &["--multiple-scale", "3"]);
+    run_file("vdbcache", &cube, &["--paths", "4", "--multiple-scale", "0"], &dir.join("bad.vdb")).expect_error(2, "multiple-scale");
+    std::fs::remove_dir_all(&dir).ok();
+}
