@@ -188,11 +188,8 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     params.validate()?;
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let mut stats = plan.stats.clone();
     let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
-    if let Some(p) = &own_plan {
-        stats.add(&p.stats);
-    }
+    let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);

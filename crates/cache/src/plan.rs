@@ -99,6 +99,16 @@ impl CachePlan {
             .filter(|p| p.transform != single.transform)
     }
 
+    /// The voxel counts of what is baked: this plan's where Li_single is baked on it (or
+    /// Li_multiple shares it), plus Li_multiple's own plan's.
+    pub fn stats_with(&self, own_multiple: Option<&CachePlan>, bakes_single: bool) -> BakeStats {
+        let mut stats = if bakes_single || own_multiple.is_none() { self.stats.clone() } else { BakeStats::default() };
+        if let Some(p) = own_multiple {
+            stats.add(&p.stats);
+        }
+        stats
+    }
+
     pub fn mask_of(&self, origin: IVec3) -> Option<&BrickMask> {
         self.brick_index(origin).map(|i| &self.bricks[i].1)
     }

@@ -210,3 +210,19 @@ fn stress_cases_bake_finite_values() {
         }
     }
 }
+
+/// The counts describe what was baked: with Li_multiple alone on its own lattice, its voxels,
+/// not the unused single-scattering lattice's; with both, the two added up.
+#[test]
+fn counts_cover_the_lattices_baked() {
+    let v = block(IVec3::new(-6, -6, 0), IVec3::new(6, 6, 8), |_| 1.0);
+    let only = CacheParams { single: false, multiple: true, multiple_scale: Some(3.0), estimator: MultipleEstimator::Paths { per_voxel: 1 }, ..params(side_camera(&v)) };
+    let (cache, stats) = bake_cpu(&v, &PhotonMap::default(), &only).unwrap();
+    let li = cache.li_multiple.expect("paths need no photons");
+    assert_eq!(stats.baked, li.active_voxel_count() as u64);
+    assert_eq!(stats.paths, stats.baked, "one path each");
+    let both = CacheParams { single: true, ..only };
+    let (cache, stats) = bake_cpu(&v, &PhotonMap::default(), &both).unwrap();
+    let total = cache.li_single.unwrap().active_voxel_count() + cache.li_multiple.unwrap().active_voxel_count();
+    assert_eq!(stats.baked, total as u64);
+}
