@@ -68,7 +68,7 @@ impl Rung {
     /// The chain without photons: vdbcache traces `paths` per voxel on a Li_multiple lattice
     /// `multiple_scale` density voxels wide.
     fn paths(name: &str, paths: u32, cache_scale: f64, multiple_scale: f64) -> Rung {
-        Rung { photons: 0, distance: "none", neighbours: 0, paths, multiple_scale: Some(multiple_scale), ..Rung::new(name, 0, "none", 0, cache_scale, 1.0, 1) }
+        Rung { paths, multiple_scale: Some(multiple_scale), ..Rung::new(name, 0, "none", 0, cache_scale, 1.0, 1) }
     }
 }
 

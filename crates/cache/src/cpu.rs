@@ -196,15 +196,17 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     let camera = &params.camera;
 
     let mut nonfinite = 0;
-    let mut bake = |plan: &CachePlan, f: &(dyn Fn(DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+    // f(voxel index in plan order, position, w_out, scratch).
+    let mut bake = |plan: &CachePlan, f: &(dyn Fn(usize, DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
         let positions = plan.voxel_positions();
-        let values: Vec<Vec3> = positions.par_iter().map_init(Vec::new, |scratch, &x| f(x, toward_eye(camera, x), scratch)).collect();
+        let values: Vec<Vec3> =
+            positions.par_iter().enumerate().map_init(Vec::new, |scratch, (i, &x)| f(i, x, toward_eye(camera, x), scratch)).collect();
         let (volume, bad) = plan.volume_of(&values);
         nonfinite += bad;
         volume
     };
     let li_single = params.bakes_single().then(|| {
-        bake(&plan, &|x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
+        bake(&plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
     });
     let li_multiple = match params.estimator {
         _ if !params.bakes_multiple(photons) => None,
@@ -212,7 +214,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
             let gathered = AtomicU64::new(0);
             let empty_below = empty_ball_density(&majorant);
-            let volume = bake(multiple_plan, &|x, w_out, scratch| {
+            let volume = bake(multiple_plan, &|_, x, w_out, scratch| {
                 let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
                 gathered.fetch_add(used as u64, Ordering::Relaxed);
                 li
@@ -225,19 +227,12 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
             let traced = AtomicU64::new(0);
             let reach = multiple_plan.transform.voxel_size().length();
-            let values: Vec<Vec3> = multiple_plan
-                .voxel_positions()
-                .par_iter()
-                .enumerate()
-                .map(|(i, &x)| {
-                    let paths = paths_for_voxel(paths_medium, camera.eye(), x, reach, per_voxel, step, params.min_transmittance);
-                    traced.fetch_add(paths as u64, Ordering::Relaxed);
-                    let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                    li_multiple_paths(paths_medium, &params.medium, &params.lights, x, toward_eye(camera, x), paths, &mut rng)
-                })
-                .collect();
-            let (volume, bad) = multiple_plan.volume_of(&values);
-            nonfinite += bad;
+            let volume = bake(multiple_plan, &|i, x, w_out, _| {
+                let paths = paths_for_voxel(paths_medium, camera.eye(), x, reach, per_voxel, step, params.min_transmittance);
+                traced.fetch_add(paths as u64, Ordering::Relaxed);
+                let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
+                li_multiple_paths(paths_medium, &params.medium, &params.lights, x, w_out, paths, &mut rng)
+            });
             stats.paths = traced.into_inner();
             Some(volume)
         }
