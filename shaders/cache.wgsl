@@ -9,9 +9,9 @@
 //   shell-by-shell bounded search over the same counting-sort bins as PhotonBins::nearest,
 //   with the same max-heap order) or within a fixed radius, divided by the mean sigma_s over
 //   the ball (the same 42-point quadrature);
-// - bake_path_counts then bake_paths: li_multiple_paths, paths_for_voxel's count of paths
-//   from the voxel (path.wgsl's trace_path, the first direction by HG about the camera ray),
-//   drawing from the CPU's stream: voxel i's Rng (seed, i, CACHE_PATHS_DOMAIN), one stream
+// - seed_paths then bake_paths: li_multiple_paths, the host's count of paths from each voxel
+//   (CameraImportance::paths, uploaded in out.used; path.wgsl's trace_path, the first
+//   direction by HG about the camera ray), drawing from the CPU's stream: voxel i's Rng (seed, i, CACHE_PATHS_DOMAIN), one stream
 //   for all its paths in turn, kept in path_rngs between dispatches. The host binds the
 //   tracking majorant (MajorantGrid::for_tracking) for these, the plain one for the others.
 //   The CPU decides in f64 and this in f32, so a path can take another turn now and then:
@@ -48,19 +48,17 @@ struct CacheUniforms {
     max_shell: i32,
     // Mean density below which a ball counts as empty (cpu.rs EMPTY_BALL_FRACTION).
     empty_below: f32,
-    // Path-traced Li_multiple: the seed (lo, hi), the most paths per voxel (--paths), the
-    // most collisions per path (PATH_MAX_DEPTH), the distance in front of a voxel from which
-    // its transmittance toward the eye is taken (the multiple lattice's voxel diagonal), and
-    // the paths first_path .. first_path + path_count of this dispatch.
+    // Path-traced Li_multiple: the seed (lo, hi), the most collisions per path
+    // (PATH_MAX_DEPTH), and the paths first_path .. first_path + path_count of this dispatch.
     seed: vec2<u32>,
-    per_voxel: u32,
     max_depth: u32,
-    reach: f32,
     first_path: u32,
     path_count: u32,
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
+    _pad3: u32,
+    _pad4: u32,
 }
 
 // Photons sorted by bin; `index` is the photon's number in the map (the CPU's tie-break).
@@ -335,27 +333,11 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
 }
 
 // ---------------------------------------------------------------------------------------
-// Multiple scattering by paths (cpu.rs li_multiple_paths, paths_for_voxel).
+// Multiple scattering by paths (cpu.rs li_multiple_paths; the counts from importance.rs).
 
-// paths_for_voxel: per_voxel times the transmittance toward the eye from `reach` in front of
-// x, rounded up, at least one.
-fn paths_for_voxel(x: vec3<f32>) -> u32 {
-    let to_eye = params.eye - x;
-    let distance = length(to_eye);
-    var t = 1.0;
-    if (distance > params.reach) {
-        let dir = to_eye / distance;
-        // Starting the ray at reach in front rather than at t = reach: the Simpson panels
-        // split at the same voxel planes either way.
-        let ray = path_track_ray(x + dir * params.reach, dir, params.medium.extinction);
-        t = track_transmittance(ray, params.grid, distance - params.reach, params.step, params.cutoff);
-    }
-    return clamp(u32(ceil(f32(params.per_voxel) * t)), 1u, max(params.per_voxel, 1u));
-}
-
-// The first of a voxel's dispatches: its path count (kept in `used`), its Rng, a zero sum.
+// Before a voxel's first paths: its Rng. Its path count came from the host in `used`, with
+// a zero sum.
 fn start_paths(v: u32) {
-    out[v] = CacheOut(vec3<f32>(0.0), paths_for_voxel(points[v].xyz));
     path_rngs[v] = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
 }
 
@@ -419,10 +401,10 @@ fn bake_multiple(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     loop_guard_check();
 }
 
-// Path-traced Li_multiple in dispatches: first this one (path counts, Rngs), then bake_paths
-// once per path_count paths. `params.grid` is the tracking majorant here.
+// Path-traced Li_multiple in dispatches: first this one (the Rngs), then bake_paths once per
+// path_count paths. `params.grid` is the tracking majorant here.
 @compute @workgroup_size(64)
-fn bake_path_counts(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+fn seed_paths(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                     @builtin(local_invocation_index) local: u32) {
     let i = dispatch_linear_index(wg, nwg, local, WORKGROUP_SIZE);
     if (i >= params.count) {

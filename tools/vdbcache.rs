@@ -50,10 +50,11 @@ struct Args {
     /// Fixed gather radius (world units) instead of --gather-neighbours.
     #[arg(long)]
     radius: Option<f64>,
-    /// Estimate multiple scattering by up to N paths traced from each cache voxel instead of
-    /// gathering photons: unbiased, and needs no photons (vdbphoton can be left out of the
-    /// chain). Voxels the eye sees through the medium get fewer paths, in proportion to the
-    /// transmittance toward the eye (at least one).
+    /// Estimate multiple scattering by paths traced from each cache voxel instead of
+    /// gathering photons, N per voxel on average: unbiased, and needs no photons (vdbphoton
+    /// can be left out of the chain). Each voxel gets one path, the rest go where the camera's
+    /// image depends most on the voxel (seen through clear air, in dense medium, by many
+    /// pixels).
     #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"])]
     paths: Option<u32>,
     /// Random seed of --paths (default: what the file records, else 0).

@@ -11,7 +11,7 @@ use nimbus_photon::PhotonMap;
 use nimbus_tracking::{trace_path, DensityMedium, MediumRay};
 use nimbus_volume::{MajorantGrid, Volume};
 
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -162,22 +162,6 @@ pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light
     sum / paths.max(1) as f32
 }
 
-/// Paths for the voxel at `x`: `per_voxel` times the transmittance toward the eye, rounded
-/// up, at least one. The march weighs the voxel's Li by that transmittance, so this spreads
-/// the paths where they lower the image's error most (for equal per-path variance, the
-/// image's variance sum T^2 var / n is least for n proportional to T); the one path keeps
-/// every voxel an unbiased, if noisy, estimate for other views. The transmittance is taken
-/// from `reach` in front of x (the reach of the cache's interpolation): the march reads a
-/// voxel's value wherever its interpolation weight is non-zero, and a voxel just behind a
-/// cloud's visible surface is seen there through clear air, though its own centre is not.
-#[allow(clippy::too_many_arguments)]
-pub fn paths_for_voxel(medium: DensityMedium, eye: DVec3, x: DVec3, reach: f64, per_voxel: u32, step: f64, cutoff: f64) -> u32 {
-    let to_eye = eye - x;
-    let distance = to_eye.length();
-    let t = if distance > reach { MediumRay::new(medium, x, to_eye / distance, reach, distance).transmittance(step, cutoff) } else { 1.0 };
-    ((per_voxel as f64 * t).ceil() as u32).clamp(1, per_voxel.max(1))
-}
-
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
 pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
     (camera.eye() - x).normalize_or_zero().as_vec3()
@@ -226,9 +210,9 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
             let traced = AtomicU64::new(0);
-            let reach = multiple_plan.transform.voxel_size().length();
+            let counts = CameraImportance::new(multiple_plan, density, &majorant, params.medium.extinction, camera, params.min_transmittance).paths(per_voxel);
             let volume = bake(multiple_plan, &|i, x, w_out, _| {
-                let paths = paths_for_voxel(paths_medium, camera.eye(), x, reach, per_voxel, step, params.min_transmittance);
+                let paths = counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
                 li_multiple_paths(paths_medium, &params.medium, &params.lights, x, w_out, paths, &mut rng)

@@ -11,7 +11,7 @@ use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
 
 /// The cache kernels, `shaders/cache.wgsl`.
 pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
@@ -47,12 +47,10 @@ struct GpuCacheParams {
     max_shell: i32,
     empty_below: f32,
     seed: [u32; 2],
-    per_voxel: u32,
     max_depth: u32,
-    reach: f32,
     first_path: u32,
     path_count: u32,
-    _pad: [u32; 3],
+    _pad: [u32; 5],
 }
 
 /// WGSL `CachePhoton`.
@@ -115,15 +113,22 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         (None, Some((lo, hi))) => 0.5 * (lo + hi),
         (None, None) => DVec3::ZERO,
     };
+    // The paths per voxel are decided on the host, by the CPU's very rule.
+    let counts = match params.estimator {
+        MultipleEstimator::Paths { per_voxel } if multiple => {
+            CameraImportance::new(multiple_plan, density, &majorant, params.medium.extinction, &params.camera, params.min_transmittance).paths(per_voxel)
+        }
+        _ => Vec::new(),
+    };
     let kernel = match params.estimator {
         MultipleEstimator::Photons => Kernel::Photons,
-        MultipleEstimator::Paths { per_voxel } => Kernel::Paths { per_voxel, reach: multiple_plan.transform.voxel_size().length() },
+        MultipleEstimator::Paths { .. } => Kernel::Paths(&counts),
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
     let baker = work.then(|| GpuBaker::new(ctx, density, &majorant, photons, bins.as_ref(), params, origin)).transpose()?;
 
     let mut nonfinite = 0;
-    let mut run = |kernel: Kernel, plan: &CachePlan| -> Result<Volume<Vec3>, CacheError> {
+    let mut run = |kernel: Kernel<'_>, plan: &CachePlan| -> Result<Volume<Vec3>, CacheError> {
         let out = match &baker {
             Some(b) => b.run(kernel, &plan.voxel_positions())?,
             None => Vec::new(),
@@ -135,7 +140,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         match kernel {
             Kernel::Single => {}
             Kernel::Photons => stats.photons_gathered = used,
-            Kernel::Paths { .. } => stats.paths = used,
+            Kernel::Paths(_) => stats.paths = used,
         }
         Ok(volume)
     };
@@ -147,14 +152,14 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
 
 /// What one [`GpuBaker::run`] bakes.
 #[derive(Clone, Copy, Debug)]
-enum Kernel {
+enum Kernel<'a> {
     /// Li_single (`bake_single`).
     Single,
     /// Li_multiple from the photons (`bake_multiple`).
     Photons,
-    /// Li_multiple by paths (`bake_path_counts`, then `bake_paths` in passes of
-    /// [`PATHS_PER_DISPATCH`]); `reach` is the multiple lattice's voxel diagonal.
-    Paths { per_voxel: u32, reach: f64 },
+    /// Li_multiple by paths, so many per voxel (`seed_paths`, then `bake_paths` in passes
+    /// of [`PATHS_PER_DISPATCH`]).
+    Paths(&'a [u32]),
 }
 
 /// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
@@ -259,12 +264,10 @@ impl<'a> GpuBaker<'a> {
             max_shell: (radius / cell).ceil() as i32 + 1,
             empty_below: empty_ball_density(majorant) as f32,
             seed: split_u64(params.seed),
-            per_voxel: 0,
             max_depth: PATH_MAX_DEPTH,
-            reach: 0.0,
             first_path: 0,
             path_count: PATHS_PER_DISPATCH,
-            _pad: [0; 3],
+            _pad: [0; 5],
         };
         let tracking = match params.estimator {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons) => {
@@ -292,7 +295,7 @@ impl<'a> GpuBaker<'a> {
 
     /// Runs `kernel` over the voxels at `positions`, in dispatches of at most [`CHUNK`]
     /// voxels (and [`PATHS_PER_DISPATCH`] paths), and reads back.
-    fn run(&self, kernel: Kernel, positions: &[DVec3]) -> Result<Vec<GpuOut>, GpuError> {
+    fn run(&self, kernel: Kernel<'_>, positions: &[DVec3]) -> Result<Vec<GpuOut>, GpuError> {
         let ctx = self.ctx;
         let voxels = positions.len() as u64;
         if voxels == 0 {
@@ -300,16 +303,22 @@ impl<'a> GpuBaker<'a> {
         }
         let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect();
         let points = ctx.storage_buffer("cache voxels", &points)?;
-        let out = ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?;
+        let out = match kernel {
+            // Each voxel's path count goes in with its zero sum.
+            Kernel::Paths(counts) => ctx.storage_buffer("cache values", &counts.iter().map(|&used| GpuOut { li: [0.0; 3], used }).collect::<Vec<_>>())?,
+            _ => ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
+        };
         // (entry, first path) in order; the same voxels' state passes between them in `out`
         // and the Rng buffer.
         let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
             Kernel::Single => (vec![("bake_single", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's shadow rays", "or a longer --step"),
             Kernel::Photons => (vec![("bake_multiple", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's photon search", "or fewer --gather-neighbours"),
-            Kernel::Paths { per_voxel, reach } => {
+            Kernel::Paths(counts) => {
+                assert_eq!(counts.len() as u64, voxels, "one path count per voxel");
                 let (buffer, grid) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
-                let passes = std::iter::once(("bake_path_counts", 0)).chain((0..per_voxel).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
-                let uniforms = GpuCacheParams { grid: *grid, per_voxel, reach: reach as f32, ..self.uniforms };
+                let most = counts.iter().copied().max().unwrap_or(0);
+                let passes = std::iter::once(("seed_paths", 0)).chain((0..most).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
+                let uniforms = GpuCacheParams { grid: *grid, ..self.uniforms };
                 (passes, voxels * GPU_RNG_BYTES, uniforms, buffer, "a cache voxel's paths", "or a longer --step")
             }
         };

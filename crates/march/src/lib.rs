@@ -47,7 +47,7 @@ mod gpu;
 mod image;
 mod reference;
 
-pub use cpu::{render_cpu, RayResult};
+pub use cpu::{march_ray, render_cpu, RayResult};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_gpu, ReferenceParams, REFERENCE_WGSL};
