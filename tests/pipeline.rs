@@ -261,15 +261,23 @@ fn quality_presets_set_the_tools_and_flags_override_them() {
     run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
     // draft: 50000 photons by delta tracking; --photons overrides the count only.
     run(Command::new(bin("vdbphoton")).arg(&d).args(["--quality", "draft", "--photons", "3000"]).arg("-o").arg(&p));
-    run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final", "--width", "16", "--height", "12"]).arg("-o").arg(&c));
+    // final traces paths and says the photons go unused; an explicit --gather-neighbours
+    // gathers them instead, on final's lattice.
+    let (c_photons, cache_size) = (dir.join("c-photons.vdb"), ["--width", "16", "--height", "12"]);
+    let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final"]).args(cache_size).arg("-o").arg(&c));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("photons are not used"), "{out:?}");
+    run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final", "--gather-neighbours", "32"]).args(cache_size).arg("-o").arg(&c_photons));
     let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "final", "--spp", "3", "-v"]).arg("-o").arg(&e));
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(log.contains("16x12 pixels, 3 spp"), "an explicit --spp wins over the preset: {log}");
-    if let Ok(out) = Command::new("vdb_print").args(["-l", "-m"]).arg(&c).output() {
-        let listing = String::from_utf8_lossy(&out.stdout);
-        // The photons come from draft (count overridden), the cache from final.
-        for expected in ["distance=delta", "photons=3000", "cache_scale=2", "gather=neighbours:128:"] {
-            assert!(listing.contains(expected), "{expected} missing from {listing}");
+    let listing = |f: &Path| Command::new("vdb_print").args(["-l", "-m"]).arg(f).output().ok().map(|o| String::from_utf8_lossy(&o.stdout).into_owned());
+    if let (Some(paths), Some(photons)) = (listing(&c), listing(&c_photons)) {
+        // The photons come from draft (count overridden), the caches from final.
+        for expected in ["distance=delta", "photons=3000", "cache_scale=2", "multiple_estimator=paths:64"] {
+            assert!(paths.contains(expected), "{expected} missing from {paths}");
+        }
+        for expected in ["cache_scale=2", "multiple_estimator=photons", "gather=neighbours:32:"] {
+            assert!(photons.contains(expected), "{expected} missing from {photons}");
         }
     }
     let bad = Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "ultra"]).arg("-o").arg(dir.join("x.exr")).output().unwrap();

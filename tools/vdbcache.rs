@@ -44,7 +44,8 @@ struct Args {
     /// --quality preset's).
     #[arg(long, conflicts_with = "radius")]
     gather_neighbours: Option<u32>,
-    /// Preset: draft, preview or final (cache scale and gather neighbours; flags override).
+    /// Preset: draft, preview or final (cache scale and --paths; flags override, and
+    /// --gather-neighbours or --radius gathers photons instead of tracing paths).
     #[arg(long, value_enum)]
     quality: Option<Quality>,
     /// Fixed gather radius (world units) instead of --gather-neighbours.
@@ -136,9 +137,10 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                 max_radius: args.max_radius * voxel,
             },
         },
-        estimator: match args.paths {
-            Some(per_voxel) => MultipleEstimator::Paths { per_voxel },
-            None => MultipleEstimator::Photons,
+        estimator: match (args.paths, preset) {
+            (Some(per_voxel), _) => MultipleEstimator::Paths { per_voxel },
+            (None, Some(q)) if args.gather_neighbours.is_none() && args.radius.is_none() => MultipleEstimator::Paths { per_voxel: q.paths },
+            _ => MultipleEstimator::Photons,
         },
         seed: args.seed.or(meta.seed()).unwrap_or(0),
         min_transmittance: args.min_transmittance,
@@ -146,6 +148,12 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     params.validate().map_err(Failure::usage)?;
     if params.multiple && params.estimator == MultipleEstimator::Photons && photons.is_empty() {
         log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first, or use --paths)");
+    }
+    if params.multiple && args.paths.is_none() && params.estimator != MultipleEstimator::Photons && !photons.is_empty() {
+        log.warn(format!(
+            "--quality traces paths for multiple scattering: the input's {} photons are not used (--gather-neighbours gathers them)",
+            photons.len()
+        ));
     }
     let device = args.common.compute_device(&log)?;
     let (cache, stats) = log

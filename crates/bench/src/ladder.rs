@@ -78,7 +78,7 @@ pub fn presets() -> Vec<Rung> {
         .iter()
         .map(|q| {
             let s = q.settings();
-            Rung::new(q.name(), s.photons, s.distance, s.gather_neighbours, s.cache_scale, s.step_factor, s.spp)
+            Rung { paths: s.paths, ..Rung::new(q.name(), 0, "none", 0, s.cache_scale, s.step_factor, s.spp) }
         })
         .collect()
 }
@@ -141,10 +141,10 @@ fn ladder(quick: bool) -> Vec<Rung> {
     // voxel, on Li_multiple lattices 4 and 2 density voxels wide (single scattering keeps the
     // default cache scale 2).
     rungs.extend([
-        Rung::paths("paths 32", 32, 2.0, 4.0),
-        Rung::paths("paths 128", 128, 2.0, 4.0),
-        Rung::paths("paths 512", 512, 2.0, 4.0),
-        Rung::paths("paths 32 fine", 32, 2.0, 2.0),
+        Rung::paths("paths 16", 16, 2.0, 4.0),
+        Rung::paths("paths 64", 64, 2.0, 4.0),
+        Rung::paths("paths 256", 256, 2.0, 4.0),
+        Rung::paths("paths 16 fine", 16, 2.0, 2.0),
         Rung::paths("paths 128 fine", 128, 2.0, 2.0),
     ]);
     // "delta 50k" repeats "photons 50k"; keep one.

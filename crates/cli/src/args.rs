@@ -224,12 +224,16 @@ pub enum Quality {
 /// What a [`Quality`] sets, tool by tool.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QualitySettings {
-    /// vdbphoton `--photons`.
+    /// vdbcache `--paths`: the presets trace multiple scattering from the cache voxels, which
+    /// beat the photon gather at every budget on both bundled scenes (README); an explicit
+    /// `--gather-neighbours` or `--radius` gathers photons instead.
+    pub paths: u32,
+    /// vdbphoton `--photons`, for the chain that gathers photons.
     pub photons: u64,
     /// vdbphoton `--distance` (delta: the same photon distribution as simpson, measured,
     /// at a fraction of the time).
     pub distance: &'static str,
-    /// vdbcache `--gather-neighbours`.
+    /// vdbcache `--gather-neighbours`, where photons are gathered.
     pub gather_neighbours: u32,
     /// vdbcache `--cache-scale`.
     pub cache_scale: f64,
@@ -252,15 +256,16 @@ impl Quality {
 
     pub fn settings(self) -> QualitySettings {
         match self {
-            Quality::Draft => QualitySettings { photons: 50_000, distance: "delta", gather_neighbours: 32, cache_scale: 4.0, step_factor: 2.0, spp: 1 },
-            // The measured Pareto front (README): the cache's photon count and smoothing set the
-            // error; a finer cache lattice, march step or more spp buy little for their time.
-            Quality::Preview => QualitySettings { photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 4.0, step_factor: 1.0, spp: 1 },
-            // Photons are what lower the error (more neighbours as they grow); at 128x72 four
-            // jittered samples per pixel cost time and added error on the plume's sub-pixel
-            // wisps (3.3% against 2.9% at 1 spp), so `--spp` is left to the user who wants
-            // antialiased edges.
-            Quality::Final => QualitySettings { photons: 3_200_000, distance: "delta", gather_neighbours: 128, cache_scale: 2.0, step_factor: 1.0, spp: 1 },
+            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, distance: "delta", gather_neighbours: 32, cache_scale: 4.0, step_factor: 2.0, spp: 1 },
+            // The measured Pareto front (README): the paths per voxel set the error, on the
+            // coarse lattice while a couple of percent of darkening at the visible surface
+            // (interpolation) is below the noise; a finer march step or more spp buy little.
+            Quality::Preview => QualitySettings { paths: 16, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 4.0, step_factor: 1.0, spp: 1 },
+            // Within 2% of the path-traced reference on both bundled scenes: the lattice 2
+            // density voxels wide (the coarse one's darkening would eat the budget). At 128x72
+            // four jittered samples per pixel cost time and added error on the plume's
+            // sub-pixel wisps, so `--spp` is left to the user who wants antialiased edges.
+            Quality::Final => QualitySettings { paths: 64, photons: 3_200_000, distance: "delta", gather_neighbours: 128, cache_scale: 2.0, step_factor: 1.0, spp: 1 },
         }
     }
 }
