@@ -483,7 +483,7 @@ mod tests {
     fn row(scene: &'static str, t: f64, e: f64) -> Row {
         Row {
             scene,
-            rung: presets()[0].clone(),
+            rung: Rung::new("delta photons", 200_000, "delta", 64, 2.0, 1.0, 1),
             photon_s: t,
             cache_s: 0.0,
             march_s: 0.0,
