@@ -19,7 +19,14 @@ use nimbus_optics::Camera;
 use nimbus_volume::{brick_offset, brick_origin, BrickMask, MajorantGrid, Volume};
 use rayon::prelude::*;
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use crate::CachePlan;
+
+/// One in G's fixed point. A pixel's derivative is at most 1 (its opacity), so each term is
+/// at most 1 and G at most the rays' count ([`IMPORTANCE_RAYS`] < 2^24), well within 64 bits;
+/// terms under 2^-40 (derivatives under 1e-6) are too small to earn a path anyway.
+const G_FIXED_ONE: f64 = (1u64 << 40) as f64;
 
 /// At most this many camera rays estimate the importance: 2 x 2 per pixel while the image
 /// is small (the march jitters over the pixel), one through every s-th pixel's centre each way
@@ -45,65 +52,55 @@ impl CameraImportance {
         // A pixel's value is the mean of its rays'.
         let per_ray = 1.0 / (sub * sub) as f64;
         let transform = density.transform();
-        let g = (0..sw * sh)
-            .into_par_iter()
-            .fold(
-                || (vec![0.0f64; index.len], Vec::<(u32, f64)>::new()),
-                |(mut g, mut derivs), p| {
-                    derivs.clear();
-                    let (px, py) = ((p % sw * stride) as f64, (p / sw * stride) as f64);
-                    for s in 0..sub * sub {
-                        // The centres of the pixel's 2 x 2 quarters, or of the stride's block.
-                        let (jx, jy) = match stride {
-                            1 => (((s % sub) as f64 + 0.5) / sub as f64, ((s / sub) as f64 + 0.5) / sub as f64),
-                            _ => (0.5 * stride as f64, 0.5 * stride as f64),
-                        };
-                        let (origin, dir) = camera.ray(px + jx, py + jy);
-                        let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
-                        let mut tr = 1.0f64;
-                        'ray: for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-                            if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
-                                continue;
-                            }
-                            let mut k = (seg.t_start / step - 0.5).ceil();
-                            loop {
-                                let t = (k + 0.5) * step;
-                                if t >= seg.t_end {
-                                    break;
-                                }
-                                k += 1.0;
-                                let x = origin + dir * t;
-                                let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
-                                if !(sigma_t > 0.0) {
-                                    continue;
-                                }
-                                let step_transmittance = (-sigma_t * step).exp();
-                                index.spread(plan.transform.to_index(x), per_ray * tr * (1.0 - step_transmittance), &mut derivs);
-                                tr *= step_transmittance;
-                                if tr < min_transmittance {
-                                    break 'ray;
-                                }
-                            }
+        // Summed in fixed point, so G (and the paths, and the cache) does not depend on the
+        // order the threads add in.
+        let fixed: Vec<AtomicU64> = (0..index.len).map(|_| AtomicU64::new(0)).collect();
+        (0..sw * sh).into_par_iter().for_each_init(Vec::<(u32, f64)>::new, |derivs, p| {
+            derivs.clear();
+            let (px, py) = ((p % sw * stride) as f64, (p / sw * stride) as f64);
+            for s in 0..sub * sub {
+                // The centres of the pixel's 2 x 2 quarters, or of the stride's block.
+                let (jx, jy) = match stride {
+                    1 => (((s % sub) as f64 + 0.5) / sub as f64, ((s / sub) as f64 + 0.5) / sub as f64),
+                    _ => (0.5 * stride as f64, 0.5 * stride as f64),
+                };
+                let (origin, dir) = camera.ray(px + jx, py + jy);
+                let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
+                let mut tr = 1.0f64;
+                'ray: for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
+                    if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
+                        continue;
+                    }
+                    let mut k = (seg.t_start / step - 0.5).ceil();
+                    loop {
+                        let t = (k + 0.5) * step;
+                        if t >= seg.t_end {
+                            break;
+                        }
+                        k += 1.0;
+                        let x = origin + dir * t;
+                        let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
+                        if !(sigma_t > 0.0) {
+                            continue;
+                        }
+                        let step_transmittance = (-sigma_t * step).exp();
+                        index.spread(plan.transform.to_index(x), per_ray * tr * (1.0 - step_transmittance), derivs);
+                        tr *= step_transmittance;
+                        if tr < min_transmittance {
+                            break 'ray;
                         }
                     }
-                    // One pixel's derivative per voxel is the sum over its samples; G adds
-                    // their squares.
-                    derivs.sort_unstable_by_key(|d| d.0);
-                    for run in derivs.chunk_by(|a, b| a.0 == b.0) {
-                        let a: f64 = run.iter().map(|d| d.1).sum();
-                        g[run[0].0 as usize] += a * a;
-                    }
-                    (g, derivs)
-                },
-            )
-            .map(|(g, _)| g)
-            .reduce(
-                || vec![0.0; index.len],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
+                }
+            }
+            // One pixel's derivative per voxel is the sum over its samples; G adds
+            // their squares.
+            derivs.sort_unstable_by_key(|d| d.0);
+            for run in derivs.chunk_by(|a, b| a.0 == b.0) {
+                let a: f64 = run.iter().map(|d| d.1).sum();
+                fixed[run[0].0 as usize].fetch_add((a * a * G_FIXED_ONE).round() as u64, Ordering::Relaxed);
+            }
+        });
+        let g = fixed.into_iter().map(|f| f.into_inner() as f64 / G_FIXED_ONE).collect();
         CameraImportance { g }
     }
 

@@ -50,10 +50,12 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
             }
         }
         eprintln!("voxel {v}: importance {:.6e}, march {sum:.6e}", g[v]);
+        // G is summed in fixed point: terms under 2^-40 are dropped.
+        let resolution = 2f64.powi(-40) * (w * h) as f64;
         if g[v] == 0.0 {
-            assert_eq!(sum, 0.0, "voxel {v}: no pixel reads it, yet the march does");
+            assert!(sum <= resolution, "voxel {v}: the march reads it at {sum}, yet its importance is 0");
         } else {
-            assert!((sum - g[v]).abs() <= 1e-4 * g[v], "voxel {v}: importance {}, march {sum}", g[v]);
+            assert!((sum - g[v]).abs() <= 1e-4 * g[v] + resolution, "voxel {v}: importance {}, march {sum}", g[v]);
         }
     }
     // And they differ by orders of magnitude, which is what the paths follow.
