@@ -225,7 +225,7 @@ pub enum Quality {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QualitySettings {
     /// vdbcache `--paths`: the presets trace multiple scattering from the cache voxels, which
-    /// beat the photon gather at every budget on both bundled scenes (README); an explicit
+    /// beat the photon gather at each preset's budget on both bundled scenes (README); an explicit
     /// `--gather-neighbours` or `--radius` gathers photons instead.
     pub paths: u32,
     /// vdbphoton `--photons`, for the chain that gathers photons.
