@@ -3,8 +3,8 @@
 // Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,
 // sampled exactly) + optics.wgsl + tracking.wgsl (majorant DDA) + noise.wgsl + this file.
 // Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
-// draws in the same order (jitter x, y when spp > 1, then the lattice offset xi, per
-// sample); steps at t_k = (k + xi) dt inside non-empty majorant segments; offset noise;
+// draws in the same order (jitter x, y when spp > 1, stratified as pixel_jitter, then the
+// lattice offset xi, per sample); steps at t_k = (k + xi) dt inside non-empty majorant segments; offset noise;
 // early termination; the same per-pixel averages. Positions are f32 relative to the
 // camera's eye (every volume's world_to_index is set to that origin by the host).
 // Li_single and Li_multiple are two more volumes at group 1, looked up with the hardware
@@ -162,6 +162,22 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
 const WORKGROUP_SIZE: u32 = 64u;
 
 @compute @workgroup_size(64)
+// cpu.rs pixel_jitter: jittered within cell s of an n x n grid over the pixel (n the integer
+// square root of spp), anywhere for the samples past n^2.
+fn pixel_jitter(s: u32, spp: u32, uv: vec2<f32>) -> vec2<f32> {
+    var n = u32(sqrt(f32(spp)));
+    if (n * n > spp) {
+        n = n - 1u;
+    }
+    if ((n + 1u) * (n + 1u) <= spp) {
+        n = n + 1u;
+    }
+    if (s < n * n) {
+        return (vec2<f32>(f32(s % n), f32(s / n)) + uv) / f32(n);
+    }
+    return uv;
+}
+
 fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_index) lid: u32) {
     let local = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
@@ -178,6 +194,7 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         if (params.spp != 1u) {
             j.x = rng_next_f64_as_f32(&rng);
             j.y = rng_next_f64_as_f32(&rng);
+            j = pixel_jitter(s, params.spp, j);
         }
         let xi = rng_next_f64_as_f32(&rng);
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
