@@ -161,7 +161,6 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
 
 const WORKGROUP_SIZE: u32 = 64u;
 
-@compute @workgroup_size(64)
 // cpu.rs pixel_jitter: jittered within cell s of an n x n grid over the pixel (n the integer
 // square root of spp), anywhere for the samples past n^2.
 fn pixel_jitter(s: u32, spp: u32, uv: vec2<f32>) -> vec2<f32> {
@@ -178,6 +177,7 @@ fn pixel_jitter(s: u32, spp: u32, uv: vec2<f32>) -> vec2<f32> {
     return uv;
 }
 
+@compute @workgroup_size(64)
 fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_index) lid: u32) {
     let local = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
