@@ -210,7 +210,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
             let traced = AtomicU64::new(0);
-            let counts = CameraImportance::new(multiple_plan, density, &majorant, params.medium.extinction, camera, params.min_transmittance).paths(per_voxel);
+            let counts = CameraImportance::path_counts(multiple_plan, density, &majorant, params, per_voxel);
             let volume = bake(multiple_plan, &|i, x, w_out, _| {
                 let paths = counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);

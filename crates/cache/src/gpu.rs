@@ -115,15 +115,10 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     };
     // The paths per voxel are decided on the host, by the CPU's very rule.
     let counts = match params.estimator {
-        MultipleEstimator::Paths { per_voxel } if multiple => {
-            CameraImportance::new(multiple_plan, density, &majorant, params.medium.extinction, &params.camera, params.min_transmittance).paths(per_voxel)
-        }
+        MultipleEstimator::Paths { per_voxel } if multiple => CameraImportance::path_counts(multiple_plan, density, &majorant, params, per_voxel),
         _ => Vec::new(),
     };
-    let kernel = match params.estimator {
-        MultipleEstimator::Photons => Kernel::Photons,
-        MultipleEstimator::Paths { .. } => Kernel::Paths(&counts),
-    };
+    let kernel = if params.estimator == MultipleEstimator::Photons { Kernel::Photons } else { Kernel::Paths(&counts) };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
     let baker = work.then(|| GpuBaker::new(ctx, density, &majorant, photons, bins.as_ref(), params, origin)).transpose()?;
 

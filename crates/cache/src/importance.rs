@@ -16,12 +16,13 @@
 
 use glam::{DVec3, IVec3};
 use nimbus_optics::Camera;
-use nimbus_volume::{brick_offset, brick_origin, BrickMask, MajorantGrid, Volume};
+use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::CachePlan;
+use crate::plan::VoxelIndex;
+use crate::{CacheParams, CachePlan};
 
 /// One in G's fixed point. A pixel's derivative is at most 1 (its opacity), so each term is
 /// at most 1 and G at most the rays' count ([`IMPORTANCE_RAYS`] < 2^24), well within 64 bits;
@@ -43,7 +44,7 @@ impl CameraImportance {
     /// Marches the camera's rays through the density as `vdbmarch` does (step: half the
     /// plan's voxel edge) and sums each pixel's derivatives per voxel of `plan`.
     pub fn new(plan: &CachePlan, density: &Volume<f32>, majorant: &MajorantGrid, extinction: f32, camera: &Camera, min_transmittance: f64) -> CameraImportance {
-        let index = PlanIndex::new(plan);
+        let index = plan.voxel_index();
         let (w, h) = (camera.width() as usize, camera.height() as usize);
         // Rays per pixel side (2) or pixels per ray side (stride).
         let (sub, stride) = if w * h * 4 <= IMPORTANCE_RAYS { (2, 1) } else { (1, ((w * h) as f64 / IMPORTANCE_RAYS as f64).sqrt().ceil() as usize) };
@@ -54,7 +55,7 @@ impl CameraImportance {
         let transform = density.transform();
         // Summed in fixed point, so G (and the paths, and the cache) does not depend on the
         // order the threads add in.
-        let fixed: Vec<AtomicU64> = (0..index.len).map(|_| AtomicU64::new(0)).collect();
+        let fixed: Vec<AtomicU64> = (0..plan.stats.baked).map(|_| AtomicU64::new(0)).collect();
         (0..sw * sh).into_par_iter().for_each_init(Vec::<(u32, f64)>::new, |derivs, p| {
             derivs.clear();
             let (px, py) = ((p % sw * stride) as f64, (p / sw * stride) as f64);
@@ -84,7 +85,7 @@ impl CameraImportance {
                             continue;
                         }
                         let step_transmittance = (-sigma_t * step).exp();
-                        index.spread(plan.transform.to_index(x), per_ray * tr * (1.0 - step_transmittance), derivs);
+                        spread(&index, plan.transform.to_index(x), per_ray * tr * (1.0 - step_transmittance), derivs);
                         tr *= step_transmittance;
                         if tr < min_transmittance {
                             break 'ray;
@@ -102,6 +103,12 @@ impl CameraImportance {
         });
         let g = fixed.into_iter().map(|f| f.into_inner() as f64 / G_FIXED_ONE).collect();
         CameraImportance { g }
+    }
+
+    /// The paths per voxel of `plan` for a `--paths per_voxel` bake: the one rule both
+    /// backends trace by.
+    pub fn path_counts(plan: &CachePlan, density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, per_voxel: u32) -> Vec<u32> {
+        CameraImportance::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance).paths(per_voxel)
     }
 
     /// Paths per voxel, `per_voxel` times the voxels in all: one each (so every voxel holds
@@ -128,58 +135,22 @@ impl CameraImportance {
     }
 }
 
-/// Cache lattice coordinate -> position in plan order.
-struct PlanIndex {
-    /// Brick origin, mask, plan position of its first voxel; sorted by origin as the plan.
-    bricks: Vec<(IVec3, BrickMask, u32)>,
-    len: usize,
-}
-
-impl PlanIndex {
-    fn new(plan: &CachePlan) -> PlanIndex {
-        let mut first = 0u32;
-        let bricks = plan
-            .bricks
-            .iter()
-            .map(|(origin, mask)| {
-                let b = (*origin, *mask, first);
-                first += mask.iter().map(|w| w.count_ones()).sum::<u32>();
-                b
-            })
-            .collect();
-        PlanIndex { bricks, len: first as usize }
+/// Adds `weight` times each trilinear corner weight at cache index `c` (as
+/// `Volume::sample_index` interpolates) to `out`, for the corners `index` plans.
+fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64)>) {
+    let base = c.floor();
+    if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
+        return;
     }
-
-    fn get(&self, ijk: IVec3) -> Option<u32> {
-        let origin = brick_origin(ijk);
-        let b = self.bricks.binary_search_by_key(&(origin.x, origin.y, origin.z), |(o, _, _)| (o.x, o.y, o.z)).ok()?;
-        let (_, mask, first) = &self.bricks[b];
-        let offset = brick_offset(ijk - origin);
-        let (word, bit) = (offset >> 6, offset & 63);
-        if mask[word] & (1 << bit) == 0 {
-            return None;
-        }
-        let below: u32 = mask[..word].iter().map(|w| w.count_ones()).sum::<u32>() + (mask[word] & ((1u64 << bit) - 1)).count_ones();
-        Some(first + below)
-    }
-
-    /// Adds `weight` times each trilinear corner weight at cache index `c` (as
-    /// `Volume::sample_index` interpolates) to `out`.
-    fn spread(&self, c: DVec3, weight: f64, out: &mut Vec<(u32, f64)>) {
-        let base = c.floor();
-        if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
-            return;
-        }
-        let f = c - base;
-        let b = base.as_ivec3();
-        for corner in 0..8 {
-            let o = IVec3::new((corner >> 2) & 1, (corner >> 1) & 1, corner & 1);
-            let pick = |bit: i32, f: f64| if bit == 1 { f } else { 1.0 - f };
-            let w = pick(o.x, f.x) * pick(o.y, f.y) * pick(o.z, f.z);
-            if w > 0.0 {
-                if let Some(i) = self.get(b + o) {
-                    out.push((i, weight * w));
-                }
+    let f = c - base;
+    let b = base.as_ivec3();
+    for corner in 0..8 {
+        let o = IVec3::new((corner >> 2) & 1, (corner >> 1) & 1, corner & 1);
+        let pick = |bit: i32, f: f64| if bit == 1 { f } else { 1.0 - f };
+        let w = pick(o.x, f.x) * pick(o.y, f.y) * pick(o.z, f.z);
+        if w > 0.0 {
+            if let Some(i) = index.get(b + o) {
+                out.push((i as u32, weight * w));
             }
         }
     }

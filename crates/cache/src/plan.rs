@@ -2,7 +2,7 @@
 
 use glam::{DAffine3, DVec3, IVec3, Vec3};
 use nimbus_optics::Camera;
-use nimbus_volume::{brick_local, brick_origin, BrickMask, MajorantGrid, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
+use nimbus_volume::{brick_local, brick_offset, brick_origin, BrickMask, MajorantGrid, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 use rustc_hash::FxHashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -140,16 +140,7 @@ impl CachePlan {
     /// and how many values were non-finite: those are stored as zero, never written.
     pub fn volume_of(&self, values: &[Vec3]) -> (Volume<Vec3>, u64) {
         assert_eq!(values.len() as u64, self.stats.baked, "one value per planned voxel");
-        // Where each brick's run of values starts.
-        let first: Vec<usize> = self
-            .bricks
-            .iter()
-            .scan(0usize, |next, (_, mask)| {
-                let start = *next;
-                *next += mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
-                Some(start)
-            })
-            .collect();
+        let first = self.first_voxels();
         let nonfinite = AtomicU64::new(0);
         let volume = Volume::from_brick_fn(self.transform, Vec3::ZERO, &self.origins(), |origin, brick| {
             let b = self.brick_index(origin).expect("planned brick");
@@ -170,6 +161,47 @@ impl CachePlan {
             mask
         });
         (volume, nonfinite.into_inner())
+    }
+}
+
+impl CachePlan {
+    /// Where each brick's run of voxels starts in plan order.
+    fn first_voxels(&self) -> Vec<usize> {
+        self.bricks
+            .iter()
+            .scan(0usize, |next, (_, mask)| {
+                let start = *next;
+                *next += mask.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+                Some(start)
+            })
+            .collect()
+    }
+
+    /// Looks planned voxels up by lattice coordinate.
+    pub(crate) fn voxel_index(&self) -> VoxelIndex<'_> {
+        VoxelIndex { plan: self, first: self.first_voxels() }
+    }
+}
+
+/// Cache lattice coordinate -> position in plan order ([`CachePlan::voxel_positions`]).
+pub(crate) struct VoxelIndex<'a> {
+    plan: &'a CachePlan,
+    first: Vec<usize>,
+}
+
+impl VoxelIndex<'_> {
+    /// The planned voxel at `ijk`, if it is planned.
+    pub(crate) fn get(&self, ijk: IVec3) -> Option<usize> {
+        let origin = brick_origin(ijk);
+        let b = self.plan.brick_index(origin)?;
+        let mask = &self.plan.bricks[b].1;
+        let offset = brick_offset(ijk - origin);
+        if !mask_has(mask, offset) {
+            return None;
+        }
+        let (word, bit) = (offset >> 6, offset & 63);
+        let below = mask[..word].iter().map(|w| w.count_ones() as usize).sum::<usize>() + (mask[word] & ((1u64 << bit) - 1)).count_ones() as usize;
+        Some(self.first[b] + below)
     }
 }
 
