@@ -1,11 +1,11 @@
 //! The CPU backend: bricks in parallel (rayon), each brick's passes done by splatting.
 //!
 //! Per brick, the particles whose support reaches it are gathered once from the cells. Each
-//! pass of the method then visits, for every such particle, the brick's voxels within its
-//! support radius (the CPU form of the paper's rectangle drawing): pass cost is the number of
-//! (particle, voxel) pairs within the support, with no wasted distance tests on a 27-cell
-//! neighbourhood. Later passes use the largest radius any voxel of the brick needs, so they
-//! get cheaper as the adaptive lengths shrink in dense regions.
+//! pass of the method then visits, for every such particle, the brick's z columns within the
+//! square about it that bounds its support (the paper's rectangle drawing, on the CPU): pass
+//! cost is the (particle, voxel) pairs within those squares, with no wasted distance tests on
+//! a 27-cell neighbourhood. Later passes use the largest radius any voxel of the brick needs,
+//! so they get cheaper as the adaptive lengths shrink in dense regions.
 //!
 //! conserve-mass splits a brick's visit in three (see [`estimate_bricks`]): the method's
 //! passes with their lengths kept, the S pass ([`splat_weights`], a density pass without
@@ -145,36 +145,38 @@ fn valid_extent(prep: &Prepared, origin: IVec3) -> IVec3 {
 
 const ROW: usize = BRICK_DIM as usize;
 
-/// Visits the (x, y) columns of the brick (valid part) whose axis passes within radius `r` of
-/// `p` (global index space), `L / 8` neighbouring columns in y at a time, calling
+/// Visits the (x, y) columns of the brick (valid part) within the square of half-width `r`
+/// about `p` (global index space), `L / 8` neighbouring columns in y at a time, calling
 /// `f(offset of (x, y, 0), dx^2 + dy^2 of each of those columns)`. The callers then treat the
 /// whole z columns (8 voxels each, contiguous) at once, branch-free, testing each voxel's
 /// squared distance against its own radius: that is what vectorises (L lanes), and the exact
-/// per-voxel test means rounding in these loop bounds (widened slightly) never drops a voxel,
-/// and that a second column past the support or the grid (radius 0) adds nothing.
+/// per-voxel test means that rounding in these loop bounds (widened slightly) never drops a
+/// voxel, and that a column past the support or the grid (radius 0) adds nothing.
+///
+/// A square, not the support's disc: the disc's rows each need a square root and a rounding,
+/// and their varying lengths a branch the CPU mispredicts. The square's y range is the same
+/// for every row of a visit, and on the Cloud1-class scene its extra, all-masked columns cost
+/// far less than the disc's bookkeeping (usl passes 0.62 -> 0.42 s).
 #[inline(always)]
 fn for_columns_near<const L: usize>(p: Vec3, r: f32, origin: IVec3, n: IVec3, mut f: impl FnMut(usize, [f32; 2])) {
     const SLACK: f32 = 1e-3;
     let cols = (L / ROW) as i32;
     let local = p - origin.as_vec3();
-    let r2 = r * r;
     let x_lo = ((local.x - r - SLACK).ceil() as i32).max(0);
     let x_hi = ((local.x + r + SLACK).floor() as i32).min(n.x - 1);
+    let y_lo = ((local.y - r - SLACK).ceil() as i32).max(0);
+    let y_hi = ((local.y + r + SLACK).floor() as i32).min(n.y - 1);
+    let y_lo = y_lo - y_lo % cols;
+    let dy2: [f32; 2 * ROW] = std::array::from_fn(|i| {
+        let dy = (origin.y + i as i32) as f32 - p.y;
+        dy * dy
+    });
     for x in x_lo..=x_hi {
         let dx = (origin.x + x) as f32 - p.x;
-        let rem = r2 - dx * dx;
-        if rem < 0.0 {
-            continue;
-        }
-        let ry = rem.sqrt() + SLACK;
-        let y_lo = ((local.y - ry).ceil() as i32).max(0);
-        let y_hi = ((local.y + ry).floor() as i32).min(n.y - 1);
-        let mut y = y_lo - y_lo % cols;
+        let dx2 = dx * dx;
+        let mut y = y_lo;
         while y <= y_hi {
-            let dxy2: [f32; 2] = std::array::from_fn(|c| {
-                let dy = (origin.y + y + c as i32) as f32 - p.y;
-                dx * dx + dy * dy
-            });
+            let dxy2: [f32; 2] = std::array::from_fn(|c| dx2 + dy2[(y + c as i32) as usize]);
             f(brick_offset(IVec3::new(x, y, 0)), dxy2);
             y += cols;
         }
