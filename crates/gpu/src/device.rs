@@ -44,6 +44,9 @@ impl DeviceChoice {
         if self == DeviceChoice::Cpu {
             return Ok(ComputeDevice::Cpu(CpuReason::Requested));
         }
+        if self == DeviceChoice::Auto && !hardware_gpu_possible() {
+            return Ok(ComputeDevice::Cpu(CpuReason::NoHardwareAdapter));
+        }
         let instance = new_instance(options);
         let adapters = pollster::block_on(instance.enumerate_adapters(options.backends));
         let types: Vec<DeviceType> = adapters.iter().map(|a| a.get_info().device_type).collect();
@@ -170,6 +173,29 @@ pub fn pick_adapter(choice: DeviceChoice, types: &[DeviceType]) -> Option<usize>
         .filter(|(_, &t)| acceptable(t))
         .min_by_key(|(_, &t)| rank(t))
         .map(|(i, _)| i)
+}
+
+/// Whether this machine can have a hardware GPU adapter at all. Creating a wgpu instance
+/// loads every installed Vulkan driver (lavapipe brings LLVM with it): about 50 ms of each
+/// tool's start on a machine without a GPU, only to find the software adapters `auto` never
+/// takes. CPU-only render nodes start the tools for every frame, so `auto` skips that when
+/// the kernel shows no GPU. On Linux every driver wgpu can reach has a device node in /dev:
+/// `dri/` (Mesa's drivers and NVIDIA's DRM module), `nvidia*` (NVIDIA's proprietary driver)
+/// or `dxg` (WSL2's GPU). Elsewhere the probe always runs.
+fn hardware_gpu_possible() -> bool {
+    if cfg!(target_os = "linux") { gpu_device_nodes_in(std::path::Path::new("/dev")) } else { true }
+}
+
+/// Whether the device directory `dev` holds a GPU device node (see [`hardware_gpu_possible`]);
+/// true when it cannot be read, so an unusual /dev never hides a GPU.
+#[doc(hidden)]
+pub fn gpu_device_nodes_in(dev: &std::path::Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dev) else { return true };
+    entries.flatten().any(|e| {
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        name == "dri" || name == "dxg" || name.starts_with("nvidia")
+    })
 }
 
 static INSTANCES_CREATED: AtomicUsize = AtomicUsize::new(0);
