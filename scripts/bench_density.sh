@@ -42,8 +42,9 @@ for scene in cloud1 smoke; do
     printf "%-6s %-4s %10s %10s\n" method dev "wall s" "cpu s"
     for method in usl asl2 asl3 knn; do
         for dev in cpu gpu; do
-            if ! "$p2v" "$work/$scene.ply" "${args[@]}" --method "$method" --device "$dev" -o "$work/out.vdb" 2>/dev/null; then
-                printf "%-6s %-4s %10s\n" "$method" "$dev" "failed"
+            if ! "$p2v" "$work/$scene.ply" "${args[@]}" --method "$method" --device "$dev" -o "$work/out.vdb" 2>"$work/err.txt"; then
+                # Say why (on lavapipe: its loop cap, which the larger supports exceed).
+                printf "%-6s %-4s %10s  %s\n" "$method" "$dev" "failed" "$(head -c 110 "$work/err.txt")"
                 continue
             fi
             # The GPU (a software adapter here) runs once: tens of seconds per run.

@@ -44,10 +44,13 @@
 //! - Binning: particles are counting-sorted into uniform cells (edge ~kappa*h0, kept within
 //!   2..16 voxels). The per-grid-point queries are batched per 8^3 brick: a brick gathers the
 //!   particles of the cells overlapping it plus a kappa*h0 margin once, and every pass then
-//!   splats those particles onto the brick's voxels within their support, one z column of 8
-//!   voxels at a time (vectorised; the density pass takes two columns per step on AVX-512).
-//!   That is the paper's rectangle drawing done per brick: each pass costs the (particle,
-//!   voxel) pairs within the support, O(N) for bounded h0, with no 27-cell candidate waste.
+//!   splats each particle onto the brick's z columns inside the square that bounds its
+//!   support, one column of 8 voxels at a time (vectorised, each voxel tested against its own
+//!   radius; the density pass takes two columns per step on AVX-512). That is the paper's
+//!   rectangle drawing done per brick: each pass costs the (particle, voxel) pairs within
+//!   those squares, O(N) for bounded h0, with no 27-cell candidate waste. (Squares, not the
+//!   support's discs: the discs' per-row square roots and varying row lengths cost more than
+//!   the squares' masked corners.)
 //!   Only bricks within kappa*h0 of some particle are proposed.
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
