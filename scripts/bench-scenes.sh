@@ -7,7 +7,7 @@
 # its camera, medium and lights.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-BIN=${BIN:-target/release}
+BIN=${BIN:-${CARGO_TARGET_DIR:-target}/release}
 mkdir -p out/bench
 
 scene() {

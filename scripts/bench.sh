@@ -17,7 +17,8 @@ run scripts/bench-scenes.sh
 run cargo bench --locked -p nimbus-march --bench scenes
 # Run time against error for the whole chain, against the path-traced reference:
 # out/bench/pareto.csv and out/bench/pareto.png.
-run target/release/nimbus-bench --bin target/release
+rel=${CARGO_TARGET_DIR:-target}/release
+run "$rel/nimbus-bench" --bin "$rel"
 # Peers side by side (issue #7), where Mitsuba 3 is installed (scripts/peers/README.md):
 # Mitsuba and `vdbmarch --reference` over an spp ladder, scored against the cached reference,
 # to out/bench/SCENE/peers.csv. The plume only by default: Mitsuba's scalar variant (the only
@@ -29,7 +30,7 @@ if [ -x "$py" ] && "$py" -c "import mitsuba" 2>/dev/null; then
         cache=$(ls out/bench/"$scene"/cache-*.vdb | head -n 1)
         echo; echo "== peers on $scene (out/bench/$scene/peers.csv)"
         "$py" scripts/peers/compare.py "$cache" --reference out/bench/"$scene"/reference.exr \
-            --spp 4,16,64,256 --vdbmarch target/release/vdbmarch | tee out/bench/"$scene"/peers.csv
+            --spp 4,16,64,256 --vdbmarch "$rel/vdbmarch" | tee out/bench/"$scene"/peers.csv
     done
 else
     echo; echo "(Mitsuba 3 not installed: peers skipped; see scripts/peers/README.md)"

@@ -5,7 +5,7 @@
 # intermediate <scene>.vdb (the cache VDB, openable in Blender or Houdini).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-BIN=${BIN:-target/release}
+BIN=${BIN:-${CARGO_TARGET_DIR:-target}/release}
 mkdir -p out
 
 render() {
