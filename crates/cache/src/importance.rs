@@ -16,7 +16,7 @@
 
 use glam::{DVec3, IVec3};
 use nimbus_optics::Camera;
-use nimbus_volume::{MajorantGrid, Volume};
+use nimbus_volume::{lattice_cell, MajorantGrid, Volume};
 use rayon::prelude::*;
 
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -138,12 +138,7 @@ impl CameraImportance {
 /// Adds `weight` times each trilinear corner weight at cache index `c` (as
 /// `Volume::sample_index` interpolates) to `out`, for the corners `index` plans.
 fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64)>) {
-    let base = c.floor();
-    if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
-        return;
-    }
-    let f = c - base;
-    let b = base.as_ivec3();
+    let Some((b, f)) = lattice_cell(c) else { return };
     for corner in 0..8 {
         let o = IVec3::new((corner >> 2) & 1, (corner >> 1) & 1, corner & 1);
         let pick = |bit: i32, f: f64| if bit == 1 { f } else { 1.0 - f };

@@ -167,7 +167,8 @@ fn for_columns_near<const L: usize>(p: Vec3, r: f32, origin: IVec3, n: IVec3, mu
     let y_lo = ((local.y - r - SLACK).ceil() as i32).max(0);
     let y_hi = ((local.y + r + SLACK).floor() as i32).min(n.y - 1);
     let y_lo = y_lo - y_lo % cols;
-    let dy2: [f32; 2 * ROW] = std::array::from_fn(|i| {
+    // Up to y = ROW: single-column steps (cols = 1) still form the pair's second, unused sum.
+    let dy2: [f32; ROW + 1] = std::array::from_fn(|i| {
         let dy = (origin.y + i as i32) as f32 - p.y;
         dy * dy
     });

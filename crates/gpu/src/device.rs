@@ -188,8 +188,7 @@ fn hardware_gpu_possible() -> bool {
 
 /// Whether the device directory `dev` holds a GPU device node (see [`hardware_gpu_possible`]);
 /// true when it cannot be read, so an unusual /dev never hides a GPU.
-#[doc(hidden)]
-pub fn gpu_device_nodes_in(dev: &std::path::Path) -> bool {
+fn gpu_device_nodes_in(dev: &std::path::Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dev) else { return true };
     entries.flatten().any(|e| {
         let name = e.file_name();
@@ -238,4 +237,24 @@ fn new_instance(options: &GpuOptions) -> wgpu::Instance {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
     desc.backends = options.backends;
     wgpu::Instance::new(desc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::gpu_device_nodes_in;
+
+    #[test]
+    fn auto_probes_for_a_gpu_only_where_the_kernel_shows_one() {
+        let dev = std::env::temp_dir().join(format!("nimbus-dev-{}", std::process::id()));
+        std::fs::create_dir_all(&dev).unwrap();
+        std::fs::write(dev.join("null"), b"").unwrap();
+        assert!(!gpu_device_nodes_in(&dev), "no GPU node yet");
+        for node in ["dri", "nvidia0", "nvidiactl", "dxg"] {
+            std::fs::write(dev.join(node), b"").unwrap();
+            assert!(gpu_device_nodes_in(&dev), "{node}");
+            std::fs::remove_file(dev.join(node)).unwrap();
+        }
+        std::fs::remove_dir_all(&dev).unwrap();
+        assert!(gpu_device_nodes_in(&dev), "an unreadable /dev must not hide a GPU");
+    }
 }

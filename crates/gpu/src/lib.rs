@@ -68,7 +68,7 @@ mod sampler;
 mod volume;
 
 pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
-pub use device::{gpu_device_nodes_in, is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
+pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
 pub use error::GpuError;
 pub use loop_cap::{LoopGuard, SOFTWARE_LOOP_CAP};
 pub use sampler::{PointSampler, SampleMode};

@@ -9,7 +9,8 @@
 //! - Steps sit on a per-sample lattice `t_k = (k + xi) dt` with xi random per pixel sample,
 //!   which turns the banding of a fixed lattice into noise, and lets empty majorant segments
 //!   be skipped without moving the lattice.
-//! - `spp` samples per pixel are jittered over the pixel (box filter), each with its own xi.
+//! - `spp` samples per pixel are jittered over the pixel (box filter), stratified on the
+//!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
 //!   coarse volumes; amplitude 0 costs nothing.

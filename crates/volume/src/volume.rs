@@ -37,6 +37,18 @@ pub fn brick_origin(ijk: IVec3) -> IVec3 {
     ijk & IVec3::splat(!(BRICK_DIM - 1))
 }
 
+/// The lattice cell holding index-space point `p`, as trilinear interpolation uses it: its
+/// lowest corner and `p`'s fraction across it; `None` for a non-finite point or one beyond
+/// the i32 lattice.
+#[inline]
+pub fn lattice_cell(p: DVec3) -> Option<(IVec3, DVec3)> {
+    let base = p.floor();
+    if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
+        return None;
+    }
+    Some((base.as_ivec3(), p - base))
+}
+
 /// A 512-bit activity mask, bit n of word n/64 for offset n (openvdb::util::NodeMask<3>).
 pub type BrickMask = [u64; 8];
 
@@ -208,12 +220,7 @@ impl<T: Voxel> Volume<T> {
     /// the same corner order, the same nested lerps, weights in f64 as OpenVDB computes them.
     #[inline]
     pub fn sample_index(&self, p: DVec3) -> T {
-        let base = p.floor();
-        let uvw = p - base;
-        if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
-            return self.background;
-        }
-        let ijk = base.as_ivec3();
+        let Some((ijk, uvw)) = lattice_cell(p) else { return self.background };
         let c = self.corners(ijk);
         let lerp = T::lerp;
         lerp(
