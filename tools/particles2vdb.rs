@@ -26,8 +26,10 @@ struct Args {
     /// Upper bound of the smoothing length (world units), or auto.
     #[arg(long, default_value = "auto")]
     h0: String,
-    /// N*: target neighbour count of the adaptive methods (and of --h0 auto). 32 keeps dense
-    /// knots sharpest; smooth media are less noisy with 64-128 at 1.5-3x the time.
+    /// N*: target neighbour count of the adaptive methods (and of --h0 auto). 32 is quick;
+    /// 80 with --h-min at 1.2 voxel sizes matches a hand-tuned --method usl on steep-contrast
+    /// test scenes at 1.6x the time (add --conserve-mass to keep the mass exact); smooth
+    /// media are less noisy with larger N*.
     #[arg(long, default_value_t = nimbus_density::DEFAULT_NEIGHBOURS)]
     neighbours: u32,
     /// asl3 relaxation s in [0,1] for overestimated lengths.
