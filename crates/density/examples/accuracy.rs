@@ -97,7 +97,7 @@ fn accuracy(scene: Scene) {
         rows.push(row);
     }
     // N* at the default h_min (h0 auto follows N*), then h_min at the default N*.
-    for n_star in [16, 32, 48, 64, 96, 128] {
+    for n_star in [16, 32, 48, 64, 80, 96, 128] {
         rows.push(run(&particles, &truth, format!("asl3 N*={n_star}"), DensityParams { method: Method::Asl3, neighbours: n_star, ..base.clone() }));
     }
     // conserve-mass (grid mass exactly the particles', one more kernel pass) at the default N*

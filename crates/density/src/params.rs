@@ -99,11 +99,11 @@ pub struct DensityParams {
 }
 
 /// The default N* (design.md's, the paper's). Measured against the alternatives in
-/// `examples/accuracy.rs` (tables in the crate docs): 80 with h_min 1.2 voxels (or 96 alone)
-/// would bring asl3 within 5% of the best-tuned usl on the steep-contrast scenes, but at 1.6x
-/// the time (past asl3's speed target) and with the adaptive methods' mass excess on a
-/// 20k-particle blob growing from 0.6% to 1.3% (the 1% bound of tests/reference.rs
-/// `mass_is_conserved`), so 32 stays.
+/// `examples/accuracy.rs` (tables in the crate docs): 80 would bring asl3 within 5% of the
+/// best-tuned usl on the steep-contrast scenes (with h_min 1.2 voxels, on a smooth plume
+/// too), but at about 1.6x the time (past asl3's speed target) and with the adaptive
+/// methods' mass excess on a 20k-particle blob growing from 0.6% to 1.3-1.4% (past the 1%
+/// bound of tests/reference.rs `mass_is_conserved`), so 32 stays.
 pub const DEFAULT_NEIGHBOURS: u32 = 32;
 
 impl Default for DensityParams {
