@@ -194,6 +194,35 @@ fn conserve_mass_is_applied_shown_and_recorded() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--h-min 1.5vox` is 1.5 voxel sizes of the grid that `--resolution` sets (what the record
+/// says), a world length stays as given, and a floor that is no length is a usage error that
+/// leaves no file.
+#[test]
+fn h_min_is_a_length_or_a_voxel_count() {
+    let dir = scratch("h_min");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let d = dir.join("d.vdb");
+    let recorded = |h_min: &str| -> (f64, f64) {
+        run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--h-min", h_min]).arg("-o").arg(&d));
+        let meta = nimbus_cli::PipelineMeta::of(&nimbus_vdb::VdbFile::open(&d).unwrap());
+        let value = |key: &str| -> f64 { meta.tool_value("particles2vdb", key).unwrap().parse().unwrap() };
+        (value("h_min"), value("voxel_size"))
+    };
+    let (h_min, voxel) = recorded("1.5vox");
+    assert!((h_min / voxel - 1.5).abs() < 1e-9, "h_min {h_min}, voxel {voxel}");
+    let (h_min, _) = recorded("0.07");
+    assert_eq!(h_min, 0.07);
+    std::fs::remove_file(&d).unwrap();
+    for bad in ["0vox", "-1", "fast", "vox", "infvox"] {
+        let out = Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", &format!("--h-min={bad}")]).arg("-o").arg(&d).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "--h-min {bad}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--h-min"), "--h-min {bad}");
+        assert!(!d.exists(), "--h-min {bad} left a file");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// The chain without photons: `vdbcache --paths` straight from the density, piped. The image
 /// has multiple scattering in it, the cache file records the estimator, `-v` counts the paths,
 /// a different seed gives a different (but close) image, and `--paths 0` is a usage error.

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use glam::DVec3;
 use nimbus_cli::{parse_dvec3, run, CommonArgs, Failure, Input, MetaWriter, VdbOutputArgs};
-use nimbus_density::{estimate_cpu, estimate_gpu, read_particles, DensityParams, Format, Method, NoiseParams, ParticleSet, Resolution, H0};
+use nimbus_density::{estimate_cpu, estimate_gpu, read_particles, DensityParams, Format, HMin, Method, NoiseParams, ParticleSet, Resolution, H0};
 use nimbus_vdb::{GridClass, VdbFile};
 
 #[derive(Parser, Debug)]
@@ -27,17 +27,18 @@ struct Args {
     #[arg(long, default_value = "auto")]
     h0: String,
     /// N*: target neighbour count of the adaptive methods (and of --h0 auto). 32 is quick;
-    /// 80 with --h-min at 1.2 voxel sizes matches a hand-tuned --method usl on steep-contrast
-    /// test scenes at 1.6x the time (add --conserve-mass to keep the mass exact); smooth
-    /// media are less noisy with larger N*.
+    /// 80 with --h-min 1.2vox matches a hand-tuned --method usl on steep-contrast test scenes
+    /// at 1.6x the time (add --conserve-mass to keep the mass exact); smooth media are less
+    /// noisy with larger N*.
     #[arg(long, default_value_t = nimbus_density::DEFAULT_NEIGHBOURS)]
     neighbours: u32,
     /// asl3 relaxation s in [0,1] for overestimated lengths.
     #[arg(long, default_value_t = 0.0)]
     relax: f32,
-    /// Smallest smoothing length (world units); default one voxel.
-    #[arg(long)]
-    h_min: Option<f64>,
+    /// Smallest smoothing length: a world length, or voxel sizes with the suffix vox (1.2vox),
+    /// which also works where --resolution decides the voxel size.
+    #[arg(long, default_value = "1vox", value_parser = parse_h_min)]
+    h_min: HMin,
     /// Mass of each particle without a mass attribute.
     #[arg(long, default_value_t = 1.0)]
     mass: f32,
@@ -96,6 +97,20 @@ fn parse_bounds(s: &str) -> Result<(DVec3, DVec3), String> {
 fn main() -> ExitCode {
     let args = Args::parse();
     run(move || particles2vdb(args))
+}
+
+/// `--h-min`: a world length, or a number of voxels with the suffix `vox`.
+fn parse_h_min(text: &str) -> Result<HMin, String> {
+    let text = text.trim();
+    let (number, voxels) = match text.strip_suffix("vox") {
+        Some(n) => (n.trim_end(), true),
+        None => (text, false),
+    };
+    let value: f64 = number.parse().map_err(|_| format!("expected a length or a voxel count like 1.2vox, got '{text}'"))?;
+    if !(value.is_finite() && value > 0.0) {
+        return Err(format!("must be positive and finite, got '{text}'"));
+    }
+    Ok(if voxels { HMin::Voxels(value) } else { HMin::World(value) })
 }
 
 /// Particles from a VDB's points grid (Houdini's `P` and optional `mass`).

@@ -115,7 +115,7 @@ fn accuracy(scene: Scene) {
             &particles,
             &truth,
             format!("asl3 h_min={h_min} vox"),
-            DensityParams { method: Method::Asl3, h_min: Some(h_min * voxel), ..base.clone() },
+            DensityParams { method: Method::Asl3, h_min: HMin::Voxels(h_min), ..base.clone() },
         ));
     }
     // N* and h_min together, where the accuracy goal is first met: a larger floor helps the
@@ -126,7 +126,7 @@ fn accuracy(scene: Scene) {
                 &particles,
                 &truth,
                 format!("asl3 N*={n_star} h_min={h_min} vox"),
-                DensityParams { method: Method::Asl3, neighbours: n_star, h_min: Some(h_min * voxel), ..base.clone() },
+                DensityParams { method: Method::Asl3, neighbours: n_star, h_min: HMin::Voxels(h_min), ..base.clone() },
             ));
         }
     }
@@ -134,7 +134,7 @@ fn accuracy(scene: Scene) {
         &particles,
         &truth,
         "asl3 N*=80 h_min=1.2 vox conserve-mass".into(),
-        DensityParams { method: Method::Asl3, neighbours: 80, h_min: Some(1.2 * voxel), conserve_mass: true, ..base.clone() },
+        DensityParams { method: Method::Asl3, neighbours: 80, h_min: HMin::Voxels(1.2), conserve_mass: true, ..base.clone() },
     ));
     for n_star in [16, 64] {
         rows.push(run(&particles, &truth, format!("knn N*={n_star}"), DensityParams { method: Method::Knn, neighbours: n_star, ..base.clone() }));

@@ -153,7 +153,7 @@ use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
 pub use nimbus_optics::noise;
-pub use params::{DensityParams, Method, NoiseParams, Resolution, DEFAULT_NEIGHBOURS, H0};
+pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_NEIGHBOURS, H0};
 pub use particles::{read_particles, read_path, write_ply, Format, ParticleSet, ReadError, ReadReport};
 pub use setup::{auto_h0, bin, plan_grid, prepare, CellGrid, Grid, Prepared, AUTO_H0_PERCENTILE};
 

@@ -73,8 +73,8 @@ pub struct DensityParams {
     /// N*, the target neighbour count of the adaptive methods and of `h0 auto`.
     pub neighbours: u32,
     pub h0: H0,
-    /// Floor of the smoothing length, world units; `None` = one voxel.
-    pub h_min: Option<f64>,
+    /// Floor of the smoothing length; design.md's default is one voxel.
+    pub h_min: HMin,
     /// s in [0, 1], the asl3 relaxation for overestimated lengths.
     pub relax: f32,
     /// Mass of each particle when the set has no `mass` attribute.
@@ -98,6 +98,25 @@ pub struct DensityParams {
     pub conserve_mass: bool,
 }
 
+/// The floor of the smoothing length (`--h-min`): a world length, or a number of voxels.
+/// Voxels are resolved with the grid, since with `--resolution` the voxel size follows from
+/// the bounds, which follow from h0, which is at least h_min.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HMin {
+    World(f64),
+    Voxels(f64),
+}
+
+impl HMin {
+    /// The floor in world units for a grid of this voxel size.
+    pub fn resolve(self, voxel: f64) -> f64 {
+        match self {
+            HMin::World(h) => h,
+            HMin::Voxels(n) => n * voxel,
+        }
+    }
+}
+
 /// The default N* (design.md's, the paper's). Measured against the alternatives in
 /// `examples/accuracy.rs` (tables in the crate docs): 80 would bring asl3 within 5% of the
 /// best-tuned usl on the steep-contrast scenes (with h_min 1.2 voxels, on a smooth plume
@@ -112,7 +131,7 @@ impl Default for DensityParams {
             method: Method::Asl3,
             neighbours: DEFAULT_NEIGHBOURS,
             h0: H0::Auto,
-            h_min: None,
+            h_min: HMin::Voxels(1.0),
             relax: 0.0,
             mass: 1.0,
             resolution: Resolution::Longest(256),
@@ -142,10 +161,9 @@ impl DensityParams {
                 return bad("h0", h.to_string(), "must be positive and finite");
             }
         }
-        if let Some(h) = self.h_min {
-            if !positive(h) {
-                return bad("h-min", h.to_string(), "must be positive and finite");
-            }
+        let (HMin::World(h) | HMin::Voxels(h)) = self.h_min;
+        if !positive(h) {
+            return bad("h-min", h.to_string(), "must be positive and finite");
         }
         if !(0.0..=1.0).contains(&self.relax) {
             return bad("relax", self.relax.to_string(), "must be in [0, 1]");

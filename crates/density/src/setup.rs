@@ -11,7 +11,7 @@ use nimbus_volume::{Transform, BRICK_DIM};
 use rayon::prelude::*;
 
 use crate::kernel::KAPPA;
-use crate::params::{DensityParams, Resolution, H0};
+use crate::params::{DensityParams, HMin, Resolution, H0};
 use crate::{DensityError, ParticleSet};
 
 /// Fraction of particles (by count) allowed to live in cells sparser than the density
@@ -227,8 +227,8 @@ pub fn plan_grid(particles: &ParticleSet, params: &DensityParams) -> Result<Grid
     let mut h0 = match (auto, params.resolution, params.h_min) {
         (Some(h), ..) => h,
         // One point and no scale: fall back to the one length the user gave.
-        (None, Resolution::VoxelSize(v), None) => v,
-        (None, _, Some(h)) if h > 0.0 => h,
+        (None, Resolution::VoxelSize(v), h_min) => h_min.resolve(v),
+        (None, _, HMin::World(h)) => h,
         (None, ..) => return Err(DensityError::H0Undetermined),
     };
 
@@ -241,7 +241,7 @@ pub fn plan_grid(particles: &ParticleSet, params: &DensityParams) -> Result<Grid
             Resolution::VoxelSize(v) => v,
             Resolution::Longest(n) => (hi - lo).max_element() / n as f64,
         };
-        let h_min = params.h_min.unwrap_or(voxel);
+        let h_min = params.h_min.resolve(voxel);
         grid = Some((lo, hi, voxel, h_min));
         if params.h0 == H0::Auto && h0 < h_min {
             h0 = h_min;
@@ -386,5 +386,23 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
         bricks,
         skipped_nonfinite,
         outside,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A floor in voxels follows the voxel size that a voxel count gives (which itself follows
+    /// from h0 and so from the floor); a world floor is taken as it is.
+    #[test]
+    fn h_min_in_voxels_follows_the_grid() {
+        let positions = (0..1000).map(|i| DVec3::new((i % 10) as f64, ((i / 10) % 10) as f64, (i / 100) as f64) * 0.3).collect();
+        let particles = ParticleSet { positions, masses: None };
+        let plan = |h_min| plan_grid(&particles, &DensityParams { resolution: Resolution::Longest(20), h_min, ..Default::default() }).unwrap();
+        let grid = plan(HMin::Voxels(1.5));
+        assert!((grid.h_min / grid.voxel_size - 1.5).abs() < 1e-12, "{grid:?}");
+        assert_eq!(plan(HMin::World(0.2)).h_min, 0.2);
+        assert_eq!(plan(HMin::Voxels(1.0)), plan(DensityParams::default().h_min));
     }
 }
