@@ -105,10 +105,11 @@
 //! | 80, 1.2, conserve-mass | -0.3% | +3.8% | +2.0% | +55% | exact (shell 1.0000) | 3.37 s |
 //!
 //! N* = 80 is the least tried that meets the accuracy goal on both steep-contrast scenes (72
-//! leaves the shell at +5.8%), and with h_min = 1.2 voxels it does on the plume too; the smooth Cloud1-class scene stays far behind
-//! whatever the setting. But it puts the blob's mass past the 1% bound and the shell's to
-//! +3.9%, and asl3 past its 1.9 s target (2.25 s, where the defaults take 1.41 s in the same
-//! runs); conserve-mass mends the mass at 2.4x the default's time. No default meets the
+//! leaves the shell at +5.8%), and with h_min = 1.2 voxels it does on the plume too; the
+//! smooth Cloud1-class scene stays far behind whatever the setting. But it puts the blob's
+//! mass past the 1% bound and the shell's to +3.9%, and asl3 past its 1.9 s target (2.25 s,
+//! where the defaults take 1.41 s in the same runs); conserve-mass mends the mass at 2.4x
+//! the default's time. No default meets the
 //! accuracy goal, the mass bound and the speed target together, so the defaults stay
 //! design.md's: N* = 32, h_min = 1 voxel, which never loses detail the grid can show.
 //!
@@ -397,7 +398,7 @@ impl Keep {
 /// holding a voxel.
 pub(crate) fn brick_slots(prep: &Prepared) -> (Vec<u32>, impl Fn(IVec3) -> usize) {
     let brick_dims = (prep.grid.dims + (BRICK_DIM - 1)) / BRICK_DIM;
-    let brick_id = move |o: IVec3| ((o.z / BRICK_DIM * brick_dims.y + o.y / BRICK_DIM) * brick_dims.x + o.x / BRICK_DIM) as usize;
+    let brick_id = move |o: IVec3| setup::dense_index(o / BRICK_DIM, brick_dims);
     let mut slot = vec![u32::MAX; brick_dims.as_i64vec3().element_product() as usize];
     for (i, &origin) in prep.bricks.iter().enumerate() {
         slot[brick_id(origin)] = i as u32;

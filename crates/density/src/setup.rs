@@ -78,6 +78,13 @@ pub(crate) fn ceil_i(v: Vec3) -> IVec3 {
     IVec3::select(t.as_vec3().cmplt(v), t.saturating_add(IVec3::ONE), t)
 }
 
+/// Index of cell `c` in a dense table of `dims` cells, x fastest (the cells of a
+/// [`CellGrid`], the bricks of a grid).
+#[inline]
+pub(crate) fn dense_index(c: IVec3, dims: IVec3) -> usize {
+    ((c.z as usize * dims.y as usize) + c.y as usize) * dims.x as usize + c.x as usize
+}
+
 impl CellGrid {
     #[inline]
     pub fn cell_of(&self, p: Vec3) -> IVec3 {
@@ -86,7 +93,7 @@ impl CellGrid {
 
     #[inline]
     pub fn id(&self, c: IVec3) -> usize {
-        ((c.z as usize * self.dims.y as usize) + c.y as usize) * self.dims.x as usize + c.x as usize
+        dense_index(c, self.dims)
     }
 
     /// Particle index range of the cells cx_lo..=cx_hi in row (cy, cz).
@@ -362,7 +369,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
         last = (blo, bhi);
         for bz in blo.z..=bhi.z {
             for by in blo.y..=bhi.y {
-                let row = ((bz * brick_dims.y + by) * brick_dims.x) as usize;
+                let row = dense_index(IVec3::new(0, by, bz), brick_dims);
                 marked[row + blo.x as usize..=row + bhi.x as usize].fill(true);
             }
         }
