@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, MultipleEstimator};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_cli::{
     read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
 };
@@ -67,6 +67,12 @@ struct Args {
     /// Shadow rays stop below this transmittance.
     #[arg(long, default_value_t = 1e-4)]
     min_transmittance: f64,
+    /// Transmittance toward the lights: `table` integrates each sun's optical depth once on
+    /// a light-aligned lattice (rays half a voxel apart) and looks it up; `rays` traces a
+    /// shadow ray per cache voxel and path vertex (the old way, for comparison). Point lights
+    /// always trace rays.
+    #[arg(long, default_value = "table", value_parser = ["table", "rays"])]
+    shadows: String,
     /// Skip single scattering.
     #[arg(long)]
     no_single: bool,
@@ -110,6 +116,16 @@ fn read_photons(file: &VdbFile) -> Result<PhotonMap, Failure> {
     Ok(PhotonMap { positions: points.positions, power, dir })
 }
 
+/// The transmittance grid of light `index` of `lights`: `transmittance` where the scene has
+/// one light, `transmittance_<index>` where it has several.
+fn transmittance_grid_name(index: usize, lights: usize) -> String {
+    if lights == 1 {
+        "transmittance".into()
+    } else {
+        format!("transmittance_{index}")
+    }
+}
+
 fn vdbcache(args: Args) -> Result<(), Failure> {
     let log = args.common.log("vdbcache");
     let input = Input::from_arg(args.input.as_deref())?;
@@ -144,6 +160,10 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         },
         seed: args.seed.or(meta.seed()).unwrap_or(0),
         min_transmittance: args.min_transmittance,
+        shadows: match args.shadows.as_str() {
+            "rays" => ShadowMode::Rays,
+            _ => ShadowMode::Table(LightLattice::default()),
+        },
     };
     params.validate().map_err(Failure::usage)?;
     if params.multiple && params.estimator == MultipleEstimator::Photons && photons.is_empty() {
@@ -190,6 +210,13 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             file.insert_volume(name, v, GridClass::Unknown).map_err(|e| Failure::runtime(e, name))?;
         }
     }
+    for name in file.grid_names().into_iter().filter(|n| n == "transmittance" || n.starts_with("transmittance_")) {
+        file.remove_grid(&name);
+    }
+    for (index, volume) in &cache.transmittance {
+        let name = transmittance_grid_name(*index, params.lights.len());
+        file.insert_volume(&name, volume, GridClass::FogVolume).map_err(|e| Failure::runtime(e, &name))?;
+    }
     let record = [
         ("step", params.step.to_string()),
         ("cache_scale", params.cache_scale.to_string()),
@@ -208,6 +235,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         ("photons_gathered", stats.photons_gathered.to_string()),
         ("paths", stats.paths.to_string()),
         ("seed", params.seed.to_string()),
+        ("shadows", params.shadows.describe()),
     ];
     MetaWriter::new(&mut file)
         .density_grid(&grid)?

@@ -163,7 +163,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     if args.lights.given().is_some() {
         log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
     }
-    let cache = IlluminationCache { li_single: read_vec3_grid(file, "Li_single")?, li_multiple: read_vec3_grid(file, "Li_multiple")? };
+    let cache = IlluminationCache { li_single: read_vec3_grid(file, "Li_single")?, li_multiple: read_vec3_grid(file, "Li_multiple")?, ..Default::default() };
     if cache.li_single.is_none() && cache.li_multiple.is_none() {
         log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
     }

@@ -19,8 +19,8 @@
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_multiple_paths, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, MultipleEstimator, PhotonBins, EMPTY_BALL_FRACTION};
-use nimbus_tracking::DensityMedium;
+use nimbus_cache::{bake_cpu, bake_gpu, gather_cell, li_multiple, li_multiple_paths, li_single, toward_eye, BakeStats, CacheParams, Gather, IlluminationCache, MultipleEstimator, PhotonBins, EMPTY_BALL_FRACTION, ShadowMode, LightLattice};
+use nimbus_tracking::{DensityMedium, LightDepths};
 use nimbus_volume::MajorantGrid;
 use rayon::prelude::*;
 use nimbus_optics::noise::fbm3;
@@ -99,6 +99,7 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 1e-4,
+        shadows: ShadowMode::Table(LightLattice::default()),
     }
 }
 
@@ -213,7 +214,7 @@ fn paths_rows() {
     rows(3, "plume 48x48x96", &part, &v, &PhotonMap::default(), &p, |c| c.li_multiple.as_ref().unwrap(), &|x, w_out| {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
         let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
-        li_multiple_paths(medium, &p.medium, &p.lights, x, w_out, 256, &mut Rng::new(99, index))
+        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), x, w_out, 256, &mut Rng::new(99, index))
     });
 }
 
@@ -240,7 +241,7 @@ fn main() {
         let medium = DensityMedium { density: &v, majorant: &majorant, extinction };
         let fine_step = single.single_step(&v) / 4.0;
         rows(runs, name, "single (step 1 voxel; ref step/4)", &v, &none, &single, |c| c.li_single.as_ref().unwrap(), &|x, w_out| {
-            li_single(medium, &single.medium, &single.lights, x, w_out, fine_step, single.min_transmittance)
+            li_single(medium, &single.medium, &single.lights, &LightDepths::default(), x, w_out, fine_step, single.min_transmittance)
         });
 
         let multiple = CacheParams { single: false, multiple: true, ..base.clone() };

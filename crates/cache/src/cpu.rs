@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{trace_path, DensityMedium, MediumRay};
+use nimbus_tracking::{trace_path, DensityMedium, LightDepths, MediumRay, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
@@ -17,18 +17,24 @@ use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gat
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
 
 /// Single scattering toward the camera at world point `x`:
-/// sum over lights of p(w_light, w_out) E T_light(x).
-pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DVec3, w_out: Vec3, step: f64, cutoff: f64) -> Vec3 {
+/// sum over lights of p(w_light, w_out) E T_light(x), T_light looked up in the light's
+/// tabled optical depth where `depths` has one, else integrated along a shadow ray by
+/// composite Simpson with steps of `step`. Transmittance below `cutoff` counts as black.
+#[allow(clippy::too_many_arguments)]
+pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, x: DVec3, w_out: Vec3, step: f64, cutoff: f64) -> Vec3 {
     let phase = optics.phase();
     lights
         .iter()
-        .map(|light| {
+        .enumerate()
+        .map(|(index, light)| {
             let incident = light.incident(x);
             if incident.irradiance == Vec3::ZERO {
                 return Vec3::ZERO;
             }
-            let shadow = MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance);
-            let tr = shadow.transmittance(step, cutoff) as f32;
+            let tr = match depths.get(index) {
+                Some(depth) => Some(depth.transmittance(x)).filter(|&t| t >= cutoff).unwrap_or(0.0),
+                None => MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance(step, cutoff),
+            } as f32;
             incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out)
         })
         .sum()
@@ -149,15 +155,17 @@ pub fn li_multiple(
 /// from the phase function about the camera ray's direction (-w_out), so the phase weight
 /// cancels, and gathers all the light the path scatters toward x (its first collision is
 /// x's second scattering). `medium`'s majorant must suit delta tracking
-/// ([`MajorantGrid::for_tracking`]).
-pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], x: DVec3, w_out: Vec3, paths: u32, rng: &mut Rng) -> Vec3 {
+/// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
+/// `depths` where a light has a table.
+#[allow(clippy::too_many_arguments)]
+pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, x: DVec3, w_out: Vec3, paths: u32, rng: &mut Rng) -> Vec3 {
     let phase = optics.phase();
     // At the eye itself there is no camera ray; any axis serves.
     let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
     let mut sum = Vec3::ZERO;
     for _ in 0..paths {
         let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
-        sum += trace_path(medium, optics, lights, x, dir, PATH_MAX_DEPTH, rng).total();
+        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng).total();
     }
     sum / paths.max(1) as f32
 }
@@ -178,6 +186,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);
     let camera = &params.camera;
+    let depths = params.light_depths(medium, photons);
 
     let mut nonfinite = 0;
     // f(voxel index in plan order, position, w_out, scratch).
@@ -190,7 +199,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
         volume
     };
     let li_single = params.bakes_single().then(|| {
-        bake(&plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, x, w_out, step, params.min_transmittance))
+        bake(&plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
     });
     let li_multiple = match params.estimator {
         _ if !params.bakes_multiple(photons) => None,
@@ -215,14 +224,38 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
                 let paths = counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                li_multiple_paths(paths_medium, &params.medium, &params.lights, x, w_out, paths, &mut rng)
+                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, x, w_out, paths, &mut rng)
             });
             stats.paths = traced.into_inner();
             Some(volume)
         }
     };
     stats.nonfinite = nonfinite;
-    Ok((IlluminationCache { li_single, li_multiple }, stats))
+    let transmittance = transmittance_grids(density, &depths);
+    Ok((IlluminationCache { li_single, li_multiple, transmittance }, stats))
+}
+
+/// The transmittance toward each tabled light at the density's voxels, active where the
+/// density is: what the table holds, on the lattice artists already have open.
+pub fn transmittance_grids(density: &Volume<f32>, depths: &LightDepths) -> Vec<(usize, Volume<f32>)> {
+    let origins: Vec<_> = density.bricks().map(|b| b.origin).collect();
+    let transform = *density.transform();
+    depths
+        .per_light
+        .iter()
+        .enumerate()
+        .filter_map(|(index, depth)| depth.as_ref().map(|d| (index, d)))
+        .map(|(index, depth)| {
+            let volume = Volume::from_brick_fn(transform, 0.0f32, &origins, |origin, values| {
+                let brick = density.brick(density.brick_index(origin).expect("a density brick"));
+                for (offset, value) in values.iter_mut().enumerate() {
+                    *value = depth.transmittance(transform.to_world((origin + nimbus_volume::brick_local(offset)).as_dvec3())) as f32;
+                }
+                *brick.active
+            });
+            (index, volume)
+        })
+        .collect()
 }
 
 /// Cell size of the photon bins: the gather radius, or for k nearest the radius that holds k

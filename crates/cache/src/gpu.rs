@@ -142,7 +142,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
     let li_multiple = multiple.then(|| run(kernel, multiple_plan)).transpose()?;
     stats.nonfinite = nonfinite;
-    Ok((IlluminationCache { li_single, li_multiple }, stats))
+    Ok((IlluminationCache { li_single, li_multiple, transmittance: Vec::new() }, stats))
 }
 
 /// What one [`GpuBaker::run`] bakes.

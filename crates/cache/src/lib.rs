@@ -48,12 +48,14 @@ mod importance;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, EMPTY_BALL_FRACTION};
+pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, IMPORTANCE_RAYS};
 pub use plan::{cache_transform, CachePlan};
+pub use nimbus_tracking::LightLattice;
 
 use nimbus_optics::{Camera, Light, Medium};
+use nimbus_tracking::{DensityMedium, LightDepths};
 use nimbus_volume::Volume;
 
 /// How the multiple-scattering estimate chooses its ball.
@@ -90,6 +92,28 @@ impl MultipleEstimator {
     }
 }
 
+/// How single scattering and the paths' next-event estimation find the transmittance toward
+/// a light.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ShadowMode {
+    /// Each sun's optical depth tabled once on a light-aligned lattice
+    /// ([`nimbus_tracking::OpticalDepthVolume`]) and looked up; point lights trace shadow rays.
+    Table(LightLattice),
+    /// A shadow ray per point and light: composite Simpson for Li_single, ratio tracking in
+    /// the paths.
+    Rays,
+}
+
+impl ShadowMode {
+    /// The text form for metadata and `-v`.
+    pub fn describe(self) -> String {
+        match self {
+            ShadowMode::Table(l) => format!("table:{}:{}", l.across, l.along),
+            ShadowMode::Rays => "rays".into(),
+        }
+    }
+}
+
 /// Most collisions of a path-traced multiple-scattering estimate: the reference path
 /// tracer's default, which roulette makes a negligible truncation.
 pub const PATH_MAX_DEPTH: u32 = 512;
@@ -115,8 +139,10 @@ pub struct CacheParams {
     pub estimator: MultipleEstimator,
     /// Seed of the path-traced estimate (voxel i draws from `Rng(seed, i)`).
     pub seed: u64,
-    /// Shadow rays stop once transmittance falls below this.
+    /// Shadow rays stop once transmittance falls below this; below it light counts as black.
     pub min_transmittance: f64,
+    /// Where transmittance toward the lights comes from.
+    pub shadows: ShadowMode,
 }
 
 /// The baked grids; `None` where that part was not asked for or had nothing to gather.
@@ -124,6 +150,9 @@ pub struct CacheParams {
 pub struct IlluminationCache {
     pub li_single: Option<Volume<glam::Vec3>>,
     pub li_multiple: Option<Volume<glam::Vec3>>,
+    /// The transmittance toward each tabled light (by its index in the lights) at the
+    /// density's voxels: view-independent, for artists' own shading.
+    pub transmittance: Vec<(usize, Volume<f32>)>,
 }
 
 /// What the bake did, for `-v` and metadata.
@@ -177,6 +206,22 @@ impl CacheParams {
         self.single && !self.medium.is_non_scattering() && !self.lights.is_empty()
     }
 
+    /// Optical depth past which a tabled ray stops integrating: a hundredth of
+    /// `min_transmittance`, so what callers read as black is resolved well past the cut-off.
+    pub fn opaque_depth(&self) -> f64 {
+        -(self.min_transmittance * 1e-2).max(1e-300).ln()
+    }
+
+    /// The lights' tabled optical depths, where the shadows are tabled and something reads
+    /// them (single scattering, or paths' next-event estimation); none otherwise.
+    pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap) -> LightDepths {
+        let reads = self.bakes_single() || (self.bakes_multiple(photons) && matches!(self.estimator, MultipleEstimator::Paths { .. }));
+        match self.shadows {
+            ShadowMode::Table(lattice) if reads => LightDepths::build(medium, &self.lights, lattice, self.opaque_depth()),
+            _ => LightDepths::default(),
+        }
+    }
+
     /// Whether multiple scattering is asked for and has something to estimate it from:
     /// photons to gather, or lights for the paths to reach.
     pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
@@ -211,6 +256,10 @@ impl CacheParams {
         }
         if self.estimator == (MultipleEstimator::Paths { per_voxel: 0 }) {
             return Err(CacheError::Param("--paths must be at least 1".into()));
+        }
+        if let ShadowMode::Table(l) = self.shadows {
+            positive("the light lattice's spacing across", l.across)?;
+            positive("the light lattice's spacing along", l.along)?;
         }
         if !(0.0..1.0).contains(&self.min_transmittance) {
             return Err(CacheError::Param(format!("--min-transmittance must be in [0,1), got {}", self.min_transmittance)));

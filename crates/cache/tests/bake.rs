@@ -1,5 +1,5 @@
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, MultipleEstimator};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_volume::{Transform, Volume};
@@ -34,6 +34,7 @@ fn params(camera: Camera) -> CacheParams {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 0.0,
+        shadows: ShadowMode::Table(LightLattice::default()),
     }
 }
 

@@ -2,7 +2,7 @@
 //! voxels, values to float tolerance.
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator, ShadowMode};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -44,6 +44,7 @@ fn params(v: &Volume<f32>) -> CacheParams {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 1e-4,
+        shadows: ShadowMode::Rays,
     }
 }
 

@@ -40,6 +40,7 @@ fn load(name: &'static str, path: &Path) -> Scene {
     let cache = IlluminationCache {
         li_single: read_vec3_grid(&file, "Li_single").unwrap_or_else(|e| fail(e)),
         li_multiple: read_vec3_grid(&file, "Li_multiple").unwrap_or_else(|e| fail(e)),
+        ..Default::default()
     };
     let meta = PipelineMeta::of(&file);
     let camera = meta.camera().ok().flatten().expect("the cache records its camera");

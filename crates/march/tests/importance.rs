@@ -36,7 +36,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     for &v in &picked {
         let mut values = vec![Vec3::ZERO; g.len()];
         values[v] = Vec3::ONE;
-        let cache = IlluminationCache { li_single: None, li_multiple: Some(plan.volume_of(&values).0) };
+        let cache = IlluminationCache { li_single: None, li_multiple: Some(plan.volume_of(&values).0), ..Default::default() };
         let mut sum = 0.0f64;
         for py in 0..h {
             for px in 0..w {

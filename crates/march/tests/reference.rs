@@ -4,7 +4,7 @@
 mod common;
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator};
+use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
 use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
@@ -70,6 +70,7 @@ fn single_scattering_matches_the_cached_chain() {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 0.0,
+        shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
     let march = MarchParams {

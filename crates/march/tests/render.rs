@@ -23,7 +23,7 @@ fn constant_cache(density: &Volume<f32>, li: Vec3) -> IlluminationCache {
             }
         }
     }
-    IlluminationCache { li_single: Some(cache), li_multiple: None }
+    IlluminationCache { li_single: Some(cache), li_multiple: None, ..Default::default() }
 }
 
 fn params(camera: Camera, step: f64) -> MarchParams {

@@ -5,7 +5,7 @@
 mod common;
 
 use glam::{DVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator};
+use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
 use nimbus_march::{render_cpu, MarchParams};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
@@ -37,6 +37,7 @@ fn single_scattering_chain_matches_a_brute_force_render() {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 0.0,
+        shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
     let march = MarchParams {

@@ -18,6 +18,10 @@
 //!   unbiased;
 //! - [`MediumRay::transmittance_ratio`]: ratio tracking, an unbiased transmittance estimate.
 //!
+//! - [`OpticalDepthVolume`]: the optical depth toward a sun tabled once on a light-aligned
+//!   lattice, so single scattering and next-event estimation look it up instead of tracing
+//!   a shadow ray per point ([`LightDepths`] per light, [`Shadowing`] for the paths).
+//!
 //! On these, [`trace_path`] traces a volumetric path with next-event estimation: the
 //! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering.
 //!
@@ -30,9 +34,11 @@
 //! same in both).
 
 mod gpu;
+mod optical_depth;
 mod path;
 
 pub use gpu::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, OpticalDepthVolume, Shadowing};
 pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;

@@ -5,7 +5,7 @@
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Light, Medium, Rng};
 
-use crate::{DensityMedium, FreePath, MediumRay};
+use crate::{DensityMedium, FreePath, MediumRay, Shadowing};
 
 /// Bounce from which Russian roulette may end a path.
 pub const ROULETTE_FROM_DEPTH: u32 = 3;
@@ -29,13 +29,15 @@ impl PathLight {
 /// The radiance arriving at `origin` from direction `-dir` (unit, world), scattered in the
 /// medium, estimated by one path: free flights by delta tracking against the majorant grid;
 /// at each real collision the throughput takes the albedo (sigma_s / sigma_t) and next-event
-/// estimation adds each light's `E p(w_light, w_out) T`, with T by ratio tracking; then
+/// estimation adds each light's `E p(w_light, w_out) T`, with T as `shadowing` finds it (ratio
+/// tracking, or a light's tabled optical depth); then
 /// Henyey-Greenstein picks the next direction. Russian roulette on the throughput from
 /// [`ROULETTE_FROM_DEPTH`]; at most `max_depth` collisions.
 ///
 /// Lights are suns and points (delta lights), so next-event estimation is the only way light
 /// enters a path and needs no MIS; paths that escape add nothing.
-pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], origin: DVec3, dir: DVec3, max_depth: u32, rng: &mut Rng) -> PathLight {
+#[allow(clippy::too_many_arguments)]
+pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], shadowing: Shadowing, origin: DVec3, dir: DVec3, max_depth: u32, rng: &mut Rng) -> PathLight {
     let phase = optics.phase();
     let mut light = PathLight::default();
     let (mut x, mut w) = (origin, dir);
@@ -48,13 +50,19 @@ pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], orig
         beta *= optics.albedo;
         let w_out = -w.as_vec3();
         let mut direct = Vec3::ZERO;
-        for l in lights {
+        for (index, l) in lights.iter().enumerate() {
             let incident = l.incident(x);
             if incident.irradiance == Vec3::ZERO {
                 continue;
             }
-            let shadow = MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance);
-            let tr = shadow.transmittance_ratio(rng, RATIO_ROULETTE) as f32;
+            let table = match shadowing {
+                Shadowing::Tabled(depths) => depths.get(index),
+                Shadowing::RatioTracked => None,
+            };
+            let tr = match table {
+                Some(depth) => depth.transmittance(x) as f32,
+                None => MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE) as f32,
+            };
             if tr > 0.0 {
                 direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
             }

@@ -231,9 +231,10 @@ impl<T: Voxel> Volume<T> {
     }
 
     /// The eight lattice values around the cell whose lowest corner is `ijk`, in the order
-    /// (x,y,z) = 000, 001, 010, 011, 100, 101, 110, 111.
+    /// (x,y,z) = 000, 001, 010, 011, 100, 101, 110, 111: what a walk that integrates the
+    /// trilinear function cell by cell reads once per cell.
     #[inline]
-    fn corners(&self, ijk: IVec3) -> [T; 8] {
+    pub fn corners(&self, ijk: IVec3) -> [T; 8] {
         let local = ijk & IVec3::splat(BRICK_DIM - 1);
         if local.max_element() < BRICK_DIM - 1 {
             // The whole cell lies inside one brick: one lookup, eight loads.

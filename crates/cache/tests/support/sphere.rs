@@ -7,7 +7,7 @@
 #![allow(dead_code)]
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator};
+use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
 use nimbus_optics::{sample_uniform_sphere, Camera, Light, Medium, Rng};
 use nimbus_photon::{trace_cpu, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -46,6 +46,7 @@ impl Sphere {
             estimator,
             seed,
             min_transmittance: 1e-4,
+            shadows: ShadowMode::Table(LightLattice::default()),
         }
     }
 

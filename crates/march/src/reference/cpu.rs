@@ -1,7 +1,7 @@
 //! The reference path tracer on the CPU: rows in parallel with rayon, in f64.
 
 use nimbus_optics::Rng;
-use nimbus_tracking::{trace_path, DensityMedium, MediumRay, RATIO_ROULETTE};
+use nimbus_tracking::{trace_path, DensityMedium, MediumRay, Shadowing, RATIO_ROULETTE};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
@@ -19,7 +19,7 @@ fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, index: u64) 
         let (jx, jy) = (rng.next_f64(), rng.next_f64());
         let (origin, dir) = camera.ray(px + jx, py + jy);
         let tr = MediumRay::new(medium, origin, dir, 0.0, f64::INFINITY).transmittance_ratio(&mut rng, RATIO_ROULETTE);
-        let light = trace_path(medium, &params.medium, &params.lights, origin, dir, params.max_depth, &mut rng);
+        let light = trace_path(medium, &params.medium, &params.lights, Shadowing::RatioTracked, origin, dir, params.max_depth, &mut rng);
         sum.single += light.single;
         sum.multiple += light.multiple;
         sum.transmittance += tr as f32;

@@ -102,7 +102,7 @@ pub fn cache_for(density: &Volume<f32>) -> IlluminationCache {
         let s = (0.6 + 0.3 * (p.y * 2.5).sin() * (p.z * 1.5).cos()) as f32;
         Vec3::new(0.3 * s, 0.35 * s, 0.5 * s)
     });
-    IlluminationCache { li_single: Some(single), li_multiple: Some(multiple) }
+    IlluminationCache { li_single: Some(single), li_multiple: Some(multiple), ..Default::default() }
 }
 
 /// Looks at `centre` from -Y and a little above, the cloud filling most of the frame.

@@ -1,0 +1,360 @@
+//! The optical depth toward a sun, tabled once on a light-aligned lattice: single scattering
+//! and next-event estimation read it instead of integrating a shadow ray per point, so
+//! their cost is O(voxels) per light rather than O(voxels x ray length).
+//!
+//! # The lattice
+//!
+//! Rays run parallel to the sun through the density's index space. They pass through the
+//! nodes of a 2D lattice spaced `across` density voxels on the two index axes other than the
+//! one the sun's direction leans on most (its dominant axis), and along each ray nodes sit
+//! every `along` voxels of that dominant axis. So the lattice is the density lattice sheared
+//! along the light: the map from lattice index to world is affine, and the table is an
+//! ordinary sparse [`Volume`] whose [`Transform`] carries the shear, looked up trilinearly
+//! (bilinear across rays, linear along them). Where the sun falls along an index axis the
+//! shear vanishes and, the lattice's origin being the density's, every density node is a
+//! lattice node: the table then holds exactly what a shadow ray from that node integrates.
+//!
+//! # What a node holds
+//!
+//! The optical depth from the node toward the light, `extinction * integral density`,
+//! integrated cell by cell through the trilinear density: within one cell the density along
+//! a ray is a cubic in t, integrated in closed form (what composite Simpson panels split at
+//! voxel boundaries also integrate exactly, as `MediumRay::optical_depth` does, up to
+//! rounding), so a node's value is exact whatever the lattice spacing; only reading between
+//! nodes interpolates. Negative density (ringing in third-party grids) counts as empty, as
+//! in every tracker here, by clamping the cell's corners.
+//!
+//! # What is stored
+//!
+//! Only lattice bricks where a lookup can land: those covering, conservatively, the region
+//! where the trilinear density is non-zero (each non-empty density brick's interpolation
+//! footprint). Upstream of a ray's first stored node the ray meets no medium, so each ray is
+//! integrated from there. A ray stops integrating once its optical depth passes
+//! `opaque_depth`: every node beyond keeps that depth, which callers read as black (a
+//! transmittance below their cut-off).
+
+use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
+use nimbus_optics::Light;
+use nimbus_volume::{brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
+use rayon::prelude::*;
+
+use crate::DensityMedium;
+
+/// Spacing of a light lattice, in density voxels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightLattice {
+    /// Between neighbouring rays, on the two non-dominant index axes: shadow edges are as
+    /// sharp as the density across the light, so this is finer than a voxel.
+    pub across: f64,
+    /// Between nodes along a ray, on the dominant index axis: the optical depth is an
+    /// integral along the ray, smooth there.
+    pub along: f64,
+}
+
+impl Default for LightLattice {
+    /// Rays half a voxel apart, nodes one voxel apart along them.
+    fn default() -> Self {
+        LightLattice { across: 0.5, along: 1.0 }
+    }
+}
+
+/// The optical depth toward one sun on its light lattice.
+#[derive(Clone, Debug)]
+pub struct OpticalDepthVolume {
+    /// Optical depth toward the light at each lattice node (0 where nothing is stored).
+    pub depth: Volume<f32>,
+    /// Rays stopped integrating past this optical depth.
+    pub opaque_depth: f64,
+    /// The lattice it was built on.
+    pub lattice: LightLattice,
+}
+
+impl OpticalDepthVolume {
+    /// Tables the optical depth toward a sun whose light travels along `sun_dir` (unit).
+    pub fn build(medium: DensityMedium, sun_dir: Vec3, lattice: LightLattice, opaque_depth: f64) -> OpticalDepthVolume {
+        let density = medium.density;
+        let geometry = LatticeGeometry::new(density.transform(), sun_dir.as_dvec3(), lattice);
+        let transform = Transform::new(density.transform().index_to_world() * geometry.to_density)
+            .expect("a shear of an invertible map along a non-degenerate direction is invertible");
+        let columns = geometry.brick_columns(density);
+        let bricks: Vec<(IVec3, Vec<f32>)> = columns
+            .par_iter()
+            .flat_map_iter(|(column, ks)| geometry.integrate_brick_column(medium, *column, ks, opaque_depth))
+            .collect();
+        let mut depth = Volume::new(transform, 0.0f32);
+        const ALL: [u64; 8] = [u64::MAX; 8];
+        for (origin, values) in &bricks {
+            depth.insert_brick(*origin, values, &ALL);
+        }
+        OpticalDepthVolume { depth, opaque_depth, lattice }
+    }
+
+    /// Optical depth toward the light from world point `x`, interpolated.
+    #[inline]
+    pub fn optical_depth(&self, x: DVec3) -> f64 {
+        self.depth.sample_world(x) as f64
+    }
+
+    /// Transmittance toward the light from world point `x`, interpolated in optical depth.
+    #[inline]
+    pub fn transmittance(&self, x: DVec3) -> f64 {
+        (-self.optical_depth(x)).exp()
+    }
+
+    /// Lattice nodes stored.
+    pub fn nodes(&self) -> u64 {
+        (self.depth.brick_count() * BRICK_VOXELS) as u64
+    }
+}
+
+/// The tabled optical depth of every light that has one: suns. Point lights get none
+/// (their rays diverge; they keep per-point shadow rays).
+#[derive(Clone, Debug, Default)]
+pub struct LightDepths {
+    pub per_light: Vec<Option<OpticalDepthVolume>>,
+}
+
+impl LightDepths {
+    /// Tables each sun of `lights`; `opaque_depth` as in [`OpticalDepthVolume::build`].
+    pub fn build(medium: DensityMedium, lights: &[Light], lattice: LightLattice, opaque_depth: f64) -> LightDepths {
+        let per_light = lights
+            .iter()
+            .map(|light| match *light {
+                Light::Sun { dir, irradiance } if irradiance != Vec3::ZERO => Some(OpticalDepthVolume::build(medium, dir, lattice, opaque_depth)),
+                _ => None,
+            })
+            .collect();
+        LightDepths { per_light }
+    }
+
+    /// Light `index`'s table, if it has one.
+    pub fn get(&self, index: usize) -> Option<&OpticalDepthVolume> {
+        self.per_light.get(index).and_then(Option::as_ref)
+    }
+
+    /// Nodes stored over all lights.
+    pub fn nodes(&self) -> u64 {
+        self.per_light.iter().flatten().map(OpticalDepthVolume::nodes).sum()
+    }
+}
+
+/// How next-event estimation finds the transmittance toward a light.
+#[derive(Clone, Copy, Debug)]
+pub enum Shadowing<'a> {
+    /// Ratio tracking along a shadow ray: unbiased (the reference path tracer's).
+    RatioTracked,
+    /// The light's tabled optical depth where it has one, ratio tracking otherwise: no
+    /// tracked ray per collision, and no noise from it.
+    Tabled(&'a LightDepths),
+}
+
+/// How the light lattice sits in the density's index space.
+struct LatticeGeometry {
+    /// Lattice index -> density index (linear: the origins coincide).
+    to_density: DAffine3,
+    to_lattice: DAffine3,
+    /// The light's direction in density index space, per unit of world distance.
+    dir_index: DVec3,
+    /// World distance between consecutive nodes along a ray.
+    step: f64,
+}
+
+impl LatticeGeometry {
+    fn new(transform: &Transform, sun_dir: DVec3, lattice: LightLattice) -> LatticeGeometry {
+        let d = transform.dir_to_index(sun_dir);
+        let a = d.abs().max_position();
+        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
+        let (b, c) = (b.min(c), b.max(c));
+        let axis = |n: usize| {
+            let mut e = DVec3::ZERO;
+            e[n] = 1.0;
+            e
+        };
+        // Each node step along a ray advances `along` voxels on the dominant axis, downstream.
+        let along = d * (lattice.along / d[a].abs());
+        let m = DMat3::from_cols(axis(b) * lattice.across, axis(c) * lattice.across, along);
+        let to_density = DAffine3::from_mat3(m);
+        LatticeGeometry { to_density, to_lattice: to_density.inverse(), dir_index: d, step: lattice.along / d[a].abs() }
+    }
+
+    /// The lattice bricks a lookup can land in, grouped by brick column (the brick's first
+    /// two coordinates), each with its bricks' third coordinates sorted.
+    fn brick_columns(&self, density: &Volume<f32>) -> Vec<((i32, i32), Vec<i32>)> {
+        let marked: Vec<Vec<IVec3>> = density
+            .par_bricks()
+            .filter(|b| b.values.iter().any(|&v| v > 0.0))
+            .map(|b| {
+                // Trilinear density is non-zero only within (o - 1, o + 8) of a brick's voxels.
+                let (lo, hi) = (b.origin.as_dvec3() - 1.0, b.origin.as_dvec3() + BRICK_DIM as f64);
+                let (mut qlo, mut qhi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+                for n in 0..8 {
+                    let p = DVec3::new(if n & 4 != 0 { hi.x } else { lo.x }, if n & 2 != 0 { hi.y } else { lo.y }, if n & 1 != 0 { hi.z } else { lo.z });
+                    let q = self.to_lattice.transform_point3(p);
+                    qlo = qlo.min(q);
+                    qhi = qhi.max(q);
+                }
+                // A lookup at q reads nodes floor(q) and floor(q) + 1.
+                let (nlo, nhi) = (brick_origin(qlo.floor().as_ivec3()), brick_origin(qhi.floor().as_ivec3() + 1));
+                let mut out = Vec::new();
+                for x in (nlo.x..=nhi.x).step_by(BRICK_DIM as usize) {
+                    for y in (nlo.y..=nhi.y).step_by(BRICK_DIM as usize) {
+                        for z in (nlo.z..=nhi.z).step_by(BRICK_DIM as usize) {
+                            out.push(IVec3::new(x, y, z));
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut all: Vec<IVec3> = marked.into_iter().flatten().collect();
+        all.sort_unstable_by_key(|o| (o.x, o.y, o.z));
+        all.dedup();
+        let mut columns: Vec<((i32, i32), Vec<i32>)> = Vec::new();
+        for o in all {
+            match columns.last_mut() {
+                Some((c, ks)) if *c == (o.x, o.y) => ks.push(o.z),
+                _ => columns.push(((o.x, o.y), vec![o.z])),
+            }
+        }
+        columns
+    }
+
+    /// Integrates the 8 x 8 rays of one brick column from its first stored node to its last,
+    /// and returns its bricks (values in brick order).
+    fn integrate_brick_column(&self, medium: DensityMedium, (bx, by): (i32, i32), ks: &[i32], opaque_depth: f64) -> Vec<(IVec3, Vec<f32>)> {
+        let (k0, k1) = (ks[0], ks[ks.len() - 1] + BRICK_DIM - 1);
+        let count = (k1 - k0 + 1) as usize;
+        let mut bricks: Vec<(IVec3, Vec<f32>)> = ks.iter().map(|&z| (IVec3::new(bx, by, z), vec![0.0f32; BRICK_VOXELS])).collect();
+        let mut tau = vec![0.0f64; count];
+        for li in 0..BRICK_DIM {
+            for lj in 0..BRICK_DIM {
+                let start = self.to_density.transform_point3(IVec3::new(bx + li, by + lj, k0).as_dvec3());
+                ray_optical_depths(medium, start, self.dir_index, self.step, opaque_depth, &mut tau);
+                for (origin, values) in bricks.iter_mut() {
+                    for lk in 0..BRICK_DIM {
+                        values[brick_offset(IVec3::new(li, lj, lk))] = tau[(origin.z + lk - k0) as usize] as f32;
+                    }
+                }
+            }
+        }
+        bricks
+    }
+}
+
+/// The optical depth at the points `origin + k * step * dir` (density index space, `dir` per
+/// unit of world distance), k = 0, 1, ..., `out.len()` - 1, integrated from `origin` (where
+/// the ray must not yet have met medium) cell by cell in closed form. Past `opaque_depth`
+/// the remaining points keep the depth reached.
+pub fn ray_optical_depths(medium: DensityMedium, origin: DVec3, dir: DVec3, step: f64, opaque_depth: f64, out: &mut [f64]) {
+    let ext = medium.extinction as f64;
+    let t_end = step * (out.len() as f64 - 1.0);
+    let mut tau = 0.0;
+    let mut k = 0usize;
+    // Emits every node up to distance `t` with the depth tau + f(t_node).
+    let mut emit_until = |k: &mut usize, t: f64, tau: f64, f: &dyn Fn(f64) -> f64| {
+        while *k < out.len() && (*k as f64) * step <= t {
+            out[*k] = tau + f(*k as f64 * step);
+            *k += 1;
+        }
+    };
+    'walk: for seg in medium.majorant.walk(origin, dir, 0.0, t_end) {
+        if !(seg.majorant > 0.0 && ext > 0.0 && seg.t_end.is_finite()) {
+            continue;
+        }
+        // Nodes before this segment (in empty space) hold the depth so far.
+        emit_until(&mut k, seg.t_start, tau, &|_| 0.0);
+        let mut next = DVec3::INFINITY;
+        let mut inc = DVec3::INFINITY;
+        for axis in 0..3 {
+            if dir[axis] != 0.0 {
+                let c = origin[axis] + seg.t_start * dir[axis];
+                let plane = if dir[axis] > 0.0 { c.floor() + 1.0 } else { c.ceil() - 1.0 };
+                next[axis] = (plane - origin[axis]) / dir[axis];
+                inc[axis] = 1.0 / dir[axis].abs();
+            }
+        }
+        let mut t = seg.t_start;
+        while t < seg.t_end {
+            let cross = next.min_element().min(seg.t_end);
+            if cross > t {
+                let cell = (origin + dir * (0.5 * (t + cross))).floor();
+                let corners = medium.density.corners(cell.as_ivec3()).map(|v| v.max(0.0) as f64);
+                let cubic = cubic_along(&corners, origin + dir * t - cell, dir);
+                let (t0, depth0) = (t, tau);
+                emit_until(&mut k, cross, depth0, &|tn| ext * integral(&cubic, tn - t0));
+                tau += ext * integral(&cubic, cross - t);
+                t = cross;
+                if tau > opaque_depth {
+                    break 'walk;
+                }
+            }
+            for axis in 0..3 {
+                while next[axis] <= t {
+                    next[axis] += inc[axis];
+                }
+            }
+        }
+    }
+    for v in &mut out[k..] {
+        *v = tau;
+    }
+}
+
+/// The trilinear interpolant of a cell's corners (order 000, 001, ..., 111 in x, y, z) along
+/// `u0 + s * du` (cell-local coordinates) as a cubic in s: coefficients of s^0..s^3.
+fn cubic_along(c: &[f64; 8], u0: DVec3, du: DVec3) -> [f64; 4] {
+    // f = k0 + kx x + ky y + kz z + kxy xy + kxz xz + kyz yz + kxyz xyz.
+    let k0 = c[0];
+    let kx = c[4] - c[0];
+    let ky = c[2] - c[0];
+    let kz = c[1] - c[0];
+    let kxy = c[6] - c[4] - c[2] + c[0];
+    let kxz = c[5] - c[4] - c[1] + c[0];
+    let kyz = c[3] - c[2] - c[1] + c[0];
+    let kxyz = c[7] - c[6] - c[5] - c[3] + c[4] + c[2] + c[1] - c[0];
+    let (x0, y0, z0) = (u0.x, u0.y, u0.z);
+    let (dx, dy, dz) = (du.x, du.y, du.z);
+    // Products of two linear factors: p0 + p1 s + p2 s^2.
+    let prod = |a0: f64, a1: f64, b0: f64, b1: f64| [a0 * b0, a0 * b1 + a1 * b0, a1 * b1];
+    let xy = prod(x0, dx, y0, dy);
+    let xz = prod(x0, dx, z0, dz);
+    let yz = prod(y0, dy, z0, dz);
+    let xyz = [xy[0] * z0, xy[0] * dz + xy[1] * z0, xy[1] * dz + xy[2] * z0, xy[2] * dz];
+    [
+        k0 + kx * x0 + ky * y0 + kz * z0 + kxy * xy[0] + kxz * xz[0] + kyz * yz[0] + kxyz * xyz[0],
+        kx * dx + ky * dy + kz * dz + kxy * xy[1] + kxz * xz[1] + kyz * yz[1] + kxyz * xyz[1],
+        kxy * xy[2] + kxz * xz[2] + kyz * yz[2] + kxyz * xyz[2],
+        kxyz * xyz[3],
+    ]
+}
+
+/// integral_0^s of the cubic.
+#[inline]
+fn integral(a: &[f64; 4], s: f64) -> f64 {
+    s * (a[0] + s * (a[1] / 2.0 + s * (a[2] / 3.0 + s * a[3] / 4.0)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cubic_is_the_trilinear_interpolant_along_the_line() {
+        let c = [0.3, 1.7, 0.2, 0.9, 2.5, 0.1, 1.1, 0.6];
+        let tri = |p: DVec3| {
+            let l = |a: f64, b: f64, w: f64| a + (b - a) * w;
+            l(l(l(c[0], c[1], p.z), l(c[2], c[3], p.z), p.y), l(l(c[4], c[5], p.z), l(c[6], c[7], p.z), p.y), p.x)
+        };
+        let (u0, du) = (DVec3::new(0.1, 0.8, 0.35), DVec3::new(0.6, -0.5, 0.45));
+        let a = cubic_along(&c, u0, du);
+        for n in 0..=10 {
+            let s = n as f64 * 0.1;
+            let poly = a[0] + s * (a[1] + s * (a[2] + s * a[3]));
+            assert!((poly - tri(u0 + du * s)).abs() < 1e-12, "s = {s}");
+        }
+        // The closed-form integral against a fine midpoint rule.
+        let n = 20000;
+        let mid: f64 = (0..n).map(|i| tri(u0 + du * ((i as f64 + 0.5) / n as f64))).sum::<f64>() / n as f64;
+        assert!((integral(&a, 1.0) - mid).abs() < 1e-8);
+    }
+}
