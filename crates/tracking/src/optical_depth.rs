@@ -16,13 +16,22 @@
 //!
 //! # What a node holds
 //!
-//! The optical depth from the node toward the light, `extinction * integral density`,
-//! integrated cell by cell through the trilinear density: within one cell the density along
-//! a ray is a cubic in t, integrated in closed form (what composite Simpson panels split at
-//! voxel boundaries also integrate exactly, as `MediumRay::optical_depth` does, up to
-//! rounding), so a node's value is exact whatever the lattice spacing; only reading between
-//! nodes interpolates. Negative density (ringing in third-party grids) counts as empty, as
-//! in every tracker here, by clamping the cell's corners.
+//! The transmittance toward the light, exp(-optical depth), the optical depth
+//! `extinction * integral density` integrated cell by cell through the trilinear density:
+//! within one cell the density along a ray is a cubic in t, integrated in closed form (what
+//! composite Simpson panels split at voxel boundaries also integrate exactly, as
+//! `MediumRay::optical_depth` does, up to rounding), so a node's value is exact whatever the
+//! lattice spacing; only reading between nodes interpolates.
+//!
+//! Transmittance, not optical depth, is what is interpolated: across a sharp shadow edge the
+//! optical depth between two rays jumps by tens, and exp(-interpolated depth) is far below
+//! the interpolated transmittance (exp is convex), so interpolating depth darkens every
+//! penumbra. On the bundled cloud that made the path-traced multiple scattering 0.4% darker
+//! than shadow rays did (image mean 0.990 against 0.994, two seeds); interpolated
+//! transmittance is unbiased for a shadow edge that falls anywhere between the rays.
+//!
+//! Negative density (ringing in third-party grids) counts as empty, as in every tracker
+//! here, by clamping the cell's corners.
 //!
 //! # What is stored
 //!
@@ -58,11 +67,12 @@ impl Default for LightLattice {
     }
 }
 
-/// The optical depth toward one sun on its light lattice.
+/// The optical depth toward one sun on its light lattice, held as transmittance.
 #[derive(Clone, Debug)]
 pub struct OpticalDepthVolume {
-    /// Optical depth toward the light at each lattice node (0 where nothing is stored).
-    pub depth: Volume<f32>,
+    /// Transmittance toward the light at each lattice node (1 where nothing is stored: no
+    /// medium lies toward the light from there).
+    pub transmittance: Volume<f32>,
     /// Rays stopped integrating past this optical depth.
     pub opaque_depth: f64,
     /// The lattice it was built on.
@@ -81,29 +91,29 @@ impl OpticalDepthVolume {
             .par_iter()
             .flat_map_iter(|(column, ks)| geometry.integrate_brick_column(medium, *column, ks, opaque_depth))
             .collect();
-        let mut depth = Volume::new(transform, 0.0f32);
+        let mut transmittance = Volume::new(transform, 1.0f32);
         const ALL: [u64; 8] = [u64::MAX; 8];
         for (origin, values) in &bricks {
-            depth.insert_brick(*origin, values, &ALL);
+            transmittance.insert_brick(*origin, values, &ALL);
         }
-        OpticalDepthVolume { depth, opaque_depth, lattice }
+        OpticalDepthVolume { transmittance, opaque_depth, lattice }
     }
 
-    /// Optical depth toward the light from world point `x`, interpolated.
-    #[inline]
-    pub fn optical_depth(&self, x: DVec3) -> f64 {
-        self.depth.sample_world(x) as f64
-    }
-
-    /// Transmittance toward the light from world point `x`, interpolated in optical depth.
+    /// Transmittance toward the light from world point `x`, interpolated.
     #[inline]
     pub fn transmittance(&self, x: DVec3) -> f64 {
-        (-self.optical_depth(x)).exp()
+        self.transmittance.sample_world(x) as f64
+    }
+
+    /// Optical depth toward the light from world point `x`: -ln of the interpolated
+    /// transmittance.
+    pub fn optical_depth(&self, x: DVec3) -> f64 {
+        -self.transmittance(x).max(f64::MIN_POSITIVE).ln()
     }
 
     /// Lattice nodes stored.
     pub fn nodes(&self) -> u64 {
-        (self.depth.brick_count() * BRICK_VOXELS) as u64
+        (self.transmittance.brick_count() * BRICK_VOXELS) as u64
     }
 }
 
@@ -220,7 +230,7 @@ impl LatticeGeometry {
     }
 
     /// Integrates the 8 x 8 rays of one brick column from its first stored node to its last,
-    /// and returns its bricks (values in brick order).
+    /// and returns its bricks of transmittance (values in brick order).
     fn integrate_brick_column(&self, medium: DensityMedium, (bx, by): (i32, i32), ks: &[i32], opaque_depth: f64) -> Vec<(IVec3, Vec<f32>)> {
         let (k0, k1) = (ks[0], ks[ks.len() - 1] + BRICK_DIM - 1);
         let count = (k1 - k0 + 1) as usize;
@@ -232,7 +242,7 @@ impl LatticeGeometry {
                 ray_optical_depths(medium, start, self.dir_index, self.step, opaque_depth, &mut tau);
                 for (origin, values) in bricks.iter_mut() {
                     for lk in 0..BRICK_DIM {
-                        values[brick_offset(IVec3::new(li, lj, lk))] = tau[(origin.z + lk - k0) as usize] as f32;
+                        values[brick_offset(IVec3::new(li, lj, lk))] = (-tau[(origin.z + lk - k0) as usize]).exp() as f32;
                     }
                 }
             }
