@@ -187,8 +187,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                 r.as_ref()
                     .map(|(_, s)| {
                         format!(
-                            "baked {} cache voxels of {} candidates ({} out of view, {} empty), {} photons gathered, {} paths traced",
-                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.photons_gathered, s.paths
+                            "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced, {} light table nodes; {}",
+                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths, s.light_table_nodes, s.describe_stages()
                         )
                     })
                     .unwrap_or_default()

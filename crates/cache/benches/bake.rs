@@ -214,7 +214,8 @@ fn paths_rows() {
     rows(3, "plume 48x48x96", &part, &v, &PhotonMap::default(), &p, |c| c.li_multiple.as_ref().unwrap(), &|x, w_out| {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
         let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
-        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), x, w_out, 256, &mut Rng::new(99, index))
+        let _ = w_out;
+        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), &[x; 256], p.camera.eye(), &mut Rng::new(99, index))
     });
 }
 

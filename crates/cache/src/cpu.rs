@@ -151,23 +151,24 @@ pub fn li_multiple(
     (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
 }
 
-/// Li_multiple at `x` toward `w_out` by `paths` paths: each leaves x in a direction drawn
-/// from the phase function about the camera ray's direction (-w_out), so the phase weight
-/// cancels, and gathers all the light the path scatters toward x (its first collision is
-/// x's second scattering). `medium`'s majorant must suit delta tracking
-/// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
-/// `depths` where a light has a table.
+/// Li_multiple toward the eye by one path from each of `origins`: each leaves its origin x
+/// in a direction drawn from the phase function about the camera ray's direction there
+/// (-w_out, w_out toward `eye`), so the phase weight cancels, and gathers all the light the
+/// path scatters toward x (its first collision is x's second scattering); the mean over the
+/// origins. `medium`'s majorant must suit delta tracking ([`MajorantGrid::for_tracking`]);
+/// next-event estimation looks transmittance up in `depths` where a light has a table.
 #[allow(clippy::too_many_arguments)]
-pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, x: DVec3, w_out: Vec3, paths: u32, rng: &mut Rng) -> Vec3 {
+pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, origins: &[DVec3], eye: DVec3, rng: &mut Rng) -> Vec3 {
     let phase = optics.phase();
-    // At the eye itself there is no camera ray; any axis serves.
-    let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
     let mut sum = Vec3::ZERO;
-    for _ in 0..paths {
+    for &x in origins {
+        let w_out = (eye - x).normalize_or_zero().as_vec3();
+        // At the eye itself there is no camera ray; any axis serves.
+        let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
         let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
         sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng).total();
     }
-    sum / paths.max(1) as f32
+    sum / origins.len().max(1) as f32
 }
 
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
@@ -178,15 +179,18 @@ pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
 /// Bakes the cache on the CPU.
 pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
+    let start = std::time::Instant::now();
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
     let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
+    stats.stages.push(("plan", start.elapsed().as_millis() as u64));
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);
     let camera = &params.camera;
-    let depths = params.light_depths(medium, photons);
+    let depths = stats.time("light tables", || params.light_depths(medium, photons));
+    stats.light_table_nodes = depths.nodes();
 
     let mut nonfinite = 0;
     // f(voxel index in plan order, position, w_out, scratch).
@@ -198,9 +202,11 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
         nonfinite += bad;
         volume
     };
+    let started = std::time::Instant::now();
     let li_single = params.bakes_single().then(|| {
         bake(&plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
     });
+    stats.stages.push(("single", started.elapsed().as_millis() as u64));
     let li_multiple = match params.estimator {
         _ if !params.bakes_multiple(photons) => None,
         MultipleEstimator::Photons => {
@@ -219,19 +225,22 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
             let traced = AtomicU64::new(0);
-            let counts = CameraImportance::path_counts(multiple_plan, density, &majorant, params, per_voxel);
-            let volume = bake(multiple_plan, &|i, x, w_out, _| {
-                let paths = counts[i];
-                traced.fetch_add(paths as u64, Ordering::Relaxed);
+            let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
+            let started = std::time::Instant::now();
+            let volume = bake(multiple_plan, &|i, _, _, _| {
+                let origins = path_plan.origins_of(i);
+                traced.fetch_add(origins.len() as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, x, w_out, paths, &mut rng)
+                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, origins, camera.eye(), &mut rng)
             });
+            stats.stages.push(("paths", started.elapsed().as_millis() as u64));
             stats.paths = traced.into_inner();
+            stats.culled_unseen = path_plan.unseen();
             Some(volume)
         }
     };
     stats.nonfinite = nonfinite;
-    let transmittance = transmittance_grids(density, &depths);
+    let transmittance = stats.time("transmittance grids", || transmittance_grids(density, &depths));
     Ok((IlluminationCache { li_single, li_multiple, transmittance }, stats))
 }
 

@@ -115,7 +115,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     };
     // The paths per voxel are decided on the host, by the CPU's very rule.
     let counts = match params.estimator {
-        MultipleEstimator::Paths { per_voxel } if multiple => CameraImportance::path_counts(multiple_plan, density, &majorant, params, per_voxel),
+        MultipleEstimator::Paths { per_voxel } if multiple => CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel).counts,
         _ => Vec::new(),
     };
     let kernel = if params.estimator == MultipleEstimator::Photons { Kernel::Photons } else { Kernel::Paths(&counts) };

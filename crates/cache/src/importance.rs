@@ -15,7 +15,7 @@
 //! coarse image reads a fine lattice only along its rays).
 
 use glam::{DVec3, IVec3};
-use nimbus_optics::Camera;
+use nimbus_optics::{Camera, Rng};
 use nimbus_volume::{lattice_cell, MajorantGrid, Volume};
 use rayon::prelude::*;
 
@@ -29,115 +29,328 @@ use crate::{CacheParams, CachePlan};
 /// terms under 2^-40 (derivatives under 1e-6) are too small to earn a path anyway.
 const G_FIXED_ONE: f64 = (1u64 << 40) as f64;
 
-/// At most this many camera rays estimate the importance: 2 x 2 per pixel while the image
-/// is small (the march jitters over the pixel), one through every s-th pixel's centre each way
-/// beyond that. G_v is a smooth function of the image, and only its proportions matter.
+/// At most this many camera rays estimate the importance: one through each pixel's centre
+/// (where `vdbmarch` looks at one sample per pixel) while the image is small, through every
+/// s-th pixel's each way beyond that. G_v is a smooth function of the image, and only its
+/// proportions matter; the paths' origins lie along these rays. (2 x 2 rays per pixel cost
+/// four times as much and bought nothing measurable on the bundled scenes.)
 pub const IMPORTANCE_RAYS: usize = 1 << 16;
 
+/// Random-number domain of the path origins' draws ("CAOR").
+const ORIGINS_DOMAIN: u32 = 0x4341_4f52;
+
 /// G_v per planned voxel, in plan order ([`CachePlan::voxel_positions`]), up to one common
-/// factor.
+/// factor; and W_v, the summed weight of the march's samples that read the voxel.
 pub struct CameraImportance {
     pub g: Vec<f64>,
+    /// W_v in fixed point ([`G_FIXED_ONE`]), summed sample by sample: the total the path
+    /// origins are drawn along.
+    pub weight: Vec<u64>,
+    /// Per importance pixel, in pixel order: the voxels its samples read, each with its
+    /// samples' summed fixed-point weight (the terms of W_v), sorted by voxel.
+    reads: Vec<Vec<(u32, u64)>>,
+}
+
+/// Where the paths of a `--paths` bake start: `counts[v]` paths for planned voxel v, starting
+/// at `origins[first[v]..first[v] + counts[v]]`.
+pub struct PathPlan {
+    pub counts: Vec<u32>,
+    pub first: Vec<usize>,
+    pub origins: Vec<DVec3>,
+}
+
+impl PathPlan {
+    /// The origins of voxel `v`'s paths.
+    pub fn origins_of(&self, v: usize) -> &[DVec3] {
+        &self.origins[self.first[v]..self.first[v] + self.counts[v] as usize]
+    }
+
+    pub fn total(&self) -> u64 {
+        self.counts.iter().map(|&n| n as u64).sum()
+    }
+
+    /// Voxels no path starts in: no camera ray reads them or any neighbour.
+    pub fn unseen(&self) -> u64 {
+        self.counts.iter().filter(|&&n| n == 0).count() as u64
+    }
+}
+
+/// The camera rays the importance is estimated along, and how the march weighs its samples.
+struct ImportanceRays<'a> {
+    camera: &'a Camera,
+    density: &'a Volume<f32>,
+    majorant: &'a MajorantGrid,
+    extinction: f64,
+    min_transmittance: f64,
+    /// Pixels per ray, each way.
+    stride: usize,
+    /// Pixels with rays per row and column.
+    sw: usize,
+    sh: usize,
+    step: f64,
+}
+
+impl<'a> ImportanceRays<'a> {
+    fn new(plan: &CachePlan, density: &'a Volume<f32>, majorant: &'a MajorantGrid, extinction: f32, camera: &'a Camera, min_transmittance: f64) -> Self {
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
+        let stride = ((w * h) as f64 / IMPORTANCE_RAYS as f64).sqrt().ceil().max(1.0) as usize;
+        ImportanceRays {
+            camera,
+            density,
+            majorant,
+            extinction: extinction as f64,
+            min_transmittance,
+            stride,
+            sw: w.div_ceil(stride),
+            sh: h.div_ceil(stride),
+            step: 0.5 * plan.transform.voxel_size().min_element(),
+        }
+    }
+
+    fn pixels(&self) -> usize {
+        self.sw * self.sh
+    }
+
+    /// Marches pixel `p`'s ray as `vdbmarch` does (step: half the plan's voxel edge) and
+    /// calls `f(x, w)` at each sample, w its weight in the pixel's value,
+    /// `T (1 - exp(-sigma_t dt))`.
+    fn march_pixel(&self, p: usize, mut f: impl FnMut(DVec3, f64)) {
+        let (px, py) = ((p % self.sw * self.stride) as f64, (p / self.sw * self.stride) as f64);
+        let (stride, step) = (self.stride, self.step);
+        let transform = self.density.transform();
+        // Through the centre of the pixel, or of the stride's block.
+        let (origin, dir) = self.camera.ray(px + 0.5 * stride as f64, py + 0.5 * stride as f64);
+        let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
+        let mut tr = 1.0f64;
+        for seg in self.majorant.walk(o, d, 0.0, f64::INFINITY) {
+            if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
+                continue;
+            }
+            let mut k = (seg.t_start / step - 0.5).ceil();
+            loop {
+                let t = (k + 0.5) * step;
+                if t >= seg.t_end {
+                    break;
+                }
+                k += 1.0;
+                let x = origin + dir * t;
+                let sigma_t = self.extinction * self.density.sample_world(x).max(0.0) as f64;
+                if !(sigma_t > 0.0) {
+                    continue;
+                }
+                let step_transmittance = (-sigma_t * step).exp();
+                f(x, tr * (1.0 - step_transmittance));
+                tr *= step_transmittance;
+                if tr < self.min_transmittance {
+                    return;
+                }
+            }
+        }
+    }
 }
 
 impl CameraImportance {
-    /// Marches the camera's rays through the density as `vdbmarch` does (step: half the
-    /// plan's voxel edge) and sums each pixel's derivatives per voxel of `plan`.
+    /// Marches the camera's rays through the density as `vdbmarch` does and sums each
+    /// pixel's derivatives per voxel of `plan`.
     pub fn new(plan: &CachePlan, density: &Volume<f32>, majorant: &MajorantGrid, extinction: f32, camera: &Camera, min_transmittance: f64) -> CameraImportance {
         let index = plan.voxel_index();
-        let (w, h) = (camera.width() as usize, camera.height() as usize);
-        // Rays per pixel side (2) or pixels per ray side (stride).
-        let (sub, stride) = if w * h * 4 <= IMPORTANCE_RAYS { (2, 1) } else { (1, ((w * h) as f64 / IMPORTANCE_RAYS as f64).sqrt().ceil() as usize) };
-        let (sw, sh) = (w.div_ceil(stride), h.div_ceil(stride));
-        let step = 0.5 * plan.transform.voxel_size().min_element();
-        // A pixel's value is the mean of its rays'.
-        let per_ray = 1.0 / (sub * sub) as f64;
-        let transform = density.transform();
+        let rays = ImportanceRays::new(plan, density, majorant, extinction, camera, min_transmittance);
         // Summed in fixed point, so G (and the paths, and the cache) does not depend on the
         // order the threads add in.
         let fixed: Vec<AtomicU64> = (0..plan.stats.baked).map(|_| AtomicU64::new(0)).collect();
-        (0..sw * sh).into_par_iter().for_each_init(Vec::<(u32, f64)>::new, |derivs, p| {
-            derivs.clear();
-            let (px, py) = ((p % sw * stride) as f64, (p / sw * stride) as f64);
-            for s in 0..sub * sub {
-                // The centres of the pixel's 2 x 2 quarters, or of the stride's block.
-                let (jx, jy) = match stride {
-                    1 => (((s % sub) as f64 + 0.5) / sub as f64, ((s / sub) as f64 + 0.5) / sub as f64),
-                    _ => (0.5 * stride as f64, 0.5 * stride as f64),
-                };
-                let (origin, dir) = camera.ray(px + jx, py + jy);
-                let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
-                let mut tr = 1.0f64;
-                'ray: for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-                    if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
-                        continue;
-                    }
-                    let mut k = (seg.t_start / step - 0.5).ceil();
-                    loop {
-                        let t = (k + 0.5) * step;
-                        if t >= seg.t_end {
-                            break;
+        let reads: Vec<Vec<(u32, u64)>> = (0..rays.pixels())
+            .into_par_iter()
+            .map_init(Vec::<(u32, f64, u64)>::new, |derivs, p| {
+                derivs.clear();
+                rays.march_pixel(p, |x, w| spread(&index, plan.transform.to_index(x), w, derivs));
+                // One pixel's derivative per voxel is the sum over its samples; G adds
+                // their squares. W sums the samples' fixed-point weights, as the origins'
+                // draw walks them again sample by sample.
+                derivs.sort_unstable_by_key(|d| d.0);
+                derivs
+                    .chunk_by(|a, b| a.0 == b.0)
+                    .map(|run| {
+                        let a: f64 = run.iter().map(|d| d.1).sum();
+                        fixed[run[0].0 as usize].fetch_add(to_fixed(a * a), Ordering::Relaxed);
+                        (run[0].0, run.iter().map(|d| d.2).sum::<u64>())
+                    })
+                    .collect()
+            })
+            .collect();
+        let g = fixed.into_iter().map(|f| f.into_inner() as f64 / G_FIXED_ONE).collect();
+        let mut weight = vec![0u64; plan.stats.baked as usize];
+        for &(v, w) in reads.iter().flatten() {
+            weight[v as usize] += w;
+        }
+        CameraImportance { g, weight, reads }
+    }
+
+    /// The paths of a `--paths per_voxel` bake over `plan`: the one plan both backends trace.
+    ///
+    /// Counts by [`CameraImportance::paths`]. Each path starts at a point the camera's rays
+    /// sample within the voxel's trilinear footprint, drawn with probability proportional to
+    /// that sample's weight in the image (march weight times the voxel's trilinear weight).
+    /// So the voxel estimates the average of Li over what the image reads through it, not Li
+    /// at its centre: summed over the image, every sample's Li then counts with its own
+    /// weight (the trilinear weights of a point add up to one), and a lattice coarser than
+    /// the medium's light gradients blurs the image but does not darken it, where centre
+    /// values inside a thick cloud, far darker than its lit surface, did. Voxels read by no
+    /// sample start their paths at their centre; voxels that neither they nor any neighbour
+    /// are read get none.
+    pub fn path_plan(plan: &CachePlan, density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, per_voxel: u32) -> PathPlan {
+        let importance = CameraImportance::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
+        let seen = importance.seen_or_beside(plan);
+        let counts = importance.paths(per_voxel, &seen);
+        let first: Vec<usize> = counts
+            .iter()
+            .scan(0usize, |next, &n| {
+                let start = *next;
+                *next += n as usize;
+                Some(start)
+            })
+            .collect();
+        let total = counts.iter().map(|&n| n as usize).sum();
+        let positions = plan.voxel_positions();
+        let mut origins = vec![DVec3::NAN; total];
+        // Who reads each voxel, in pixel order: the per-pixel lists transposed.
+        let mut by_voxel_start = vec![0usize; counts.len() + 1];
+        for &(v, _) in importance.reads.iter().flatten() {
+            by_voxel_start[v as usize + 1] += 1;
+        }
+        for v in 0..counts.len() {
+            by_voxel_start[v + 1] += by_voxel_start[v];
+        }
+        let mut fill = by_voxel_start.clone();
+        let mut by_voxel = vec![(0u32, 0u64); by_voxel_start[counts.len()]];
+        for (p, list) in importance.reads.iter().enumerate() {
+            for &(v, w) in list {
+                by_voxel[fill[v as usize]] = (p as u32, w);
+                fill[v as usize] += 1;
+            }
+        }
+        // Stratified targets along each voxel's total weight: path j of voxel v starts at the
+        // sample where the running weight passes (j + u_j) / n_v of W_v; each target is found
+        // here to its pixel and the weight left within it.
+        let mut targets: Vec<(u32, u32, u64, u32)> = (0..counts.len())
+            .into_par_iter()
+            .flat_map_iter(|v| {
+                let (n, w) = (counts[v] as u64, importance.weight[v]);
+                let readers = &by_voxel[by_voxel_start[v]..by_voxel_start[v + 1]];
+                let mut rng = Rng::with_domain(params.seed, v as u64, ORIGINS_DOMAIN);
+                let (mut r, mut before) = (0usize, 0u64);
+                (0..if w == 0 { 0 } else { n })
+                    .map(move |j| {
+                        let u = (((j as f64 + rng.next_f64()) / n as f64) * w as f64).min((w - 1) as f64) as u64;
+                        while before + readers[r].1 <= u {
+                            before += readers[r].1;
+                            r += 1;
                         }
-                        k += 1.0;
-                        let x = origin + dir * t;
-                        let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
-                        if !(sigma_t > 0.0) {
-                            continue;
-                        }
-                        let step_transmittance = (-sigma_t * step).exp();
-                        spread(&index, plan.transform.to_index(x), per_ray * tr * (1.0 - step_transmittance), derivs);
-                        tr *= step_transmittance;
-                        if tr < min_transmittance {
-                            break 'ray;
-                        }
+                        (readers[r].0, v as u32, u - before, j as u32)
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        targets.par_sort_unstable();
+        // Each pixel with targets marched again, its samples in the order W summed them.
+        let index = plan.voxel_index();
+        let rays = ImportanceRays::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
+        let found: Vec<(usize, DVec3)> = targets
+            .par_chunk_by(|a, b| a.0 == b.0)
+            .flat_map_iter(|group| {
+                let mut out = Vec::with_capacity(group.len());
+                // Per voxel with targets here (sorted by voxel): the weight run so far and its
+                // next target; the group is sorted by voxel, then by the weight left.
+                let mut running: Vec<(u32, u64, usize)> = Vec::new();
+                for (i, t) in group.iter().enumerate() {
+                    if running.last().is_none_or(|r| r.0 != t.1) {
+                        running.push((t.1, 0, i));
                     }
                 }
+                let mut derivs = Vec::new();
+                rays.march_pixel(group[0].0 as usize, |x, w| {
+                    derivs.clear();
+                    spread(&index, plan.transform.to_index(x), w, &mut derivs);
+                    for &(v, _, c) in &derivs {
+                        let Ok(k) = running.binary_search_by_key(&v, |r| r.0) else { continue };
+                        let (_, sum, next) = &mut running[k];
+                        *sum += c;
+                        while *next < group.len() && group[*next].1 == v && group[*next].2 < *sum {
+                            out.push((first[v as usize] + group[*next].3 as usize, x));
+                            *next += 1;
+                        }
+                    }
+                });
+                out
+            })
+            .collect();
+        for (i, x) in found {
+            origins[i] = x;
+        }
+        // Voxels no sample reads (and, within rounding, any target not met) start at the centre.
+        for (v, &p) in positions.iter().enumerate() {
+            for o in &mut origins[first[v]..first[v] + counts[v] as usize] {
+                if o.is_nan() {
+                    *o = p;
+                }
             }
-            // One pixel's derivative per voxel is the sum over its samples; G adds
-            // their squares.
-            derivs.sort_unstable_by_key(|d| d.0);
-            for run in derivs.chunk_by(|a, b| a.0 == b.0) {
-                let a: f64 = run.iter().map(|d| d.1).sum();
-                fixed[run[0].0 as usize].fetch_add((a * a * G_FIXED_ONE).round() as u64, Ordering::Relaxed);
-            }
-        });
-        let g = fixed.into_iter().map(|f| f.into_inner() as f64 / G_FIXED_ONE).collect();
-        CameraImportance { g }
+        }
+        PathPlan { counts, first, origins }
     }
 
-    /// The paths per voxel of `plan` for a `--paths per_voxel` bake: the one rule both
-    /// backends trace by.
-    pub fn path_counts(plan: &CachePlan, density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, per_voxel: u32) -> Vec<u32> {
-        CameraImportance::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance).paths(per_voxel)
+    /// Whether each voxel or one of its 26 neighbours is read by an importance sample: the
+    /// importance rays are strided over large images, so a voxel between two of them may
+    /// still be read by the pixels in between.
+    fn seen_or_beside(&self, plan: &CachePlan) -> Vec<bool> {
+        let index = plan.voxel_index();
+        let positions = plan.voxel_positions();
+        (0..self.g.len())
+            .into_par_iter()
+            .map(|v| {
+                if self.g[v] > 0.0 {
+                    return true;
+                }
+                let c = plan.transform.to_index(positions[v]).round().as_ivec3();
+                (0..27).any(|n| {
+                    let o = IVec3::new(n % 3 - 1, n / 3 % 3 - 1, n / 9 - 1);
+                    index.get(c + o).is_some_and(|u| self.g[u] > 0.0)
+                })
+            })
+            .collect()
     }
 
-    /// Paths per voxel, `per_voxel` times the voxels in all: one each (so every voxel holds
-    /// an unbiased estimate, for other views too), the rest in proportion to sqrt(G_v),
-    /// rounded along the running sum so the total is exact. Where the camera sees nothing,
-    /// `per_voxel` each.
-    pub fn paths(&self, per_voxel: u32) -> Vec<u32> {
+    /// Paths per voxel, `per_voxel` times the voxels in all: one each for the voxels `seen`
+    /// marks (so every voxel the image may read holds an estimate), none for the others, and
+    /// the rest in proportion to sqrt(G_v), rounded along the running sum so the total is
+    /// exact. Where the camera sees nothing, `per_voxel` each.
+    pub fn paths(&self, per_voxel: u32, seen: &[bool]) -> Vec<u32> {
         let total: f64 = self.g.iter().map(|g| g.sqrt()).sum();
         if !(total > 0.0 && total.is_finite()) {
             return vec![per_voxel; self.g.len()];
         }
-        let rest = (per_voxel.max(1) as u64 - 1) as f64 * self.g.len() as f64;
+        let kept = seen.iter().filter(|&&s| s).count() as f64;
+        let rest = (per_voxel.max(1) as f64 * self.g.len() as f64 - kept).max(0.0);
         let (mut running, mut given) = (0.0f64, 0u64);
         self.g
             .iter()
-            .map(|g| {
+            .zip(seen)
+            .map(|(g, &seen)| {
                 running += g.sqrt();
                 let due = (rest * (running / total)).round() as u64;
                 let n = due.saturating_sub(given);
                 given += n;
-                (1 + n).min(u32::MAX as u64) as u32
+                (seen as u64 + n).min(u32::MAX as u64) as u32
             })
             .collect()
     }
 }
 
+fn to_fixed(x: f64) -> u64 {
+    (x * G_FIXED_ONE).round() as u64
+}
+
 /// Adds `weight` times each trilinear corner weight at cache index `c` (as
 /// `Volume::sample_index` interpolates) to `out`, for the corners `index` plans.
-fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64)>) {
+fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64, u64)>) {
     let Some((b, f)) = lattice_cell(c) else { return };
     for corner in 0..8 {
         let o = IVec3::new((corner >> 2) & 1, (corner >> 1) & 1, corner & 1);
@@ -145,7 +358,7 @@ fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64
         let w = pick(o.x, f.x) * pick(o.y, f.y) * pick(o.z, f.z);
         if w > 0.0 {
             if let Some(i) = index.get(b + o) {
-                out.push((i as u32, weight * w));
+                out.push((i as u32, weight * w, to_fixed(weight * w)));
             }
         }
     }
@@ -159,11 +372,12 @@ mod tests {
     fn paths_add_up_exactly_and_follow_the_square_root_of_importance() {
         // Importance 0 (unseen), 1, 4, 16, 100 times over: the rest goes as 0:1:2:4.
         let g: Vec<f64> = [0.0, 1.0, 4.0, 16.0].iter().copied().cycle().take(400).collect();
-        let paths = CameraImportance { g: g.clone() }.paths(8);
+        let seen = vec![true; g.len()];
+        let paths = CameraImportance { g: g.clone(), weight: vec![0; g.len()] }.paths(8, &seen);
         assert_eq!(paths.iter().map(|&n| n as u64).sum::<u64>(), 8 * 400, "N per voxel on average, exactly");
         assert!(paths.iter().all(|&n| n >= 1), "every voxel keeps an estimate");
         let mean = |k: usize| paths.iter().skip(k).step_by(4).map(|&n| n as f64).sum::<f64>() / 100.0;
-        assert_eq!(mean(0), 1.0, "unseen voxels get their one path only");
+        assert_eq!(mean(0), 1.0, "voxels beside seen ones get their one path only");
         // The 7 x 400 paths beyond the first go 1:2:4 over sqrt(G) = 1, 2, 4.
         let unit = 7.0 * 400.0 / (100.0 * 7.0);
         for (k, share) in [(1, 1.0), (2, 2.0), (3, 4.0)] {
@@ -173,8 +387,19 @@ mod tests {
 
     #[test]
     fn a_camera_that_sees_nothing_gets_n_paths_everywhere() {
-        assert_eq!(CameraImportance { g: vec![0.0; 5] }.paths(3), vec![3; 5]);
-        assert_eq!(CameraImportance { g: vec![] }.paths(3), Vec::<u32>::new());
-        assert_eq!(CameraImportance { g: vec![2.0, 0.0] }.paths(1), vec![1, 1]);
+        let of = |g: Vec<f64>, seen: Vec<bool>, n: u32| CameraImportance { weight: vec![0; g.len()], g }.paths(n, &seen);
+        assert_eq!(of(vec![0.0; 5], vec![false; 5], 3), vec![3; 5]);
+        assert_eq!(of(vec![], vec![], 3), Vec::<u32>::new());
+        assert_eq!(of(vec![2.0, 0.0], vec![true, true], 1), vec![1, 1]);
+    }
+
+    #[test]
+    fn unseen_voxels_get_no_paths_and_their_share_goes_to_the_seen() {
+        let g = vec![1.0, 0.0, 4.0, 0.0];
+        let paths = CameraImportance { weight: vec![0; 4], g }.paths(4, &[true, false, true, true]);
+        assert_eq!(paths.iter().sum::<u32>(), 16, "the budget is kept");
+        assert_eq!(paths[1], 0, "unseen: no path");
+        assert_eq!(paths[3], 1, "beside a seen voxel: one path");
+        assert_eq!((paths[0] - 1) * 2, paths[2] - 1, "the rest by sqrt(G)");
     }
 }

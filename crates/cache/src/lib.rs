@@ -50,7 +50,7 @@ mod plan;
 pub use bins::PhotonBins;
 pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
-pub use importance::{CameraImportance, IMPORTANCE_RAYS};
+pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 
@@ -168,8 +168,14 @@ pub struct BakeStats {
     pub photons_gathered: u64,
     /// Paths traced for the path-traced multiple scattering.
     pub paths: u64,
+    /// Of the baked voxels, given no paths because no camera ray reads them or a neighbour.
+    pub culled_unseen: u64,
+    /// Nodes of the lights' tabled transmittance.
+    pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
     pub nonfinite: u64,
+    /// Wall-clock milliseconds of the bake's parts, in order, for `-v`.
+    pub stages: Vec<(&'static str, u64)>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -181,6 +187,19 @@ pub enum CacheError {
 }
 
 impl BakeStats {
+    /// Runs `f` and records its wall-clock time as stage `name`.
+    pub fn time<R>(&mut self, name: &'static str, f: impl FnOnce() -> R) -> R {
+        let start = std::time::Instant::now();
+        let r = f();
+        self.stages.push((name, start.elapsed().as_millis() as u64));
+        r
+    }
+
+    /// The stages as `name 0.123 s, ...`.
+    pub fn describe_stages(&self) -> String {
+        self.stages.iter().map(|(n, ms)| format!("{n} {:.3} s", *ms as f64 / 1000.0)).collect::<Vec<_>>().join(", ")
+    }
+
     /// Counts over two lattices (Li_multiple on its own): the voxel counts add up.
     pub fn add(&mut self, other: &BakeStats) {
         self.candidates += other.candidates;

@@ -179,29 +179,60 @@ impl CachePlan {
 
     /// Looks planned voxels up by lattice coordinate.
     pub(crate) fn voxel_index(&self) -> VoxelIndex<'_> {
-        VoxelIndex { plan: self, first: self.first_voxels() }
+        let first = self.first_voxels();
+        let lo = self.bricks.iter().fold(IVec3::MAX, |a, b| a.min(b.0));
+        let hi = self.bricks.iter().fold(IVec3::MIN, |a, b| a.max(b.0));
+        let (origin, dims) = if self.bricks.is_empty() { (IVec3::ZERO, IVec3::ZERO) } else { (lo, (hi - lo) / BRICK_DIM + 1) };
+        let mut table = vec![u32::MAX; (dims.x as usize) * (dims.y as usize) * (dims.z as usize)];
+        let mut below = Vec::with_capacity(self.bricks.len());
+        for (b, (o, mask)) in self.bricks.iter().enumerate() {
+            let c = (*o - origin) / BRICK_DIM;
+            table[((c.x * dims.y + c.y) * dims.z + c.z) as usize] = b as u32;
+            let mut words = [0u32; 8];
+            for w in 1..8 {
+                words[w] = words[w - 1] + mask[w - 1].count_ones();
+            }
+            below.push(words);
+        }
+        VoxelIndex { plan: self, first, origin, dims, table, below }
     }
 }
 
-/// Cache lattice coordinate -> position in plan order ([`CachePlan::voxel_positions`]).
+/// Cache lattice coordinate -> position in plan order ([`CachePlan::voxel_positions`]),
+/// through a dense table of the plan's bricks over their bounding box (a plan holds a few
+/// thousand bricks, and the importance rays look up eight corners a sample).
 pub(crate) struct VoxelIndex<'a> {
     plan: &'a CachePlan,
     first: Vec<usize>,
+    origin: IVec3,
+    /// Bricks per axis of the table.
+    dims: IVec3,
+    /// Brick number in `plan.bricks`, or u32::MAX.
+    table: Vec<u32>,
+    /// Per brick, the planned voxels in the mask words before each word.
+    below: Vec<[u32; 8]>,
 }
 
 impl VoxelIndex<'_> {
     /// The planned voxel at `ijk`, if it is planned.
+    #[inline]
     pub(crate) fn get(&self, ijk: IVec3) -> Option<usize> {
-        let origin = brick_origin(ijk);
-        let b = self.plan.brick_index(origin)?;
-        let mask = &self.plan.bricks[b].1;
-        let offset = brick_offset(ijk - origin);
+        let c = (brick_origin(ijk) - self.origin) / BRICK_DIM;
+        if c.cmplt(IVec3::ZERO).any() || c.cmpge(self.dims).any() {
+            return None;
+        }
+        let b = self.table[((c.x * self.dims.y + c.y) * self.dims.z + c.z) as usize];
+        if b == u32::MAX {
+            return None;
+        }
+        let mask = &self.plan.bricks[b as usize].1;
+        let offset = brick_offset(ijk - brick_origin(ijk));
         if !mask_has(mask, offset) {
             return None;
         }
         let (word, bit) = (offset >> 6, offset & 63);
-        let below = mask[..word].iter().map(|w| w.count_ones() as usize).sum::<usize>() + (mask[word] & ((1u64 << bit) - 1)).count_ones() as usize;
-        Some(self.first[b] + below)
+        let below = self.below[b as usize][word] as usize + (mask[word] & ((1u64 << bit) - 1)).count_ones() as usize;
+        Some(self.first[b as usize] + below)
     }
 }
 

@@ -1,6 +1,8 @@
 //! The sparse volume: 8^3 bricks aligned to OpenVDB leaves, found through a two-level table
-//! shaped like OpenVDB's upper tree (a hash map of 128^3-voxel nodes, each a dense table of
-//! 16^3 brick slots), so a lookup costs one hash probe and memory follows the active bricks.
+//! shaped like OpenVDB's upper tree (128^3-voxel nodes, each a dense table of 16^3 brick
+//! slots, the nodes found through a dense index over their bounding box, or a hash map where
+//! that box is huge), so a lookup costs two indexed loads and memory follows the active
+//! bricks.
 
 use glam::{DVec3, IVec3};
 use rayon::prelude::*;
@@ -84,7 +86,76 @@ pub struct Volume<T: Voxel> {
     origins: Vec<IVec3>,
     values: Vec<T>,
     masks: Vec<BrickMask>,
-    nodes: FxHashMap<IVec3, Box<[u32; NODE_SLOTS]>>,
+    nodes: NodeTable,
+}
+
+/// Most entries of a [`NodeTable`]'s dense index: 64k nodes of 128^3 voxels, an 8192^3-voxel
+/// box at 1 MiB of index, far beyond any one scene's extent in voxels.
+const MAX_DENSE_NODES: i64 = 1 << 16;
+
+/// The upper tree: 128^3-voxel nodes by key, found through a dense index over the nodes'
+/// bounding box while that box is small (every scene we have met), else through the hash
+/// map. The hash probe had been a fifth of the paths' time in vdbcache: every trilinear
+/// sample makes one.
+#[derive(Clone, Debug, Default)]
+struct NodeTable {
+    tables: Vec<Box<[u32; NODE_SLOTS]>>,
+    keys: FxHashMap<IVec3, u32>,
+    /// Index into `tables` by node key within `origin + [0, dims)`, `NO_BRICK` where absent;
+    /// empty (dims zero) once the box outgrew [`MAX_DENSE_NODES`].
+    dense: Vec<u32>,
+    origin: IVec3,
+    dims: IVec3,
+}
+
+impl NodeTable {
+    #[inline]
+    fn get(&self, key: IVec3) -> Option<&[u32; NODE_SLOTS]> {
+        let c = key - self.origin;
+        let index = if self.dims.x > 0 {
+            if c.cmplt(IVec3::ZERO).any() || c.cmpge(self.dims).any() {
+                return None;
+            }
+            self.dense[((c.x * self.dims.y + c.y) * self.dims.z + c.z) as usize]
+        } else {
+            *self.keys.get(&key)?
+        };
+        (index != NO_BRICK).then(|| &*self.tables[index as usize])
+    }
+
+    fn get_or_insert(&mut self, key: IVec3) -> &mut [u32; NODE_SLOTS] {
+        let index = match self.keys.get(&key) {
+            Some(&i) => i,
+            None => {
+                let i = self.tables.len() as u32;
+                self.tables.push(Box::new([NO_BRICK; NODE_SLOTS]));
+                self.keys.insert(key, i);
+                self.reindex();
+                i
+            }
+        };
+        &mut self.tables[index as usize]
+    }
+
+    /// Rebuilds the dense index over the nodes' bounding box, or drops it if too large.
+    fn reindex(&mut self) {
+        let lo = self.keys.keys().fold(IVec3::MAX, |a, &k| a.min(k));
+        let hi = self.keys.keys().fold(IVec3::MIN, |a, &k| a.max(k));
+        let dims = hi - lo + 1;
+        let entries = dims.x as i64 * dims.y as i64 * dims.z as i64;
+        if entries > MAX_DENSE_NODES {
+            self.dense = Vec::new();
+            self.dims = IVec3::ZERO;
+            return;
+        }
+        self.origin = lo;
+        self.dims = dims;
+        self.dense = vec![NO_BRICK; entries as usize];
+        for (&k, &i) in &self.keys {
+            let c = k - lo;
+            self.dense[((c.x * dims.y + c.y) * dims.z + c.z) as usize] = i;
+        }
+    }
 }
 
 fn assert_brick_origin(origin: IVec3) {
@@ -110,7 +181,7 @@ impl<T: Voxel> Volume<T> {
             origins: Vec::new(),
             values: Vec::new(),
             masks: Vec::new(),
-            nodes: FxHashMap::default(),
+            nodes: NodeTable::default(),
         }
     }
 
@@ -141,7 +212,7 @@ impl<T: Voxel> Volume<T> {
     /// Index of the brick holding `ijk`, if there is one.
     #[inline]
     pub fn brick_index(&self, ijk: IVec3) -> Option<usize> {
-        let slot = self.nodes.get(&node_key(ijk))?[node_slot(ijk)];
+        let slot = self.nodes.get(node_key(ijk))?[node_slot(ijk)];
         (slot != NO_BRICK).then_some(slot as usize)
     }
 
@@ -175,8 +246,7 @@ impl<T: Voxel> Volume<T> {
     /// empty mask, but no values (the caller provides them).
     fn index_or_register(&mut self, ijk: IVec3) -> usize {
         let n = self.origins.len();
-        let slot = &mut self.nodes.entry(node_key(ijk)).or_insert_with(|| Box::new([NO_BRICK; NODE_SLOTS]))
-            [node_slot(ijk)];
+        let slot = &mut self.nodes.get_or_insert(node_key(ijk))[node_slot(ijk)];
         if *slot != NO_BRICK {
             return *slot as usize;
         }
