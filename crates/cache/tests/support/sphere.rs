@@ -157,7 +157,9 @@ impl Sphere {
                     .into_par_iter()
                     .map(|b| {
                         let mut rng = Rng::new(seed, i as u64 * 8 + b);
-                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, p, Vec3::X, paths / 8, &mut rng).x as f64
+                        // w_out = +X: the eye lies along +X from p.
+                        let origins = vec![p; (paths / 8) as usize];
+                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), &origins, p + DVec3::X, &mut rng).x as f64
                     })
                     .collect();
                 let mean = batches.iter().sum::<f64>() / 8.0;
