@@ -112,8 +112,10 @@ fn pipes_and_files_give_the_same_image() {
         for grid in ["density", "Li_single", "Li_multiple"] {
             assert!(listing.contains(grid), "vdb_print lists {grid}:\n{listing}");
         }
-        let photons = String::from_utf8_lossy(&Command::new("vdb_print").arg("-l").arg(&p).output().unwrap().stdout).to_string();
+        let photons = String::from_utf8_lossy(&Command::new("vdb_print").args(["-l", "-m"]).arg(&p).output().unwrap().stdout).to_string();
         assert!(photons.contains("photons") && photons.contains("ptdataidx"), "{photons}");
+        // No --distance: the photons were delta-tracked (design.md section 5, issue #18).
+        assert!(photons.contains("distance=delta"), "{photons}");
     } else {
         eprintln!("SKIPPED vdb_print check: vdb_print not installed (apt install libopenvdb-tools)");
     }

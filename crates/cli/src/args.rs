@@ -230,8 +230,8 @@ pub struct QualitySettings {
     pub paths: u32,
     /// vdbphoton `--photons`, for the chain that gathers photons.
     pub photons: u64,
-    /// vdbphoton `--distance` (delta: the same photon distribution as simpson, measured,
-    /// at a fraction of the time).
+    /// vdbphoton `--distance`: delta on every preset, as without one (the same photon
+    /// distribution as simpson, measured, at a fraction of the time).
     pub distance: &'static str,
     /// vdbcache `--gather-neighbours`, where photons are gathered.
     pub gather_neighbours: u32,
