@@ -46,12 +46,24 @@ pub struct VdbOutputArgs {
     /// Output VDB file, or - for stdout (the default when stdout is not a terminal).
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// VDB compression: zip (every OpenVDB build reads it), blosc or none.
-    #[arg(long, default_value = "zip", value_parser = ["zip", "blosc", "none"])]
+    /// VDB compression: blosc (what Blender and Houdini write, and much faster than zip; the
+    /// default where this OpenVDB build has it, else zip), zip (every OpenVDB build reads it)
+    /// or none.
+    #[arg(long, default_value = default_compression(), value_parser = ["zip", "blosc", "none"])]
     pub compression: String,
     /// Store float grids as 16-bit halves.
     #[arg(long)]
     pub half: bool,
+}
+
+/// `--compression`'s default (design.md section 6, issue #18): blosc, unless this OpenVDB
+/// build cannot write it.
+fn default_compression() -> &'static str {
+    if nimbus_vdb::has_blosc() {
+        "blosc"
+    } else {
+        "zip"
+    }
 }
 
 impl VdbOutputArgs {
