@@ -3,7 +3,7 @@
 // Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl
 // + this file. Mirrors crates/photon/src/cpu.rs's trace_path draw for draw: photon i's
 // Rng is (seed, i, PHOTON_DOMAIN); emission (light by power CDF, a sun's marked lattice cell
-// or a point light's sphere), free path by the chosen mode, store after the first interaction, Russian roulette
+// or a point light's marked direction cell), free path by the chosen mode, store after the first interaction, Russian roulette
 // with probability mean(albedo), HG scattering. Positions are f32 relative to the host's
 // origin (the volume's centre); the volume's world_to_index takes such positions.
 //
@@ -38,15 +38,17 @@ struct PhotonLight {
     // origin.
     origin: vec3<f32>,
     kind: u32,
-    // Sun: the lattice plane's normal (the direction photons travel) and cell edge.
+    // Sun: the lattice plane's normal (the direction photons travel) and cell edge; point:
+    // its direction table's z axis.
     normal: vec3<f32>,
     cell: f32,
-    // Sun: the lattice's column and row directions.
+    // Sun: the lattice's column and row directions; point: its table's x and y axes.
     tangent: vec3<f32>,
     // Cumulative choice probability.
     cdf: f32,
     bitangent: vec3<f32>,
-    // Sun: its marked cells, emission_cells[first_cell .. first_cell + cell_count].
+    // Its marked cells, emission_cells[first_cell .. first_cell + cell_count]: a sun's
+    // lattice cells, a point light's direction cells.
     first_cell: u32,
     // Light power / choice probability.
     weight: vec3<f32>,
@@ -64,6 +66,9 @@ struct PhotonRecord {
 }
 
 const PHOTON_DOMAIN: u32 = 0x50484f54u;
+// A point light's direction table (emission.rs).
+const DIRECTION_ROWS: u32 = 256u;
+const DIRECTION_COLUMNS: u32 = 512u;
 const MODE_SIMPSON: u32 = 0u;
 const MODE_EXPONENTIAL: u32 = 1u;
 const END_ESCAPED: u32 = 0u;
@@ -76,7 +81,7 @@ const END_TRUNCATED: u32 = 2u;
 @group(1) @binding(3) var<storage, read_write> records: array<PhotonRecord>;
 @group(1) @binding(4) var<storage, read_write> record_count: atomic<u32>;
 @group(1) @binding(5) var<storage, read_write> path_out: array<vec2<u32>>;
-// Every sun's marked emission cells, (column, row).
+// Every light's marked emission cells, (column, row).
 @group(1) @binding(6) var<storage, read> emission_cells: array<vec2<u32>>;
 
 fn majorant_fetch(index: u32) -> f32 {
@@ -105,6 +110,16 @@ fn emission_point(light: PhotonLight, rng: ptr<function, Rng>) -> vec3<f32> {
     let c = vec2<f32>(emission_cells[light.first_cell + emission_cell_index(rng, light.cell_count)]);
     let u = rng_next_vec2(rng);
     return light.origin + ((c.x + u.x) * light.tangent + (c.y + u.y) * light.bitangent) * light.cell;
+}
+
+// A point light photon's direction, uniform over its marked direction cells
+// (PointEmission::sample_direction).
+fn emission_direction(light: PhotonLight, rng: ptr<function, Rng>) -> vec3<f32> {
+    let c = vec2<f32>(emission_cells[light.first_cell + emission_cell_index(rng, light.cell_count)]);
+    let u = rng_next_vec2(rng);
+    let square = vec2<f32>((c.y + u.x) / f32(DIRECTION_ROWS), (c.x + u.y) / f32(DIRECTION_COLUMNS));
+    let d = sample_uniform_sphere(square);
+    return normalize(d.x * light.tangent + d.y * light.bitangent + d.z * light.normal);
 }
 
 @compute @workgroup_size(64)
@@ -141,7 +156,7 @@ fn trace_path(path: u32) {
         w = light.normal;
     } else {
         x = light.origin;
-        w = normalize(sample_uniform_sphere(rng_next_vec2(&rng)));
+        w = emission_direction(light, &rng);
     }
     var power = light.weight;
 

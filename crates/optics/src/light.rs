@@ -114,13 +114,14 @@ impl Light {
         self.incident(p).to_light
     }
 
-    /// Total power the photon tracer emits (design.md section 5): a sun E x `sun_area`, the
-    /// area its photons leave from (the projection of the medium, nimbus_photon's
-    /// `SunEmission`); a point light 4 pi I, whatever the area.
-    pub fn emitted_power(&self, sun_area: f64) -> Vec3 {
+    /// Total power the photon tracer emits (design.md section 5) over `extent`, what its
+    /// photons leave through (nimbus_photon's `SunEmission` and `PointEmission`): for a sun
+    /// E x the area they leave from, for a point light I x the solid angle they leave into
+    /// (4 pi I for every direction).
+    pub fn emitted_power(&self, extent: f64) -> Vec3 {
         match *self {
-            Light::Sun { irradiance, .. } => irradiance * sun_area as f32,
-            Light::Point { intensity, .. } => intensity * (4.0 * std::f32::consts::PI),
+            Light::Sun { irradiance, .. } => irradiance * extent as f32,
+            Light::Point { intensity, .. } => intensity * extent as f32,
         }
     }
 

@@ -100,11 +100,12 @@ fn incident_irradiance_and_direction() {
 
 #[test]
 fn emitted_power_follows_design_section_5() {
-    // A point light emits 4 pi I whatever the sun area; a sun E times its emitting area.
+    // A point light emits I times the solid angle (4 pi I into every direction); a sun E
+    // times its emitting area.
     let point = Light::point(DVec3::splat(0.5), Vec3::new(1.0, 2.0, 3.0)).unwrap();
     let expected = Vec3::new(1.0, 2.0, 3.0) * 4.0 * std::f32::consts::PI;
-    assert!((point.emitted_power(7.0) - expected).length() < 1e-5);
-    assert_eq!(point.emitted_power(7.0), point.emitted_power(0.0));
+    assert!((point.emitted_power(4.0 * std::f64::consts::PI) - expected).length() < 1e-5);
+    assert_eq!(point.emitted_power(0.5), Vec3::new(0.5, 1.0, 1.5));
     let sun = Light::sun(Vec3::new(1.0, 0.5, -0.7), Vec3::new(2.0, 1.0, 0.5)).unwrap();
     assert_eq!(sun.emitted_power(3.0), Vec3::new(6.0, 3.0, 1.5));
     assert_eq!(sun.emitted_power(0.0), Vec3::ZERO);

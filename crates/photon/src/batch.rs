@@ -6,10 +6,10 @@
 use std::ops::Range;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{sample_uniform_sphere, Light, Rng};
+use nimbus_optics::{Light, Rng};
 use nimbus_volume::{MajorantGrid, Volume};
 
-use crate::emission::SunEmission;
+use crate::emission::{PointEmission, SunEmission};
 use crate::{PhotonError, PhotonMap, PhotonParams, TraceStats};
 
 /// Random-number domain of photon paths (kept apart from other uses of the same seed).
@@ -22,15 +22,16 @@ const FIRST_BATCH: u64 = 1 << 14;
 pub(crate) enum Source {
     /// A sun's emitting lattice over the medium's projection.
     Sun(SunEmission),
-    /// A point light, in a uniform direction.
-    Point(DVec3),
+    /// A point light's directions toward the medium.
+    Point(PointEmission),
 }
 
 /// Where and how photons leave the lights: per light its source, its power and the
 /// probability of choosing it (proportional to its mean power).
 pub(crate) struct Emitter {
     pub sources: Vec<Source>,
-    /// Each light's emitted power: E x emitting area for a sun, 4 pi I for a point light.
+    /// Each light's emitted power: E x emitting area for a sun, I x emitting solid angle for a
+    /// point light.
     pub power: Vec<Vec3>,
     /// Light power / choice probability: the power a photon carries before dividing by the
     /// number emitted.
@@ -52,16 +53,20 @@ impl Emitter {
         let mut sources = Vec::with_capacity(lights.len());
         let mut power = Vec::with_capacity(lights.len());
         for light in lights {
-            let (source, area) = match *light {
+            let (source, extent) = match *light {
                 Light::Sun { dir, .. } => {
                     let emission = SunEmission::new(dir, density).expect("the density holds a positive voxel");
                     let area = emission.area();
                     (Source::Sun(emission), area)
                 }
-                Light::Point { position, .. } => (Source::Point(position), 0.0),
+                Light::Point { position, .. } => {
+                    let emission = PointEmission::new(position, density);
+                    let solid_angle = emission.solid_angle();
+                    (Source::Point(emission), solid_angle)
+                }
             };
             sources.push(source);
-            power.push(light.emitted_power(area));
+            power.push(light.emitted_power(extent));
         }
         let total: f32 = power.iter().map(|p| p.element_sum()).sum();
         if total.is_nan() || total <= 0.0 {
@@ -88,11 +93,7 @@ impl Emitter {
         let i = self.choose(rng.next_f32());
         match &self.sources[i] {
             Source::Sun(emission) => Emission { origin: emission.sample_point(rng), dir: emission.normal, weight: self.weight[i] },
-            Source::Point(position) => Emission {
-                origin: *position,
-                dir: sample_uniform_sphere(rng.next_vec2()).as_dvec3().normalize(),
-                weight: self.weight[i],
-            },
+            Source::Point(emission) => Emission { origin: emission.position, dir: emission.sample_direction(rng), weight: self.weight[i] },
         }
     }
 }
@@ -214,7 +215,7 @@ pub(crate) fn run_batches(
         }
         next = end;
         if stats.interactions == 0 {
-            let (map, stats) = skipped("no density in the lights' paths", stats);
+            let (map, stats) = skipped("no photon of the first batch met the medium (too thin along the lights' paths)", stats);
             return Ok((map, stats));
         }
         // Size the next batch from the yield so far, aiming a little past the target.

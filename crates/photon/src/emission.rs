@@ -1,4 +1,4 @@
-//! Where a sun's photons leave from (design.md section 5: photons are emitted only where they
+//! Where photons leave the lights (design.md section 5: photons are emitted only where they
 //! can meet medium).
 //!
 //! A disc over the volume's bounding box wastes most photons on a thin or scattered medium
@@ -11,17 +11,30 @@
 //! only photons that would have escaped untouched, and the estimate stays unbiased with the
 //! power E x (marked area).
 //!
+//! A point light likewise emits only into the directions in which some box lies: a table of
+//! equal solid-angle cells over `sample_uniform_sphere`'s parameter square (rows in z,
+//! columns in azimuth, in a frame whose equator runs through the medium, where the cells are
+//! nearly square; near the poles they are thin wedges), marking each cell that the cone of
+//! directions toward some box reaches, the power I x (marked solid angle).
+//!
 //! A photon picks a marked cell uniformly by index (from two random words, so every cell's
-//! probability is 1/n to within n/2^64), then a point uniformly within it; the GPU twin is
-//! `emission_point` in `shaders/photon.wgsl`, draw for draw.
+//! probability is 1/n to within n/2^64), then a point uniformly within it; the GPU twins are
+//! `emission_point` and `emission_direction` in `shaders/photon.wgsl`, draw for draw.
 
-use glam::{DVec2, DVec3, IVec3, Vec3};
-use nimbus_optics::Rng;
+use std::f64::consts::PI;
+
+use glam::{DVec2, DVec3, IVec3, Vec2, Vec3};
+use nimbus_optics::{sample_uniform_sphere, Rng};
 use nimbus_volume::{brick_local, Volume};
 
 /// Most lattice cells over the projection's bounding rectangle (2048^2: a 4 MiB mark table,
 /// one-voxel cells for any grid up to about 1200 voxels across); past it the cells double.
 const MAX_LATTICE_CELLS: f64 = (1u64 << 22) as f64;
+
+/// Rows (in z) and columns (in azimuth) of a point light's direction table: cells of equal
+/// solid angle, 4 pi / 2^17 sr, about 0.5 degrees across (mirrored in photon.wgsl).
+pub const DIRECTION_ROWS: u32 = 256;
+pub const DIRECTION_COLUMNS: u32 = 512;
 
 /// The emitting cells of one sun's lattice.
 #[derive(Clone, Debug)]
@@ -196,6 +209,182 @@ impl SunEmission {
             return None;
         }
         let (column, row) = (q.x as u32, q.y as u32);
+        self.cells.binary_search_by_key(&(row, column), |c| (c[1], c[0])).ok()
+    }
+}
+
+/// The directions a point light's photons leave in.
+#[derive(Clone, Debug)]
+pub struct PointEmission {
+    pub position: DVec3,
+    /// The table's x, y and z axes in world space (orthonormal, right-handed).
+    pub frame: [DVec3; 3],
+    /// The marked direction cells as (column, row), row by row: cell (c, r) is the square
+    /// [r, r + 1) / DIRECTION_ROWS x [c, c + 1) / DIRECTION_COLUMNS of
+    /// `sample_uniform_sphere`'s parameter (z = 1 - 2 u.x, azimuth 2 pi u.y) in `frame`.
+    pub cells: Vec<[u32; 2]>,
+}
+
+/// Boxes seen wider than this (radians, from their centre's direction) are split in eight
+/// before their directions are marked: a near box's cone bounds its directions loosely.
+const SPLIT_ANGLE: f64 = 0.5;
+/// How many times a box is split at most; a box still seen wider than a half-space (the
+/// light just beside it) marks every direction.
+const MAX_SPLITS: u32 = 3;
+/// Angular slack of the marking tests, radians: far below a cell, far above rounding.
+const ANGLE_SLACK: f64 = 1e-6;
+
+fn angle_between(a: DVec3, b: DVec3) -> f64 {
+    a.dot(b).clamp(-1.0, 1.0).acos()
+}
+
+/// Direction table geometry: per row its centre's z and sin(polar angle) and the largest
+/// angle from its cells' centres to their corners; per column its centre's azimuth.
+struct DirectionTable {
+    row_z: Vec<f64>,
+    row_sin: Vec<f64>,
+    row_radius: Vec<f64>,
+    column_cos: Vec<f64>,
+    column_sin: Vec<f64>,
+}
+
+impl DirectionTable {
+    fn new() -> DirectionTable {
+        let (rows, columns) = (DIRECTION_ROWS as usize, DIRECTION_COLUMNS as usize);
+        let z_of = |u: f64| 1.0 - 2.0 * u;
+        let at = |z: f64, phi: f64| {
+            let s = (1.0 - z * z).max(0.0).sqrt();
+            DVec3::new(s * phi.cos(), s * phi.sin(), z)
+        };
+        let half_phi = PI / columns as f64;
+        let (mut row_z, mut row_sin, mut row_radius) = (Vec::new(), Vec::new(), Vec::new());
+        for r in 0..rows {
+            let (z0, z1) = (z_of(r as f64 / rows as f64), z_of((r + 1) as f64 / rows as f64));
+            let z = 0.5 * (z0 + z1);
+            let centre = at(z, 0.0);
+            // The farthest point of a cell from its centre is a corner: along a parallel the
+            // angle grows with the azimuth difference, and along a meridian cos(angle) is a
+            // sinusoid of the polar angle, so its minimum over a segment is at an end.
+            let radius = [at(z0, half_phi), at(z1, half_phi)].iter().map(|&c| angle_between(centre, c)).fold(0.0, f64::max);
+            row_z.push(z);
+            row_sin.push((1.0 - z * z).max(0.0).sqrt());
+            row_radius.push(radius);
+        }
+        let phi = |c: usize| 2.0 * PI * (c as f64 + 0.5) / columns as f64;
+        DirectionTable {
+            row_z,
+            row_sin,
+            row_radius,
+            column_cos: (0..columns).map(|c| phi(c).cos()).collect(),
+            column_sin: (0..columns).map(|c| phi(c).sin()).collect(),
+        }
+    }
+
+    /// Marks every cell that the cone of directions within `alpha` of unit `axis` reaches
+    /// (cell and cone overlap only if their centres are within alpha + the cell's radius).
+    fn mark_cone(&self, marked: &mut [bool], axis: DVec3, alpha: f64) {
+        let (rows, columns) = (DIRECTION_ROWS as usize, DIRECTION_COLUMNS as usize);
+        let reach = alpha + self.row_radius.iter().copied().fold(0.0, f64::max) + ANGLE_SLACK;
+        let polar = axis.z.clamp(-1.0, 1.0).acos();
+        // Rows: the cone's polar range; u.x = (1 - z) / 2 grows as z falls.
+        let row_of = |z: f64| (((1.0 - z) * 0.5 * rows as f64).floor().max(0.0) as usize).min(rows - 1);
+        let (first_row, last_row) = (row_of((polar - reach).max(0.0).cos()), row_of((polar + reach).min(PI).cos()));
+        // Columns: the cone's azimuth range, unless it holds a pole.
+        let columns_range: Vec<usize> = if polar - reach <= 0.0 || polar + reach >= PI || reach >= 0.5 * PI {
+            (0..columns).collect()
+        } else {
+            let width = (reach.sin() / polar.sin()).min(1.0).asin() + ANGLE_SLACK;
+            let centre = axis.y.atan2(axis.x);
+            let to_column = |phi: f64| (phi / (2.0 * PI) * columns as f64).floor() as i64;
+            (to_column(centre - width)..=to_column(centre + width)).map(|c| c.rem_euclid(columns as i64) as usize).collect()
+        };
+        for row in first_row..=last_row {
+            let limit = (alpha + self.row_radius[row] + ANGLE_SLACK).min(PI).cos();
+            for &column in &columns_range {
+                let cell = &mut marked[row * columns + column];
+                if *cell {
+                    continue;
+                }
+                let centre = DVec3::new(self.row_sin[row] * self.column_cos[column], self.row_sin[row] * self.column_sin[column], self.row_z[row]);
+                if centre.dot(axis) >= limit {
+                    *cell = true;
+                }
+            }
+        }
+    }
+}
+
+impl PointEmission {
+    /// The directions from `position` in which some brick's medium of `density` lies.
+    pub fn new(position: DVec3, density: &Volume<f32>) -> PointEmission {
+        let (rows, columns) = (DIRECTION_ROWS as usize, DIRECTION_COLUMNS as usize);
+        let transform = density.transform();
+        let light = transform.to_index(position);
+        let table = DirectionTable::new();
+        let mut marked = vec![false; rows * columns];
+        let mut boxes: Vec<(DVec3, DVec3, u32)> = medium_boxes(density).into_iter().map(|(lo, hi)| (lo, hi, 0)).collect();
+        // The table's poles perpendicular to the direction of the medium's middle.
+        let (lo, hi) = boxes.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), &(l, h, _)| (a.min(l), b.max(h)));
+        let toward = (transform.to_world(0.5 * (lo + hi)) - position).try_normalize().unwrap_or(DVec3::Z);
+        let (z_axis, x_axis) = toward.any_orthonormal_pair();
+        let frame = [x_axis, z_axis.cross(x_axis), z_axis];
+        let to_table = |d: DVec3| DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
+        while let Some((lo, hi, splits)) = boxes.pop() {
+            if light.cmpge(lo).all() && light.cmple(hi).all() {
+                // Inside (or on) a box: every direction starts in medium.
+                marked.fill(true);
+                break;
+            }
+            let axis = (transform.to_world(0.5 * (lo + hi)) - position).normalize();
+            let alpha = box_corners(lo, hi).iter().map(|&c| angle_between(axis, (transform.to_world(c) - position).normalize())).fold(0.0, f64::max);
+            if alpha > SPLIT_ANGLE && splits < MAX_SPLITS {
+                let mid = 0.5 * (lo + hi);
+                for n in 0..8 {
+                    let pick = |bit: usize, a: f64, b: f64| if n & bit != 0 { b } else { a };
+                    let sub_lo = DVec3::new(pick(1, lo.x, mid.x), pick(2, lo.y, mid.y), pick(4, lo.z, mid.z));
+                    let sub_hi = DVec3::new(pick(1, mid.x, hi.x), pick(2, mid.y, hi.y), pick(4, mid.z, hi.z));
+                    boxes.push((sub_lo, sub_hi, splits + 1));
+                }
+                continue;
+            }
+            // The box's directions lie within alpha of the axis (the cone of half-angle alpha
+            // is convex for alpha < pi/2 and holds the box's corners, so the whole box);
+            // wider, they may not.
+            if alpha >= 0.5 * PI - ANGLE_SLACK {
+                marked.fill(true);
+                break;
+            }
+            table.mark_cone(&mut marked, to_table(axis), alpha);
+        }
+        let cells = (0..rows)
+            .flat_map(|row| (0..columns).map(move |column| (row, column)))
+            .filter(|&(row, column)| marked[row * columns + column])
+            .map(|(row, column)| [column as u32, row as u32])
+            .collect();
+        PointEmission { position, frame, cells }
+    }
+
+    /// The marked solid angle, steradians: the light's power is I times it.
+    pub fn solid_angle(&self) -> f64 {
+        4.0 * PI * self.cells.len() as f64 / (DIRECTION_ROWS as f64 * DIRECTION_COLUMNS as f64)
+    }
+
+    /// A photon's direction, uniform over the marked cells (pdf 1 / solid angle).
+    pub fn sample_direction(&self, rng: &mut Rng) -> DVec3 {
+        let [column, row] = self.cells[uniform_index(rng, self.cells.len() as u32) as usize];
+        let u = rng.next_vec2();
+        let square = Vec2::new((row as f32 + u.x) / DIRECTION_ROWS as f32, (column as f32 + u.y) / DIRECTION_COLUMNS as f32);
+        let d = sample_uniform_sphere(square).as_dvec3();
+        (d.x * self.frame[0] + d.y * self.frame[1] + d.z * self.frame[2]).normalize()
+    }
+
+    /// Which marked cell (its index in `cells`) direction `dir` lies in, if any.
+    pub fn cell_of(&self, dir: DVec3) -> Option<usize> {
+        let dir = DVec3::new(dir.dot(self.frame[0]), dir.dot(self.frame[1]), dir.dot(self.frame[2])).normalize();
+        let u = ((1.0 - dir.z) * 0.5).clamp(0.0, 1.0);
+        let v = (dir.y.atan2(dir.x) / (2.0 * PI)).rem_euclid(1.0);
+        let row = ((u * DIRECTION_ROWS as f64) as u32).min(DIRECTION_ROWS - 1);
+        let column = ((v * DIRECTION_COLUMNS as f64) as u32).min(DIRECTION_COLUMNS - 1);
         self.cells.binary_search_by_key(&(row, column), |c| (c[1], c[0])).ok()
     }
 }

@@ -119,7 +119,8 @@ impl<'a> GpuTracer<'a> {
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
         let e = &setup.emitter;
-        // Every sun's marked cells in one table, each light knowing its slice.
+        // Every light's marked cells (a sun's lattice cells, a point light's direction
+        // cells) in one table, each light knowing its slice.
         let mut cells: Vec<[u32; 2]> = Vec::new();
         let lights: Vec<GpuPhotonLight> = (0..e.sources.len())
             .map(|i| {
@@ -136,9 +137,15 @@ impl<'a> GpuTracer<'a> {
                         l.cell_count = sun.cells.len() as u32;
                         cells.extend_from_slice(&sun.cells);
                     }
-                    Source::Point(position) => {
+                    Source::Point(point) => {
                         l.kind = nimbus_optics::LIGHT_POINT;
-                        l.origin = rel(*position, origin);
+                        l.origin = rel(point.position, origin);
+                        l.tangent = point.frame[0].as_vec3().to_array();
+                        l.bitangent = point.frame[1].as_vec3().to_array();
+                        l.normal = point.frame[2].as_vec3().to_array();
+                        l.first_cell = cells.len() as u32;
+                        l.cell_count = point.cells.len() as u32;
+                        cells.extend_from_slice(&point.cells);
                     }
                 }
                 l
@@ -368,7 +375,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
 
     #[test]
-    fn the_shader_uses_the_cpu_random_domain() {
+    fn the_shader_uses_the_cpu_random_domain_and_direction_table() {
         assert!(PHOTON_WGSL.contains(&format!("PHOTON_DOMAIN: u32 = 0x{:08x}u", crate::batch::PHOTON_DOMAIN)));
+        assert!(PHOTON_WGSL.contains(&format!("DIRECTION_ROWS: u32 = {}u", crate::emission::DIRECTION_ROWS)));
+        assert!(PHOTON_WGSL.contains(&format!("DIRECTION_COLUMNS: u32 = {}u", crate::emission::DIRECTION_COLUMNS)));
     }
 }

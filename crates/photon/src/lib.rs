@@ -1,8 +1,8 @@
 //! vdbphoton's engine: photons traced from the lights through the nonhomogeneous medium.
 //!
-//! A photon leaves a light (for a sun, a point of the plane upstream of the medium over
-//! which some non-empty part of it lies, see [`SunEmission`]; a point light in a uniform
-//! direction), flies to its next interaction by one of three [`DistanceSampling`]
+//! A photon leaves a light where it can meet medium (for a sun, a point of the plane upstream
+//! of the medium over which some non-empty part of it lies, see [`SunEmission`]; for a point
+//! light, a direction in which some lies, see [`PointEmission`]), flies to its next interaction by one of three [`DistanceSampling`]
 //! modes (design.md section 5), and at each interaction after the first scattering event is
 //! stored in the [`PhotonMap`] with the power it scatters and the direction it arrived from.
 //! It then survives by Russian roulette with probability mean(albedo) and scatters by
@@ -43,7 +43,7 @@ mod emission;
 mod gpu;
 
 pub use cpu::trace_cpu;
-pub use emission::SunEmission;
+pub use emission::{PointEmission, SunEmission, DIRECTION_COLUMNS, DIRECTION_ROWS};
 pub use gpu::{trace_gpu, PHOTON_WGSL};
 
 use glam::{DVec3, Vec3};
@@ -51,8 +51,9 @@ use nimbus_optics::{Light, Medium};
 use nimbus_volume::Volume;
 
 /// The total power a trace of `density` with `params` emits (design.md section 5: a sun E
-/// times the area of its [`SunEmission`], a point light 4 pi I); None where the trace would
-/// be skipped. Each stored photon's power is a share of it divided by the photons emitted.
+/// times the area of its [`SunEmission`], a point light I times the solid angle of its
+/// [`PointEmission`]); None where the trace would be skipped. Each stored photon's power is a
+/// share of it divided by the photons emitted.
 pub fn emitted_power(density: &Volume<f32>, params: &PhotonParams) -> Result<Option<Vec3>, PhotonError> {
     Ok(match batch::prepare(density, params)? {
         batch::Prepared::Trace(setup) => Some(setup.emitter.power.iter().copied().sum()),

@@ -4,8 +4,8 @@
 //! power per photon is wrong).
 
 use glam::{DAffine3, DMat3, DVec2, DVec3, IVec3, Vec3};
-use nimbus_optics::{Light, Rng};
-use nimbus_photon::{emitted_power, PhotonParams, SunEmission};
+use nimbus_optics::{sample_uniform_sphere, Light, Rng};
+use nimbus_photon::{emitted_power, PhotonParams, PointEmission, SunEmission, DIRECTION_COLUMNS, DIRECTION_ROWS};
 use nimbus_volume::{Transform, Volume};
 
 /// Sparse medium on a sheared, anisotropic lattice: a few lone voxels, some on brick faces
@@ -162,4 +162,101 @@ fn a_sun_emits_irradiance_times_the_marked_area() {
     let e = SunEmission::new(Vec3::new(-0.7, 0.5, -0.5), &v).unwrap();
     let power = emitted_power(&v, &params).unwrap().unwrap();
     assert!((power - Vec3::new(2.0, 1.0, 0.5) * e.area() as f32).abs().max_element() < 1e-5 * power.max_element());
+}
+
+/// Point lights around and inside the scattered medium: far, beside the lump (boxes split
+/// before their cones are marked), among the specks, and on top of a voxel.
+fn point_lights(v: &Volume<f32>) -> Vec<DVec3> {
+    let t = v.transform();
+    vec![
+        DVec3::new(-40.0, 25.0, 60.0),
+        t.to_world(DVec3::new(58.5, 11.0, 0.0)),
+        t.to_world(DVec3::new(20.0, 20.0, 20.0)),
+        t.to_world(DVec3::new(3.0, 3.0, 3.0)),
+    ]
+}
+
+#[test]
+fn no_direction_outside_the_marked_cells_meets_medium() {
+    let v = scattered();
+    let support = supports(&v);
+    let cells = (DIRECTION_ROWS * DIRECTION_COLUMNS) as usize;
+    for (n, position) in point_lights(&v).into_iter().enumerate() {
+        let e = PointEmission::new(position, &v);
+        let o = v.transform().to_index(position);
+        if n == 3 {
+            assert_eq!(e.cells.len(), cells, "a light on a voxel sees medium in every direction");
+            continue;
+        }
+        let mut rng = Rng::new(6, n as u64);
+        let (mut outside, mut inside_hits) = (0, 0);
+        let (lo, hi) = v.world_bounds().unwrap();
+        for k in 0..40_000 {
+            // Uniform over the sphere, toward random points of the medium's bounding box, and
+            // toward random points of the voxels' supports (those always meet medium).
+            let mut random_point = |lo: DVec3, hi: DVec3| lo + (hi - lo) * DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let dir = match k % 3 {
+                0 => sample_uniform_sphere(rng.next_vec2()).as_dvec3().normalize(),
+                1 => (random_point(lo, hi) - position).normalize(),
+                _ => {
+                    let (a, b) = support[k / 3 % support.len()];
+                    (v.transform().to_world(random_point(a, b)) - position).normalize()
+                }
+            };
+            let hits = support.iter().any(|&b| ray_meets(o, v.transform().dir_to_index(dir), b));
+            if e.cell_of(dir).is_some() {
+                inside_hits += hits as u32;
+            } else {
+                outside += 1;
+                assert!(!hits, "light {position}: direction {dir} from an unmarked cell meets medium");
+            }
+        }
+        assert!(outside > 1000 && inside_hits > 10_000, "light {position}: {outside} unmarked, {inside_hits} marked hits");
+        assert!(e.cells.len() < cells / 2, "light {position}: {} of {cells} cells marked", e.cells.len());
+        for i in 0..2000 {
+            let dir = e.sample_direction(&mut Rng::new(8, i));
+            assert!(e.cell_of(dir).is_some(), "light {position}: sampled {dir} outside the marked cells");
+        }
+    }
+}
+
+#[test]
+fn the_marked_directions_hug_the_medium() {
+    // One voxel 100 voxels away: its support, a cube of edge 2, subtends at most about
+    // pi (sqrt(3) / 100)^2 sr; the cells add at most their own width around it.
+    let mut v = Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
+    v.set(IVec3::new(3, 4, 5), 1.0);
+    let e = PointEmission::new(DVec3::new(3.0, 4.0, 105.0), &v);
+    let cell = 4.0 * std::f64::consts::PI / (DIRECTION_ROWS * DIRECTION_COLUMNS) as f64;
+    let cone = std::f64::consts::PI * (3.0f64.sqrt() / 99.0).powi(2);
+    assert!(e.solid_angle() >= 4.0 / 101.0f64.powi(2), "{} sr", e.solid_angle());
+    assert!(e.solid_angle() <= cone + 40.0 * cell, "{} sr: {} cells", e.solid_angle(), e.cells.len());
+}
+
+#[test]
+fn directions_are_uniform_over_the_marked_cells() {
+    let v = scattered();
+    let e = PointEmission::new(DVec3::new(-40.0, 25.0, 60.0), &v);
+    let n = e.cells.len();
+    let draws = 200 * n;
+    let mut counts = vec![0u32; n];
+    for i in 0..draws as u64 {
+        counts[e.cell_of(e.sample_direction(&mut Rng::new(2, i))).expect("a marked cell")] += 1;
+    }
+    let expected = draws as f64 / n as f64;
+    let chi2: f64 = counts.iter().map(|&c| (c as f64 - expected).powi(2) / expected).sum();
+    let dof = (n - 1) as f64;
+    assert!((chi2 - dof).abs() < 5.0 * (2.0 * dof).sqrt(), "chi-square {chi2} over {dof} degrees of freedom");
+}
+
+#[test]
+fn a_point_light_emits_intensity_times_the_marked_solid_angle() {
+    let v = scattered();
+    let position = DVec3::new(-40.0, 25.0, 60.0);
+    let point = Light::point(position, Vec3::new(2.0, 1.0, 0.5)).unwrap();
+    let params = PhotonParams { lights: vec![point], ..PhotonParams::default() };
+    let e = PointEmission::new(position, &v);
+    let power = emitted_power(&v, &params).unwrap().unwrap();
+    assert!((power - Vec3::new(2.0, 1.0, 0.5) * e.solid_angle() as f32).abs().max_element() < 1e-5 * power.max_element());
+    assert!(e.solid_angle() < 0.1 * 4.0 * std::f64::consts::PI, "{} sr", e.solid_angle());
 }
