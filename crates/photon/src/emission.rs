@@ -85,6 +85,16 @@ fn medium_boxes(density: &Volume<f32>) -> Vec<(DVec3, DVec3)> {
         .collect()
 }
 
+/// The marked entries of a row-major mark table `columns` wide, as (column, row), row by row.
+fn marked_cells(marked: &[bool], columns: usize) -> Vec<[u32; 2]> {
+    marked.iter().enumerate().filter(|&(_, &m)| m).map(|(i, _)| [(i % columns) as u32, (i / columns) as u32]).collect()
+}
+
+/// The index of cell (column, row) in a [`marked_cells`] list, if it is there.
+fn find_cell(cells: &[[u32; 2]], column: u32, row: u32) -> Option<usize> {
+    cells.binary_search_by_key(&(row, column), |c| (c[1], c[0])).ok()
+}
+
 /// The corners of index box `[lo, hi]`, corner n taking hi on axis a where bit a of n is set.
 fn box_corners(lo: DVec3, hi: DVec3) -> [DVec3; 8] {
     std::array::from_fn(|n| {
@@ -178,11 +188,7 @@ impl SunEmission {
                 marked[row * columns + first..=row * columns + last].fill(true);
             }
         }
-        let cells = (0..rows)
-            .flat_map(|row| (0..columns).map(move |column| (row, column)))
-            .filter(|&(row, column)| marked[row * columns + column])
-            .map(|(row, column)| [column as u32, row as u32])
-            .collect();
+        let cells = marked_cells(&marked, columns);
         // Upstream of every box by one lattice cell, so a photon starts outside the medium.
         let corner = origin.x * tangent + origin.y * bitangent + (depth - cell) * normal;
         Some(SunEmission { corner, normal, tangent, bitangent, cell, cells })
@@ -209,7 +215,7 @@ impl SunEmission {
             return None;
         }
         let (column, row) = (q.x as u32, q.y as u32);
-        self.cells.binary_search_by_key(&(row, column), |c| (c[1], c[0])).ok()
+        find_cell(&self.cells, column, row)
     }
 }
 
@@ -356,11 +362,7 @@ impl PointEmission {
             }
             table.mark_cone(&mut marked, to_table(axis), alpha);
         }
-        let cells = (0..rows)
-            .flat_map(|row| (0..columns).map(move |column| (row, column)))
-            .filter(|&(row, column)| marked[row * columns + column])
-            .map(|(row, column)| [column as u32, row as u32])
-            .collect();
+        let cells = marked_cells(&marked, columns);
         PointEmission { position, frame, cells }
     }
 
@@ -385,7 +387,7 @@ impl PointEmission {
         let v = (dir.y.atan2(dir.x) / (2.0 * PI)).rem_euclid(1.0);
         let row = ((u * DIRECTION_ROWS as f64) as u32).min(DIRECTION_ROWS - 1);
         let column = ((v * DIRECTION_COLUMNS as f64) as u32).min(DIRECTION_COLUMNS - 1);
-        self.cells.binary_search_by_key(&(row, column), |c| (c[1], c[0])).ok()
+        find_cell(&self.cells, column, row)
     }
 }
 

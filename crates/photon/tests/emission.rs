@@ -63,6 +63,29 @@ fn ray_meets(o: DVec3, d: DVec3, (lo, hi): (DVec3, DVec3)) -> bool {
     t0 < t1
 }
 
+/// Rays sampled against an emitter's marked cells: one from an unmarked cell must not meet
+/// medium (what keeps the estimate unbiased); the counts show the check was not idle.
+#[derive(Default)]
+struct Coverage {
+    unmarked: u32,
+    marked_hits: u32,
+}
+
+impl Coverage {
+    fn add(&mut self, marked: bool, hits: bool, ray: impl std::fmt::Display) {
+        if marked {
+            self.marked_hits += hits as u32;
+        } else {
+            self.unmarked += 1;
+            assert!(!hits, "{ray}: from an unmarked cell, it meets medium");
+        }
+    }
+
+    fn assert_busy(&self, unmarked: u32, marked_hits: u32, what: impl std::fmt::Display) {
+        assert!(self.unmarked > unmarked && self.marked_hits > marked_hits, "{what}: {} unmarked rays, {} marked ones meeting medium", self.unmarked, self.marked_hits);
+    }
+}
+
 fn lattice_extent(e: &SunEmission) -> (u32, u32) {
     e.cells.iter().fold((0, 0), |(c, r), cell| (c.max(cell[0] + 1), r.max(cell[1] + 1)))
 }
@@ -75,22 +98,15 @@ fn no_ray_from_outside_the_marked_cells_meets_medium() {
         let e = SunEmission::new(dir, &v).unwrap();
         let (columns, rows) = lattice_extent(&e);
         let mut rng = Rng::new(5, 0);
-        let (mut outside, mut inside_hits) = (0, 0);
+        let mut coverage = Coverage::default();
         for _ in 0..40_000 {
             // Anywhere over the lattice's rectangle and a margin of three cells around it.
             let q = DVec2::new(rng.next_f64() * (columns + 6) as f64 - 3.0, rng.next_f64() * (rows + 6) as f64 - 3.0);
             let p = e.corner + (q.x * e.tangent + q.y * e.bitangent) * e.cell;
             let (o, d) = (v.transform().to_index(p), v.transform().dir_to_index(e.normal));
-            let hits = support.iter().any(|&b| ray_meets(o, d, b));
-            if e.cell_of(p).is_some() {
-                inside_hits += hits as u32;
-            } else {
-                outside += 1;
-                assert!(!hits, "sun {dir}: the ray from uncovered point {p} meets medium");
-            }
+            coverage.add(e.cell_of(p).is_some(), support.iter().any(|&b| ray_meets(o, d, b)), format_args!("sun {dir}, ray from {p}"));
         }
-        // The check saw both kinds of point, and the marked cells do lead to medium.
-        assert!(outside > 1000 && inside_hits > 100, "sun {dir}: {outside} uncovered, {inside_hits} covered hits");
+        coverage.assert_busy(1000, 100, format_args!("sun {dir}"));
         // Every photon starts upstream of all medium, inside a marked cell.
         for i in 0..2000 {
             let p = e.sample_point(&mut Rng::new(9, i));
@@ -189,7 +205,7 @@ fn no_direction_outside_the_marked_cells_meets_medium() {
             continue;
         }
         let mut rng = Rng::new(6, n as u64);
-        let (mut outside, mut inside_hits) = (0, 0);
+        let mut coverage = Coverage::default();
         let (lo, hi) = v.world_bounds().unwrap();
         for k in 0..40_000 {
             // Uniform over the sphere, toward random points of the medium's bounding box, and
@@ -204,14 +220,9 @@ fn no_direction_outside_the_marked_cells_meets_medium() {
                 }
             };
             let hits = support.iter().any(|&b| ray_meets(o, v.transform().dir_to_index(dir), b));
-            if e.cell_of(dir).is_some() {
-                inside_hits += hits as u32;
-            } else {
-                outside += 1;
-                assert!(!hits, "light {position}: direction {dir} from an unmarked cell meets medium");
-            }
+            coverage.add(e.cell_of(dir).is_some(), hits, format_args!("light {position}, direction {dir}"));
         }
-        assert!(outside > 1000 && inside_hits > 10_000, "light {position}: {outside} unmarked, {inside_hits} marked hits");
+        coverage.assert_busy(1000, 10_000, format_args!("light {position}"));
         assert!(e.cells.len() < cells / 2, "light {position}: {} of {cells} cells marked", e.cells.len());
         for i in 0..2000 {
             let dir = e.sample_direction(&mut Rng::new(8, i));
