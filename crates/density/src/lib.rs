@@ -57,8 +57,8 @@
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
 //!   estimates with h varying between grid points, which is not exactly mass conserving where
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
-//!   +1..5% on the analytic test scenes at the defaults (+0.5..3% at N* 32), see the accuracy
-//!   example and tests/reference.rs `mass_is_conserved`.
+//!   +0.3..5% on the analytic test scenes at the defaults (+0.2..3% at N* 32), see the
+//!   accuracy example and tests/reference.rs `mass_is_conserved`.
 //!   `conserve_mass` (`--conserve-mass`, off by default) makes it exact at the cost of one more
 //!   kernel pass once h(x) is final: each particle's kernel summed over the grid as the density
 //!   pass will weigh it, S_q = sum_x W(|x - x_q|, h(x)) dV, and rho(x) = sum_q (m_q / S_q)
