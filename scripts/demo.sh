@@ -27,11 +27,11 @@ render() {
 
 # A flat cumulus deck (340 x 360 x 40 units) lit by a low sun, seen from above its edge.
 render cloud data/cloud.ply "--voxel-size 2" \
-  "--extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4 --photons 200000 --distance delta" \
+  "--extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4 --photons 200000" \
   "--eye 170,-300,160 --look-at 170,180,10"
 # A smoke plume rising 150 units, darker and more absorbing, lit from the side.
 render plume data/plume.ply "--voxel-size 1" \
-  "--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5 --photons 200000 --distance delta" \
+  "--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5 --photons 200000" \
   ""
 
 cp out/cloud.exr out/demo.exr

@@ -2,8 +2,8 @@
 //
 // Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl
 // + this file. Mirrors crates/photon/src/cpu.rs's trace_path draw for draw: photon i's
-// Rng is (seed, i, PHOTON_DOMAIN); emission (light by power CDF, sun disc or point-light
-// sphere), free path by the chosen mode, store after the first interaction, Russian roulette
+// Rng is (seed, i, PHOTON_DOMAIN); emission (light by power CDF, a sun's marked lattice cell
+// or a point light's marked direction cell), free path by the chosen mode, store after the first interaction, Russian roulette
 // with probability mean(albedo), HG scattering. Positions are f32 relative to the host's
 // origin (the volume's centre); the volume's world_to_index takes such positions.
 //
@@ -12,7 +12,7 @@
 // a larger buffer), tagged with (path, interaction) so the host can restore the CPU's order;
 // and per path (interactions, end).
 //
-// Composed after nimbus_gpu::LoopGuard::wgsl (binding 6 of group 1): every path ends with
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 7 of group 1): every path ends with
 // loop_guard_check(), so a software adapter that cut a path's loops short says so.
 
 struct PhotonUniforms {
@@ -34,20 +34,25 @@ struct PhotonUniforms {
 }
 
 struct PhotonLight {
-    // Sun: emission disc centre; point: position. Relative to the origin.
+    // Sun: lowest corner of emission lattice cell (0, 0); point: position. Relative to the
+    // origin.
     origin: vec3<f32>,
     kind: u32,
-    // Sun: disc normal (the direction photons travel).
+    // Sun: the lattice plane's normal (the direction photons travel) and cell edge; point:
+    // its direction table's z axis.
     normal: vec3<f32>,
-    radius: f32,
+    cell: f32,
+    // Sun: the lattice's column and row directions; point: its table's x and y axes.
     tangent: vec3<f32>,
     // Cumulative choice probability.
     cdf: f32,
     bitangent: vec3<f32>,
-    _pad0: f32,
+    // Its marked cells, emission_cells[first_cell .. first_cell + cell_count]: a sun's
+    // lattice cells, a point light's direction cells.
+    first_cell: u32,
     // Light power / choice probability.
     weight: vec3<f32>,
-    _pad1: f32,
+    cell_count: u32,
 }
 
 struct PhotonRecord {
@@ -61,6 +66,9 @@ struct PhotonRecord {
 }
 
 const PHOTON_DOMAIN: u32 = 0x50484f54u;
+// A point light's direction table (emission.rs).
+const DIRECTION_ROWS: u32 = 256u;
+const DIRECTION_COLUMNS: u32 = 512u;
 const MODE_SIMPSON: u32 = 0u;
 const MODE_EXPONENTIAL: u32 = 1u;
 const END_ESCAPED: u32 = 0u;
@@ -73,12 +81,46 @@ const END_TRUNCATED: u32 = 2u;
 @group(1) @binding(3) var<storage, read_write> records: array<PhotonRecord>;
 @group(1) @binding(4) var<storage, read_write> record_count: atomic<u32>;
 @group(1) @binding(5) var<storage, read_write> path_out: array<vec2<u32>>;
+// Every light's marked emission cells, (column, row).
+@group(1) @binding(6) var<storage, read> emission_cells: array<vec2<u32>>;
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
 }
 
 const WORKGROUP_SIZE: u32 = 64u;
+
+// A cell index uniform over 0..n from the 64-bit word hi:lo, floor(word x n / 2^64)
+// (emission.rs index_from_words): the high word of hi x n + the high word of lo x n.
+fn emission_index_from_words(hi: u32, lo: u32, n: u32) -> u32 {
+    let high = philox_mulhilo(hi, n);
+    let low_top = philox_mulhilo(lo, n).x;
+    let sum = high.y + low_top;
+    return high.x + select(0u, 1u, sum < low_top);
+}
+
+fn emission_cell_index(rng: ptr<function, Rng>, n: u32) -> u32 {
+    let hi = rng_next_u32(rng);
+    let lo = rng_next_u32(rng);
+    return emission_index_from_words(hi, lo, n);
+}
+
+// A sun photon's starting point, uniform over its marked cells (SunEmission::sample_point).
+fn emission_point(light: PhotonLight, rng: ptr<function, Rng>) -> vec3<f32> {
+    let c = vec2<f32>(emission_cells[light.first_cell + emission_cell_index(rng, light.cell_count)]);
+    let u = rng_next_vec2(rng);
+    return light.origin + ((c.x + u.x) * light.tangent + (c.y + u.y) * light.bitangent) * light.cell;
+}
+
+// A point light photon's direction, uniform over its marked direction cells
+// (PointEmission::sample_direction).
+fn emission_direction(light: PhotonLight, rng: ptr<function, Rng>) -> vec3<f32> {
+    let c = vec2<f32>(emission_cells[light.first_cell + emission_cell_index(rng, light.cell_count)]);
+    let u = rng_next_vec2(rng);
+    let square = vec2<f32>((c.y + u.x) / f32(DIRECTION_ROWS), (c.x + u.y) / f32(DIRECTION_COLUMNS));
+    let d = sample_uniform_sphere(square);
+    return normalize(d.x * light.tangent + d.y * light.bitangent + d.z * light.normal);
+}
 
 @compute @workgroup_size(64)
 fn trace_photons(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -110,12 +152,11 @@ fn trace_path(path: u32) {
     var x: vec3<f32>;
     var w: vec3<f32>;
     if (light.kind == LIGHT_SUN) {
-        let d = sample_uniform_disk_concentric(rng_next_vec2(&rng)) * light.radius;
-        x = light.origin + d.x * light.tangent + d.y * light.bitangent;
+        x = emission_point(light, &rng);
         w = light.normal;
     } else {
         x = light.origin;
-        w = normalize(sample_uniform_sphere(rng_next_vec2(&rng)));
+        w = emission_direction(light, &rng);
     }
     var power = light.weight;
 

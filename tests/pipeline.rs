@@ -112,8 +112,10 @@ fn pipes_and_files_give_the_same_image() {
         for grid in ["density", "Li_single", "Li_multiple"] {
             assert!(listing.contains(grid), "vdb_print lists {grid}:\n{listing}");
         }
-        let photons = String::from_utf8_lossy(&Command::new("vdb_print").arg("-l").arg(&p).output().unwrap().stdout).to_string();
+        let photons = String::from_utf8_lossy(&Command::new("vdb_print").args(["-l", "-m"]).arg(&p).output().unwrap().stdout).to_string();
         assert!(photons.contains("photons") && photons.contains("ptdataidx"), "{photons}");
+        // No --distance: the photons were delta-tracked (design.md section 5, issue #18).
+        assert!(photons.contains("distance=delta"), "{photons}");
     } else {
         eprintln!("SKIPPED vdb_print check: vdb_print not installed (apt install libopenvdb-tools)");
     }
@@ -278,6 +280,79 @@ fn paths_replace_photons_in_the_chain() {
     let bad = Command::new(bin("vdbcache")).arg(&v).args(["--paths", "0", "-o"]).arg(dir.join("bad.vdb")).output().unwrap();
     assert_eq!(bad.status.code(), Some(2));
     assert!(!dir.join("bad.vdb").exists());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Each grid of a VDB as "name active-count sum-of-active-values", read by pyopenvdb (Debian's
+/// python3-openvdb): None, after a loud skip, where it is not installed.
+fn pyopenvdb_summary(path: &Path) -> Option<String> {
+    const SCRIPT: &str = "import sys, pyopenvdb as vdb
+for g in vdb.readAll(sys.argv[1])[0]:
+    values = [v.value for v in g.citerOnValues() if v.count == 1]
+    print(g.name, g.activeVoxelCount(), len(values), repr(sum(values)))";
+    match Command::new("/usr/bin/python3").args(["-c", SCRIPT]).arg(path).output() {
+        Ok(out) if out.status.success() => Some(String::from_utf8_lossy(&out.stdout).into_owned()),
+        Ok(out) if String::from_utf8_lossy(&out.stderr).contains("No module named 'pyopenvdb'") => {
+            eprintln!("SKIPPED pyopenvdb check: python3-openvdb not installed");
+            None
+        }
+        Ok(out) => panic!("pyopenvdb could not read {}: {}", path.display(), String::from_utf8_lossy(&out.stderr)),
+        Err(e) => {
+            eprintln!("SKIPPED pyopenvdb check: no /usr/bin/python3 ({e})");
+            None
+        }
+    }
+}
+
+/// VDB output is blosc-compressed unless asked otherwise (design.md section 6, issue #18:
+/// what Blender and Houdini write), where this OpenVDB build has blosc; `--compression zip`
+/// still writes ZIP. OpenVDB's own vdb_print names each grid's compression, and pyopenvdb
+/// reads the same values from both files.
+#[test]
+fn vdb_output_defaults_to_blosc_and_zip_still_works() {
+    let dir = scratch("compression");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let (d, d_zip, p) = (dir.join("default.vdb"), dir.join("zip.vdb"), dir.join("photons.vdb"));
+    // --aux adds grids that are not fog volumes, to which OpenVDB applies ZIP (it leaves fog
+    // volumes uncompressed under ZIP), so both files hold grids of both kinds.
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--aux"]).arg("-o").arg(&d));
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "--aux", "--compression", "zip"]).arg("-o").arg(&d_zip));
+    run(Command::new(bin("vdbphoton")).arg(&d).args(["--photons", "500"]).arg("-o").arg(&p));
+    let blosc = nimbus_vdb::has_blosc();
+    match Command::new("vdb_print").arg("-l").arg(&d).output() {
+        Ok(out) => {
+            assert!(out.status.success(), "vdb_print on the default output: {}", String::from_utf8_lossy(&out.stderr));
+            let listing = |f: &Path| {
+                let out = Command::new("vdb_print").arg("-l").arg(f).output().unwrap();
+                assert!(out.status.success(), "vdb_print on {}: {}", f.display(), String::from_utf8_lossy(&out.stderr));
+                String::from_utf8_lossy(&out.stdout).into_owned()
+            };
+            let count = |text: &str, what: &str| text.matches(what).count();
+            let (default, zip, photons) = (listing(&d), listing(&d_zip), listing(&p));
+            if blosc {
+                assert_eq!(count(&default, "file_compression: blosc + active values"), 3, "{default}");
+                // vdbphoton copies the density grids and adds the photons, all blosc.
+                assert_eq!(count(&photons, "file_compression: blosc + active values"), 4, "{photons}");
+            } else {
+                eprintln!("this OpenVDB build has no blosc: the default is zip");
+                assert_eq!(default, zip);
+            }
+            assert!(!zip.contains("blosc"), "{zip}");
+            assert_eq!(count(&zip, "file_compression: zip + active values"), 2, "{zip}");
+            assert_eq!(count(&zip, "file_compression: active values"), 1, "{zip}");
+        }
+        Err(_) => eprintln!("SKIPPED vdb_print check: vdb_print not installed (apt install libopenvdb-tools)"),
+    }
+    if let (Some(default), Some(zip)) = (pyopenvdb_summary(&d), pyopenvdb_summary(&d_zip)) {
+        assert_eq!(default.lines().count(), 3, "{default}");
+        assert_eq!(default, zip, "the same grids and values under either compression");
+    }
+    if !blosc {
+        let out = Command::new(bin("particles2vdb")).arg(&ply).args(["--compression", "blosc"]).arg("-o").arg(dir.join("b.vdb")).output().unwrap();
+        assert_eq!(out.status.code(), Some(2));
+        assert!(!dir.join("b.vdb").exists());
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 

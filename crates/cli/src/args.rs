@@ -46,12 +46,24 @@ pub struct VdbOutputArgs {
     /// Output VDB file, or - for stdout (the default when stdout is not a terminal).
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// VDB compression: zip (every OpenVDB build reads it), blosc or none.
-    #[arg(long, default_value = "zip", value_parser = ["zip", "blosc", "none"])]
+    /// VDB compression: blosc (what Blender and Houdini write, and much faster than zip; the
+    /// default where this OpenVDB build has it, else zip), zip (every OpenVDB build reads it)
+    /// or none.
+    #[arg(long, default_value = default_compression(), value_parser = ["zip", "blosc", "none"])]
     pub compression: String,
     /// Store float grids as 16-bit halves.
     #[arg(long)]
     pub half: bool,
+}
+
+/// `--compression`'s default (design.md section 6, issue #18): blosc, unless this OpenVDB
+/// build cannot write it.
+fn default_compression() -> &'static str {
+    if nimbus_vdb::has_blosc() {
+        "blosc"
+    } else {
+        "zip"
+    }
 }
 
 impl VdbOutputArgs {
@@ -230,8 +242,8 @@ pub struct QualitySettings {
     pub paths: u32,
     /// vdbphoton `--photons`, for the chain that gathers photons.
     pub photons: u64,
-    /// vdbphoton `--distance` (delta: the same photon distribution as simpson, measured,
-    /// at a fraction of the time).
+    /// vdbphoton `--distance`: delta on every preset, as without one (the same photon
+    /// distribution as simpson, measured, at a fraction of the time).
     pub distance: &'static str,
     /// vdbcache `--gather-neighbours`, where photons are gathered.
     pub gather_neighbours: u32,

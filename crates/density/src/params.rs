@@ -73,7 +73,7 @@ pub struct DensityParams {
     /// N*, the target neighbour count of the adaptive methods and of `h0 auto`.
     pub neighbours: u32,
     pub h0: H0,
-    /// Floor of the smoothing length; design.md's default is one voxel.
+    /// Floor of the smoothing length; design.md's default is 1.2 voxels.
     pub h_min: HMin,
     /// s in [0, 1], the asl3 relaxation for overestimated lengths.
     pub relax: f32,
@@ -107,6 +107,16 @@ pub enum HMin {
     Voxels(f64),
 }
 
+/// The `--h-min` text form: a length, or a voxel count with the suffix `vox`.
+impl std::fmt::Display for HMin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            HMin::World(h) => write!(f, "{h}"),
+            HMin::Voxels(n) => write!(f, "{n}vox"),
+        }
+    }
+}
+
 impl HMin {
     /// The floor in world units for a grid of this voxel size.
     pub fn resolve(self, voxel: f64) -> f64 {
@@ -117,13 +127,16 @@ impl HMin {
     }
 }
 
-/// The default N* (design.md's, the paper's). Measured against the alternatives in
-/// `examples/accuracy.rs` (tables in the crate docs): 80 would bring asl3 within 5% of the
-/// best-tuned usl on the steep-contrast scenes (with h_min 1.2 voxels, on a smooth plume
-/// too), but at about 1.6x the time (past asl3's speed target) and with the adaptive
-/// methods' mass excess on a 20k-particle blob growing from 0.6% to 1.3-1.4% (past the 1%
-/// bound of tests/reference.rs `mass_is_conserved`), so 32 stays.
-pub const DEFAULT_NEIGHBOURS: u32 = 32;
+/// The default N* (design.md section 8, issue #18; the paper's 32 until then). Measured in
+/// `examples/accuracy.rs` (tables in the crate docs): with [`DEFAULT_H_MIN_VOXELS`] it brings
+/// asl3 within 3% of the best-tuned usl on the knots, the shell and a smooth plume, at about
+/// 1.6x the time of 32, and with the gather estimate's mass excess accepted (+1.3% on a
+/// smooth 20k-particle blob, +3.9% on the shell; `conserve_mass` makes it exact).
+pub const DEFAULT_NEIGHBOURS: u32 = 80;
+
+/// The default floor of the smoothing length in voxels (design.md section 8, issue #18; one
+/// voxel until then): with N* = 80 the setting that also brings the plume within 3%.
+pub const DEFAULT_H_MIN_VOXELS: f64 = 1.2;
 
 impl Default for DensityParams {
     fn default() -> Self {
@@ -131,7 +144,7 @@ impl Default for DensityParams {
             method: Method::Asl3,
             neighbours: DEFAULT_NEIGHBOURS,
             h0: H0::Auto,
-            h_min: HMin::Voxels(1.0),
+            h_min: HMin::Voxels(DEFAULT_H_MIN_VOXELS),
             relax: 0.0,
             mass: 1.0,
             resolution: Resolution::Longest(256),

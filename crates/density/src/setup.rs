@@ -410,6 +410,9 @@ mod tests {
         let grid = plan(HMin::Voxels(1.5));
         assert!((grid.h_min / grid.voxel_size - 1.5).abs() < 1e-12, "{grid:?}");
         assert_eq!(plan(HMin::World(0.2)).h_min, 0.2);
-        assert_eq!(plan(HMin::Voxels(1.0)), plan(DensityParams::default().h_min));
+        // The default floor is 1.2 voxels of the grid (design.md section 8, issue #18).
+        let default = plan(DensityParams::default().h_min);
+        assert!((default.h_min / default.voxel_size - 1.2).abs() < 1e-12, "{default:?}");
+        assert_eq!(plan(HMin::Voxels(1.2)), default);
     }
 }

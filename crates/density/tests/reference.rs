@@ -407,13 +407,13 @@ fn conserving_mass_with_cutting_bounds_equals_brute_force() {
     check_conserving(Backend::Gpu, Method::Asl3, bounds);
 }
 
-/// Grid mass / particle mass for each method on a scene.
-fn mass_ratios(scene: analytic::Scene, voxel: f64) -> Vec<(Method, f64)> {
+/// Grid mass / particle mass for each method on a scene, other settings from `base`.
+fn mass_ratios(scene: analytic::Scene, voxel: f64, base: &DensityParams) -> Vec<(Method, f64)> {
     let particles = scene.particles(1);
     Method::ALL
         .into_iter()
         .map(|method| {
-            let params = DensityParams { method, resolution: Resolution::VoxelSize(voxel), ..Default::default() };
+            let params = DensityParams { method, resolution: Resolution::VoxelSize(voxel), ..base.clone() };
             (method, mass_ratio(Backend::Cpu, &particles, &params).expect("the CPU always runs"))
         })
         .collect()
@@ -432,7 +432,7 @@ fn mass_ratio(backend: Backend, particles: &ParticleSet, params: &DensityParams)
 /// conserve-mass holds the particles' mass to rounding where the gather form does not: the
 /// knots (steep contrast), few particles so it runs in seconds, every voxel kept (active
 /// tolerance 0: the threshold's dust is not what is measured). Without it this scene gives
-/// usl 1.0000, asl2 1.0177, asl3 1.0555, knn 1.0886. The GPU runs asl3 only here (lavapipe
+/// usl 1.0000, asl2 1.0275, asl3 1.0511, knn 1.1534 (at the defaults, N* 80). The GPU runs asl3 only here (lavapipe
 /// is slow; the backends agree on every method in `cpu_and_gpu_agree_conserving_mass`).
 #[test]
 fn conserving_mass_holds_the_particles_mass() {
@@ -455,8 +455,16 @@ fn conserving_mass_holds_the_particles_mass() {
 
 #[test]
 fn mass_is_conserved() {
-    // A smooth blob (one Gaussian, bounds padded by kappa*h0 so no particle is near them):
-    // every method holds the particles' mass to 1%.
+    // usl holds the particles' mass to 1% at any setting (every particle's kernel is whole
+    // and fixed). The adaptive methods are gather estimates, which are not exactly mass
+    // conserving where lengths vary (a sparse point with a wide kernel reaches into denser
+    // parts that their neighbours, with narrower kernels, also count), and a larger N* and
+    // h_min widen the kernels there. Issue #18 accepted that excess with its defaults
+    // (N* 80, h_min 1.2 voxels; documented in the crate docs and design.md section 8);
+    // `conserving_mass_holds_the_particles_mass` is the exact alternative. Measured here:
+    // blob (smooth) asl2/asl3/knn +1.3% at the defaults, +0.6% at N* 32 with h_min 1 voxel
+    // (the paper's setting, the default until then); knots (steep contrast) asl2 +1.3%,
+    // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32.
     let blob = analytic::Scene {
         name: "blob",
         density: analytic::Analytic {
@@ -467,18 +475,20 @@ fn mass_is_conserved() {
         voxel_size: 0.4,
         bounds: None,
     };
-    for (method, ratio) in mass_ratios(blob, 0.4) {
-        eprintln!("blob {method:?}: {ratio}");
-        assert!((ratio - 1.0).abs() < 0.01, "blob {method:?}: grid mass / particle mass {ratio}");
-    }
-    // Steep contrasts: usl still conserves mass to 1% (every particle's kernel is whole and
-    // fixed); the adaptive gather estimates do not exactly (a sparse point with a wide kernel
-    // reaches into a dense knot that its dense neighbours, with narrow kernels, also count),
-    // and stay within a few percent.
-    for (method, ratio) in mass_ratios(analytic::Scene::knots().with_particles(20_000), 0.6) {
-        let tolerance = if method == Method::Usl { 0.01 } else { 0.05 };
-        eprintln!("knots {method:?}: {ratio}");
-        assert!((ratio - 1.0).abs() < tolerance, "knots {method:?}: grid mass / particle mass {ratio}");
+    let knots = analytic::Scene::knots().with_particles(20_000);
+    let paper = DensityParams { neighbours: 32, h_min: HMin::Voxels(1.0), ..Default::default() };
+    let cases = [
+        (&blob, 0.4, DensityParams::default(), "defaults", 0.015),
+        (&blob, 0.4, paper.clone(), "N* 32, h_min 1 voxel", 0.01),
+        (&knots, 0.6, DensityParams::default(), "defaults", 0.07),
+        (&knots, 0.6, paper, "N* 32, h_min 1 voxel", 0.05),
+    ];
+    for (scene, voxel, base, setting, adaptive) in cases {
+        for (method, ratio) in mass_ratios(scene.clone(), voxel, &base) {
+            eprintln!("{}, {setting}, {method:?}: {ratio}", scene.name);
+            let tolerance = if method == Method::Usl { 0.01 } else { adaptive };
+            assert!((ratio - 1.0).abs() < tolerance, "{}, {setting}, {method:?}: grid mass / particle mass {ratio}", scene.name);
+        }
     }
 }
 

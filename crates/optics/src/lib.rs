@@ -13,7 +13,7 @@
 //!   g = +-0.999 and g = 0 need no special cases; pdf = eval.
 //! - **Lights** ([`Light`]): `Sun { dir }` is the direction light *travels*; a point light's
 //!   irradiance is I / r^2. [`Light::incident`] gives what single scattering needs;
-//!   [`Light::emitted_power`] and [`Light::emission_disc`] what the photon tracer needs.
+//!   [`Light::emitted_power`] what the photon tracer needs.
 //!   Text form `dir=X,Y,Z,irradiance=R,G,B` / `pos=X,Y,Z,intensity=R,G,B` round-trips
 //!   exactly through `Display`/`FromStr` (also [`format_lights`]/[`parse_lights`]).
 //! - **Camera** ([`Camera`]): pinhole, pixel (0,0) top-left, image right =
@@ -54,7 +54,7 @@ mod sampling;
 
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
-pub use light::{format_lights, parse_lights, EmissionDisc, Incident, Light, LightError};
+pub use light::{format_lights, parse_lights, Incident, Light, LightError};
 pub use medium::{Medium, MediumError};
 pub use params::ParseError;
 pub use phase::{HenyeyGreenstein, HG_G_MAX};

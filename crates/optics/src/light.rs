@@ -3,10 +3,9 @@
 use std::fmt;
 use std::str::FromStr;
 
-use glam::{DVec3, Vec2, Vec3};
+use glam::{DVec3, Vec3};
 
 use crate::params::{join, rgb_text, KeyValues, ParseError};
-use crate::sampling::sample_uniform_disk_concentric;
 
 /// Why a light was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -47,32 +46,6 @@ pub struct Incident {
     pub distance: f64,
     /// Irradiance on a surface facing the light: E for a sun, I / r^2 for a point light.
     pub irradiance: Vec3,
-}
-
-/// The disc a sun's photons leave from: perpendicular to the sun's direction, upstream of the
-/// bounds and covering their projection (design.md section 5).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EmissionDisc {
-    pub centre: DVec3,
-    /// Unit normal: the direction photons travel.
-    pub normal: DVec3,
-    /// Two unit vectors spanning the disc's plane.
-    pub tangent: DVec3,
-    pub bitangent: DVec3,
-    pub radius: f64,
-}
-
-impl EmissionDisc {
-    /// Area of the disc, pi r^2.
-    pub fn area(&self) -> f64 {
-        std::f64::consts::PI * self.radius * self.radius
-    }
-
-    /// A point uniform over the disc (pdf 1 / area).
-    pub fn sample_point(&self, u: Vec2) -> DVec3 {
-        let d = sample_uniform_disk_concentric(u).as_dvec2() * self.radius;
-        self.centre + d.x * self.tangent + d.y * self.bitangent
-    }
 }
 
 fn check_power(name: &'static str, value: Vec3) -> Result<(), LightError> {
@@ -141,39 +114,14 @@ impl Light {
         self.incident(p).to_light
     }
 
-    /// For a sun, the disc its photons leave from to cover the box `[min, max]`; `None`
-    /// for a point light. The radius is the largest distance of a box corner from the box
-    /// centre measured perpendicular to `dir` (tight for the box's projection up to the
-    /// disc's roundness); the centre sits one half-diagonal upstream of the box centre, so
-    /// every photon starts outside the box.
-    pub fn emission_disc(&self, min: DVec3, max: DVec3) -> Option<EmissionDisc> {
-        let Light::Sun { dir, .. } = *self else { return None };
-        let normal = dir.as_dvec3().normalize();
-        let centre = 0.5 * (min + max);
-        let half = 0.5 * (max - min).abs();
-        let radius = (0..8)
-            .map(|i| {
-                let c = DVec3::new(
-                    if i & 1 == 0 { -half.x } else { half.x },
-                    if i & 2 == 0 { -half.y } else { half.y },
-                    if i & 4 == 0 { -half.z } else { half.z },
-                );
-                (c - c.dot(normal) * normal).length()
-            })
-            .fold(0.0, f64::max);
-        let (tangent, bitangent) = normal.any_orthonormal_pair();
-        Some(EmissionDisc { centre: centre - normal * half.length(), normal, tangent, bitangent, radius })
-    }
-
-    /// Total power the photon tracer emits (design.md section 5): a sun E x the area of its
-    /// [`Light::emission_disc`] for the bounds; a point light 4 pi I, whatever the bounds.
-    pub fn emitted_power(&self, min: DVec3, max: DVec3) -> Vec3 {
+    /// Total power the photon tracer emits (design.md section 5) over `extent`, what its
+    /// photons leave through (nimbus_photon's `SunEmission` and `PointEmission`): for a sun
+    /// E x the area they leave from, for a point light I x the solid angle they leave into
+    /// (4 pi I for every direction).
+    pub fn emitted_power(&self, extent: f64) -> Vec3 {
         match *self {
-            Light::Sun { irradiance, .. } => {
-                let area = self.emission_disc(min, max).map_or(0.0, |d| d.area());
-                irradiance * area as f32
-            }
-            Light::Point { intensity, .. } => intensity * (4.0 * std::f32::consts::PI),
+            Light::Sun { irradiance, .. } => irradiance * extent as f32,
+            Light::Point { intensity, .. } => intensity * extent as f32,
         }
     }
 

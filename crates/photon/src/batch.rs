@@ -6,9 +6,10 @@
 use std::ops::Range;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{sample_uniform_sphere, EmissionDisc, Light, Rng};
+use nimbus_optics::{Light, Rng};
 use nimbus_volume::{MajorantGrid, Volume};
 
+use crate::emission::{PointEmission, SunEmission};
 use crate::{PhotonError, PhotonMap, PhotonParams, TraceStats};
 
 /// Random-number domain of photon paths (kept apart from other uses of the same seed).
@@ -17,16 +18,25 @@ pub(crate) const PHOTON_DOMAIN: u32 = 0x5048_4f54; // "PHOT"
 /// Photons emitted before the tracer decides whether anything can be stored at all.
 const FIRST_BATCH: u64 = 1 << 14;
 
-/// Where and how photons leave the lights: per light its power and the probability of
-/// choosing it (proportional to its mean power), plus the sun discs for the volume's bounds.
+/// Where photons leave one light from.
+pub(crate) enum Source {
+    /// A sun's emitting lattice over the medium's projection.
+    Sun(SunEmission),
+    /// A point light's directions toward the medium.
+    Point(PointEmission),
+}
+
+/// Where and how photons leave the lights: per light its source, its power and the
+/// probability of choosing it (proportional to its mean power).
 pub(crate) struct Emitter {
-    pub lights: Vec<Light>,
+    pub sources: Vec<Source>,
+    /// Each light's emitted power: E x emitting area for a sun, I x emitting solid angle for a
+    /// point light.
+    pub power: Vec<Vec3>,
     /// Light power / choice probability: the power a photon carries before dividing by the
     /// number emitted.
     pub weight: Vec<Vec3>,
     pub cdf: Vec<f32>,
-    /// Each sun's emission disc over the volume's bounds (None for point lights).
-    pub discs: Vec<Option<EmissionDisc>>,
 }
 
 /// One photon leaving a light: origin, unit direction, power times photons emitted.
@@ -37,8 +47,27 @@ pub(crate) struct Emission {
 }
 
 impl Emitter {
-    pub fn new(lights: &[Light], bounds: (DVec3, DVec3)) -> Option<Emitter> {
-        let power: Vec<Vec3> = lights.iter().map(|l| l.emitted_power(bounds.0, bounds.1)).collect();
+    /// The lights' sources over `density`, which must hold a positive voxel; None when they
+    /// emit no power.
+    pub fn new(lights: &[Light], density: &Volume<f32>) -> Option<Emitter> {
+        let mut sources = Vec::with_capacity(lights.len());
+        let mut power = Vec::with_capacity(lights.len());
+        for light in lights {
+            let (source, extent) = match *light {
+                Light::Sun { dir, .. } => {
+                    let emission = SunEmission::new(dir, density).expect("the density holds a positive voxel");
+                    let area = emission.area();
+                    (Source::Sun(emission), area)
+                }
+                Light::Point { position, .. } => {
+                    let emission = PointEmission::new(position, density);
+                    let solid_angle = emission.solid_angle();
+                    (Source::Point(emission), solid_angle)
+                }
+            };
+            sources.push(source);
+            power.push(light.emitted_power(extent));
+        }
         let total: f32 = power.iter().map(|p| p.element_sum()).sum();
         if total.is_nan() || total <= 0.0 {
             return None;
@@ -52,27 +81,19 @@ impl Emitter {
             })
             .collect();
         let weight = power.iter().map(|p| if p.element_sum() > 0.0 { *p * (total / p.element_sum()) } else { Vec3::ZERO }).collect();
-        let discs = lights.iter().map(|l| l.emission_disc(bounds.0, bounds.1)).collect();
-        Some(Emitter { lights: lights.to_vec(), weight, cdf, discs })
+        Some(Emitter { sources, power, weight, cdf })
     }
 
     /// Which light photon with first draw `u` leaves from (mirrored in photon.wgsl).
     pub fn choose(&self, u: f32) -> usize {
-        self.cdf.iter().position(|&c| u < c).unwrap_or(self.lights.len() - 1)
+        self.cdf.iter().position(|&c| u < c).unwrap_or(self.sources.len() - 1)
     }
 
     pub fn emit(&self, rng: &mut Rng) -> Emission {
         let i = self.choose(rng.next_f32());
-        match (self.lights[i], &self.discs[i]) {
-            (_, Some(disc)) => {
-                Emission { origin: disc.sample_point(rng.next_vec2()), dir: disc.normal, weight: self.weight[i] }
-            }
-            (Light::Point { position, .. }, None) => Emission {
-                origin: position,
-                dir: sample_uniform_sphere(rng.next_vec2()).as_dvec3().normalize(),
-                weight: self.weight[i],
-            },
-            (Light::Sun { .. }, None) => unreachable!("every sun has an emission disc"),
+        match &self.sources[i] {
+            Source::Sun(emission) => Emission { origin: emission.sample_point(rng), dir: emission.normal, weight: self.weight[i] },
+            Source::Point(emission) => Emission { origin: emission.position, dir: emission.sample_direction(rng), weight: self.weight[i] },
         }
     }
 }
@@ -147,7 +168,10 @@ pub(crate) fn prepare(density: &Volume<f32>, params: &PhotonParams) -> Result<Pr
     let Some(bounds) = density.world_bounds() else {
         return skip("the density grid is empty");
     };
-    let Some(emitter) = Emitter::new(&params.lights, bounds) else {
+    if !density.bricks().any(|b| b.values.iter().any(|&d| d > 0.0)) {
+        return skip("no voxel of the density grid is above 0");
+    }
+    let Some(emitter) = Emitter::new(&params.lights, density) else {
         return skip("the lights emit no power");
     };
     let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
@@ -191,7 +215,7 @@ pub(crate) fn run_batches(
         }
         next = end;
         if stats.interactions == 0 {
-            let (map, stats) = skipped("no density in the lights' paths", stats);
+            let (map, stats) = skipped("no photon of the first batch met the medium (too thin along the lights' paths)", stats);
             return Ok((map, stats));
         }
         // Size the next batch from the yield so far, aiming a little past the target.

@@ -6,11 +6,11 @@ use std::ops::Range;
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, GpuMedium, Light, OPTICS_WGSL};
+use nimbus_optics::{split_u64, GpuMedium, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::Volume;
 
-use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup};
+use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup, Source};
 use crate::{DistanceSampling, PhotonError, PhotonMap, PhotonParams, TraceStats};
 
 /// The photon kernel, `shaders/photon.wgsl`.
@@ -20,8 +20,8 @@ const WORKGROUP_SIZE: u32 = 64;
 /// Most paths one dispatch traces; bounds the path buffer and (with the yield) the record one.
 const MAX_CHUNK: u64 = 1 << 18;
 const RECORD_BYTES: u64 = size_of::<GpuRecord>() as u64;
-/// Group 1 binding of the [`LoopGuard`] flag.
-const GUARD_BINDING: u32 = 6;
+/// Group 1 binding of the [`LoopGuard`] flag, after the stage's buffers.
+const GUARD_BINDING: u32 = 7;
 
 /// WGSL `PhotonUniforms`.
 #[repr(C)]
@@ -47,13 +47,13 @@ struct GpuPhotonLight {
     origin: [f32; 3],
     kind: u32,
     normal: [f32; 3],
-    radius: f32,
+    cell: f32,
     tangent: [f32; 3],
     cdf: f32,
     bitangent: [f32; 3],
-    _pad0: f32,
+    first_cell: u32,
     weight: [f32; 3],
-    _pad1: f32,
+    cell_count: u32,
 }
 
 /// WGSL `PhotonRecord`.
@@ -81,6 +81,7 @@ struct GpuTracer<'a> {
     uniforms: GpuPhotonParams,
     uniform_buffer: wgpu::Buffer,
     lights: wgpu::Buffer,
+    emission_cells: wgpu::Buffer,
     majorant: wgpu::Buffer,
     counter: wgpu::Buffer,
     paths: wgpu::Buffer,
@@ -109,6 +110,7 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(3, false),
                 storage_entry(4, false),
                 storage_entry(5, false),
+                storage_entry(6, true),
                 guard.layout_entry(),
             ],
         )?;
@@ -117,27 +119,42 @@ impl<'a> GpuTracer<'a> {
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
         let e = &setup.emitter;
-        let lights: Vec<GpuPhotonLight> = (0..e.lights.len())
+        // Every light's marked cells (a sun's lattice cells, a point light's direction
+        // cells) in one table, each light knowing its slice.
+        let mut cells: Vec<[u32; 2]> = Vec::new();
+        let lights: Vec<GpuPhotonLight> = (0..e.sources.len())
             .map(|i| {
                 let mut l = GpuPhotonLight { cdf: e.cdf[i], weight: e.weight[i].to_array(), ..Zeroable::zeroed() };
-                match (e.lights[i], &e.discs[i]) {
-                    (_, Some(disc)) => {
+                match &e.sources[i] {
+                    Source::Sun(sun) => {
                         l.kind = nimbus_optics::LIGHT_SUN;
-                        l.origin = rel(disc.centre, origin);
-                        l.normal = disc.normal.as_vec3().to_array();
-                        l.tangent = disc.tangent.as_vec3().to_array();
-                        l.bitangent = disc.bitangent.as_vec3().to_array();
-                        l.radius = disc.radius as f32;
+                        l.origin = rel(sun.corner, origin);
+                        l.normal = sun.normal.as_vec3().to_array();
+                        l.tangent = sun.tangent.as_vec3().to_array();
+                        l.bitangent = sun.bitangent.as_vec3().to_array();
+                        l.cell = sun.cell as f32;
+                        l.first_cell = cells.len() as u32;
+                        l.cell_count = sun.cells.len() as u32;
+                        cells.extend_from_slice(&sun.cells);
                     }
-                    (Light::Point { position, .. }, None) => {
+                    Source::Point(point) => {
                         l.kind = nimbus_optics::LIGHT_POINT;
-                        l.origin = rel(position, origin);
+                        l.origin = rel(point.position, origin);
+                        l.tangent = point.frame[0].as_vec3().to_array();
+                        l.bitangent = point.frame[1].as_vec3().to_array();
+                        l.normal = point.frame[2].as_vec3().to_array();
+                        l.first_cell = cells.len() as u32;
+                        l.cell_count = point.cells.len() as u32;
+                        cells.extend_from_slice(&point.cells);
                     }
-                    (Light::Sun { .. }, None) => unreachable!("every sun has an emission disc"),
                 }
                 l
             })
             .collect();
+        if cells.is_empty() {
+            // A binding cannot be empty.
+            cells.push([0; 2]);
+        }
         let uniforms = GpuPhotonParams {
             medium: GpuMedium::from(&params.medium),
             seed: split_u64(params.seed),
@@ -165,6 +182,7 @@ impl<'a> GpuTracer<'a> {
             uniforms,
             uniform_buffer: ctx.uniform_buffer("photon params", &uniforms)?,
             lights: ctx.storage_buffer("photon lights", &lights)?,
+            emission_cells: ctx.storage_buffer("photon emission cells", &cells)?,
             majorant: majorant_buffer(ctx, &setup.majorant)?,
             counter: ctx.storage_buffer("photon count", &[0u32])?,
             paths: ctx.storage_buffer_zeroed("photon paths", chunk * 8)?,
@@ -200,7 +218,7 @@ impl<'a> GpuTracer<'a> {
             ctx,
             "photon",
             &self.layout,
-            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths],
+            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells],
         )?;
         ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
         self.guard.check(ctx, format_args!("tracing photon paths {first}..{}", first + count), "")?;
@@ -301,6 +319,7 @@ pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams)
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::emission::index_from_words;
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
@@ -309,8 +328,56 @@ mod tests {
         assert_eq!(size_of::<GpuRecord>(), 48);
     }
 
+    /// The shader's cell index against `index_from_words`, bit for bit, on words where the
+    /// low product's carry decides the result (rare among random words: about n / 2^32).
     #[test]
-    fn the_shader_uses_the_cpu_random_domain() {
+    fn the_shader_picks_the_same_emission_cell() {
+        let Some(ctx) = nimbus_gpu::test_context() else { return };
+        let start = PHOTON_WGSL.find("fn emission_index_from_words").expect("the shader's index function");
+        let function = &PHOTON_WGSL[start..start + PHOTON_WGSL[start..].find("\n}\n").expect("its end") + 3];
+        let kernel = r#"
+@group(0) @binding(0) var<storage, read> words: array<vec4<u32>>;
+@group(0) @binding(1) var<storage, read_write> indices: array<u32>;
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if (id.x < arrayLength(&words)) {
+        let w = words[id.x];
+        indices[id.x] = emission_index_from_words(w.x, w.y, w.z);
+    }
+}
+"#;
+        let mut rng = nimbus_optics::Rng::new(4, 0);
+        let mut cases: Vec<[u32; 4]> = vec![[0, 0, 7, 0], [u32::MAX, u32::MAX, 7, 0], [u32::MAX, u32::MAX, u32::MAX, 0]];
+        for _ in 0..64 {
+            let n = (1 << 20) + (rng.next_u32() >> 11);
+            // A high word whose product's low word lies within n of 2^32, and the largest low
+            // word: the carry turns the index over to the next one.
+            let mut hi = rng.next_u32();
+            while hi.wrapping_mul(n) <= u32::MAX - n {
+                hi = hi.wrapping_add(1);
+            }
+            cases.push([hi, u32::MAX, n, 0]);
+            cases.push([hi, 0, n, 0]);
+            cases.push([rng.next_u32(), rng.next_u32(), rng.next_u32().max(1), 0]);
+        }
+        assert!(cases.iter().any(|c| index_from_words(c[0], c[1], c[2]) != index_from_words(c[0], 0, c[2])), "no case carries");
+        let layout = ctx.bind_group_layout("index test", &[storage_entry(0, true), storage_entry(1, false)]).unwrap();
+        let source = format!("{OPTICS_WGSL}\n{function}\n{kernel}");
+        let pipeline = ctx.compute_pipeline("index test", &source, "main", &[&layout]).unwrap();
+        let words = ctx.storage_buffer("words", &cases).unwrap();
+        let indices = ctx.storage_buffer_zeroed("indices", cases.len() as u64 * 4).unwrap();
+        let group = ctx.buffer_bind_group("index test", &layout, &[&words, &indices]).unwrap();
+        ctx.dispatch_1d("index test", &pipeline, &[&group], cases.len() as u64, 64).unwrap();
+        let got: Vec<u32> = ctx.read_buffer(&indices).unwrap();
+        for (c, g) in cases.iter().zip(got) {
+            assert_eq!(g, index_from_words(c[0], c[1], c[2]), "words {:08x}:{:08x}, n {}", c[0], c[1], c[2]);
+        }
+    }
+
+    #[test]
+    fn the_shader_uses_the_cpu_random_domain_and_direction_table() {
         assert!(PHOTON_WGSL.contains(&format!("PHOTON_DOMAIN: u32 = 0x{:08x}u", crate::batch::PHOTON_DOMAIN)));
+        assert!(PHOTON_WGSL.contains(&format!("DIRECTION_ROWS: u32 = {}u", crate::emission::DIRECTION_ROWS)));
+        assert!(PHOTON_WGSL.contains(&format!("DIRECTION_COLUMNS: u32 = {}u", crate::emission::DIRECTION_COLUMNS)));
     }
 }

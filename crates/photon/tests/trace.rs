@@ -1,6 +1,6 @@
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_optics::{Light, Medium};
-use nimbus_photon::{trace_cpu, DistanceSampling, PhotonParams};
+use nimbus_photon::{emitted_power, trace_cpu, DistanceSampling, PhotonParams};
 use nimbus_volume::{Transform, Volume};
 
 /// A ball of constant density `value`, radius `r` voxels, voxel size 0.1, centred at 0.
@@ -48,8 +48,7 @@ fn albedo_one_loses_no_photon_to_absorption() {
     assert_eq!(stats.escaped + stats.truncated, stats.emitted);
     // Power is conserved along a path at albedo 1: each stored photon carries exactly the
     // power its path left the light with (light power / photons emitted).
-    let disc_power = Light::default_sun().emitted_power(v.world_bounds().unwrap().0, v.world_bounds().unwrap().1);
-    let per_photon = disc_power / stats.emitted as f32;
+    let per_photon = emitted_power(&v, &p).unwrap().unwrap() / stats.emitted as f32;
     for power in &map.power {
         assert!((*power - per_photon).abs().max_element() <= 1e-6 * per_photon.max_element());
     }
@@ -65,9 +64,7 @@ fn stored_power_matches_what_the_roulette_should_leave() {
     let mut p = params(DistanceSampling::Simpson, 40_000);
     p.medium.albedo = Vec3::splat(0.5);
     let (map, stats) = trace_cpu(&v, &p).unwrap();
-    let (lo, hi) = v.world_bounds().unwrap();
-    let emitted_power = Light::default_sun().emitted_power(lo, hi).x as f64;
-    let per = emitted_power / stats.emitted as f64 * 0.5;
+    let per = emitted_power(&v, &p).unwrap().unwrap().x as f64 / stats.emitted as f64 * 0.5;
     for power in &map.power {
         assert!((power.x as f64 - per).abs() < 1e-6 * per);
     }
