@@ -24,7 +24,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     let g = &importance.g;
     assert_eq!(g.len() as u64, plan.stats.baked);
     // The march on importance's own terms: its step (half the cache voxel), the sample
-    // lattice at xi = 0.5, the centres of each pixel's quarters.
+    // lattice at xi = 0.5, each pixel's centre.
     let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
 
     let mut order: Vec<usize> = (0..g.len()).collect();
@@ -40,12 +40,9 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
         let mut sum = 0.0f64;
         for py in 0..h {
             for px in 0..w {
-                let mut a = 0.0f64;
-                for (jx, jy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
-                    let (origin, dir) = cam.ray(px as f64 + jx, py as f64 + jy);
-                    let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5);
-                    a += r.multiple.x as f64 / medium.albedo.x as f64 / 4.0;
-                }
+                let (origin, dir) = cam.ray(px as f64 + 0.5, py as f64 + 0.5);
+                let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5);
+                let a = r.multiple.x as f64 / medium.albedo.x as f64;
                 sum += a * a;
             }
         }
@@ -60,4 +57,90 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     }
     // And they differ by orders of magnitude, which is what the paths follow.
     assert!(g[order[0]] > 100.0 * g[order[seen - 1]]);
+}
+
+/// The paths' origins make a coarse lattice faithful in the image's total: give each voxel
+/// the mean of a field f over its origins (what its paths estimate when Li = f) and the
+/// march's image sums to the image of f itself; give it f at its centre, as the bake did
+/// before, and a field that falls steeply into the cloud (a lit surface, dark depths) comes
+/// out far off (here nearly twice as bright: nodes in the clear air before the surface carry
+/// its brightness into the depths; on the bundled cloud, where Li falls outward too, centre
+/// values darkened the image by 2% at a lattice four voxels wide).
+#[test]
+fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
+    use nimbus_cache::{CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+    let density = cloud(24, 25.0, DVec3::ZERO);
+    let (w, h) = (24, 16);
+    let cam = camera(DVec3::ZERO, w, h);
+    let majorant = MajorantGrid::build(&density);
+    let medium = Medium { extinction: 1.5, albedo: Vec3::ONE, g: 0.0 };
+    // Four density voxels a cache voxel: far coarser than the field's fall-off.
+    let plan = CachePlan::new(&density, &majorant, &cam, 4.0);
+    let cache_params = CacheParams {
+        medium,
+        lights: vec![nimbus_optics::Light::default_sun()],
+        camera: cam.clone(),
+        step: 1.0,
+        cache_scale: 4.0,
+        multiple_scale: None,
+        single: false,
+        multiple: true,
+        gather: Gather::Neighbours { k: 1, max_radius: 1.0 },
+        estimator: MultipleEstimator::Paths { per_voxel: 64 },
+        seed: 3,
+        min_transmittance: 0.0,
+        shadows: ShadowMode::Table(LightLattice::default()),
+    };
+    let path_plan = CameraImportance::path_plan(&plan, &density, &majorant, &cache_params, 64);
+    assert_eq!(path_plan.total(), 64 * plan.stats.baked, "the budget is N per voxel");
+    // Bright at the side facing the camera (-Y), falling over a tenth of the cloud's width.
+    let f = |x: DVec3| (-(x.y + 1.2).max(0.0) / 0.12).exp();
+    let positions = plan.voxel_positions();
+    let voxel = plan.transform.voxel_size();
+    for (v, &c) in positions.iter().enumerate() {
+        for o in path_plan.origins_of(v) {
+            assert!(((*o - c).abs() - voxel).max_element() < 1e-9, "voxel {v}: origin {o} outside its footprint around {c}");
+        }
+    }
+    let averaged: Vec<Vec3> = (0..positions.len())
+        .map(|v| {
+            let origins = path_plan.origins_of(v);
+            Vec3::splat((origins.iter().map(|&o| f(o)).sum::<f64>() / origins.len().max(1) as f64) as f32)
+        })
+        .collect();
+    let centred: Vec<Vec3> = positions.iter().map(|&c| Vec3::splat(f(c) as f32)).collect();
+    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
+    let total = |values: &[Vec3]| {
+        let cache = IlluminationCache { li_single: None, li_multiple: Some(plan.volume_of(values).0), ..Default::default() };
+        let mut sum = 0.0f64;
+        for py in 0..h {
+            for px in 0..w {
+                let (origin, dir) = cam.ray(px as f64 + 0.5, py as f64 + 0.5);
+                sum += march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5).multiple.x as f64;
+            }
+        }
+        sum
+    };
+    // The image of f itself, on the same samples.
+    let mut truth = 0.0f64;
+    let step = march.step;
+    for py in 0..h {
+        for px in 0..w {
+            let (origin, dir) = cam.ray(px as f64 + 0.5, py as f64 + 0.5);
+            let mut tr = 1.0f64;
+            let mut t = 0.5 * step;
+            while t < 12.0 {
+                let x = origin + dir * t;
+                let s = medium.extinction as f64 * density.sample_world(x).max(0.0) as f64;
+                let st = (-s * step).exp();
+                truth += tr * (1.0 - st) * f(x);
+                tr *= st;
+                t += step;
+            }
+        }
+    }
+    let (a, c) = (total(&averaged) / truth, total(&centred) / truth);
+    eprintln!("image total over f's own: origin-averaged {a:.4}, centre values {c:.4}");
+    assert!((a - 1.0).abs() < 0.03, "origin-averaged voxels: {a}");
+    assert!((c - 1.0).abs() > 0.2, "centre values should be far off on this field: {c}");
 }
