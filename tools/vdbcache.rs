@@ -32,30 +32,31 @@ struct Args {
     /// panels also split at voxel boundaries, so the trilinear density is integrated exactly).
     #[arg(long, default_value_t = 1.0)]
     step: f64,
-    /// Cache voxel edge in density voxels: illumination is smoother than density (default 2,
-    /// or the --quality preset's).
+    /// Li_single's cache voxel edge in density voxels (default 1: single scattering's
+    /// shadows are as sharp as the density; or the --quality preset's).
     #[arg(long)]
     cache_scale: Option<f64>,
-    /// Li_multiple's own cache voxel edge in density voxels (default: --cache-scale).
-    /// Multiple scattering is smoother than single, so it can take a coarser lattice.
+    /// Li_multiple's own cache voxel edge in density voxels (default 2, or the --quality
+    /// preset's): multiple scattering is smoother than single, so a coarser lattice holds it
+    /// at an eighth of the voxels.
     #[arg(long, value_name = "SCALE")]
     multiple_scale: Option<f64>,
     /// Photons per multiple-scattering estimate, adaptive radius (default 64, or the
     /// --quality preset's).
     #[arg(long, conflicts_with = "radius")]
     gather_neighbours: Option<u32>,
-    /// Preset: draft, preview or final (cache scale and --paths; flags override, and
+    /// Preset: draft, preview or final (lattices and --paths; flags override, and
     /// --gather-neighbours or --radius gathers photons instead of tracing paths).
     #[arg(long, value_enum)]
     quality: Option<Quality>,
     /// Fixed gather radius (world units) instead of --gather-neighbours.
     #[arg(long)]
     radius: Option<f64>,
-    /// Estimate multiple scattering by paths traced from each cache voxel instead of
-    /// gathering photons, N per voxel on average: unbiased, and needs no photons (vdbphoton
-    /// can be left out of the chain). Each voxel gets one path, the rest go where the camera's
-    /// image depends most on the voxel (seen through clear air, in dense medium, by many
-    /// pixels).
+    /// Paths traced from the cache voxels for multiple scattering, N per voxel on average
+    /// (default 64, or the --quality preset's): unbiased, and needs no photons (vdbphoton can
+    /// be left out of the chain). They start where the camera's rays read each voxel and go
+    /// where the image depends most on it (seen through clear air, in dense medium, by many
+    /// pixels); voxels no ray reads get none.
     #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"])]
     paths: Option<u32>,
     /// Random seed of --paths (default: what the file records, else 0).
@@ -136,27 +137,27 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let meta = PipelineMeta::of(&file);
     let traced = (!photons.is_empty()).then_some("the photons were traced with");
     let voxel = density.transform().voxel_size().min_element();
-    let preset = args.quality.map(Quality::settings);
+    let preset = Quality::settings_or_default(args.quality);
     let params = CacheParams {
         medium: args.medium.resolve(&meta, &log, traced)?,
         lights: args.lights.resolve(&meta, &log, traced)?,
         camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
         step: args.step,
-        cache_scale: args.cache_scale.or(preset.map(|q| q.cache_scale)).unwrap_or(2.0),
-        multiple_scale: args.multiple_scale,
+        cache_scale: args.cache_scale.unwrap_or(preset.cache_scale),
+        multiple_scale: Some(args.multiple_scale.unwrap_or(preset.multiple_scale)),
         single: !args.no_single,
         multiple: !args.no_multiple,
         gather: match args.radius {
             Some(r) => Gather::Radius(r),
             None => Gather::Neighbours {
-                k: args.gather_neighbours.or(preset.map(|q| q.gather_neighbours)).unwrap_or(64),
+                k: args.gather_neighbours.unwrap_or(preset.gather_neighbours),
                 max_radius: args.max_radius * voxel,
             },
         },
-        estimator: match (args.paths, preset) {
-            (Some(per_voxel), _) => MultipleEstimator::Paths { per_voxel },
-            (None, Some(q)) if args.gather_neighbours.is_none() && args.radius.is_none() => MultipleEstimator::Paths { per_voxel: q.paths },
-            _ => MultipleEstimator::Photons,
+        estimator: match args.paths {
+            Some(per_voxel) => MultipleEstimator::Paths { per_voxel },
+            None if args.gather_neighbours.is_none() && args.radius.is_none() => MultipleEstimator::Paths { per_voxel: preset.paths },
+            None => MultipleEstimator::Photons,
         },
         seed: args.seed.or(meta.seed()).unwrap_or(0),
         min_transmittance: args.min_transmittance,
@@ -170,8 +171,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         log.warn("no photons in the input: multiple scattering skipped (run vdbphoton first, or use --paths)");
     }
     if params.multiple && args.paths.is_none() && params.estimator != MultipleEstimator::Photons && !photons.is_empty() {
-        log.warn(format!(
-            "--quality traces paths for multiple scattering: the input's {} photons are not used (--gather-neighbours gathers them)",
+        log.note(format!(
+            "the input's {} photons are not used: paths from the cache voxels reach the same error in a fraction of the photon gather's time (README, make bench); --gather-neighbours gathers them",
             photons.len()
         ));
     }

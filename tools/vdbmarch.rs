@@ -15,7 +15,7 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
     PipelineMeta,
 };
-use nimbus_march::{reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams};
+use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams};
 
 #[derive(Parser, Debug)]
 #[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
@@ -55,8 +55,9 @@ struct Args {
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
-    /// Jittered samples per pixel (default 1, or the --quality preset's; paths per pixel
-    /// with --reference).
+    /// Samples per pixel, stratified (default: enough for a pixel's samples to lie half a
+    /// density voxel apart at the volume, 1 to 16; or the --quality preset's). Paths per
+    /// pixel with --reference (default 1).
     #[arg(long)]
     spp: Option<u32>,
     /// Preset: draft, preview or final (march step and spp; flags override).
@@ -169,12 +170,13 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     }
     let meta = PipelineMeta::of(file);
     let voxel = density.transform().voxel_size();
-    let preset = args.quality.map(Quality::settings);
+    let preset = Quality::settings_or_default(args.quality);
+    let camera = args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?;
     let params = MarchParams {
         medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
-        camera: args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?,
-        step: args.step.unwrap_or(voxel.length() / 3.0 * preset.map_or(1.0, |q| q.step_factor)),
-        spp: args.spp.or(preset.map(|q| q.spp)).unwrap_or(1),
+        spp: args.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
+        camera,
+        step: args.step.unwrap_or(voxel.length() / 3.0 * preset.step_factor),
         background: args.background,
         offset_noise: args.offset_noise,
         noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),

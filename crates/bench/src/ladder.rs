@@ -42,113 +42,78 @@ const SCENES: [Scene; 2] = [
     },
 ];
 
-/// One rung of the ladder.
+/// One rung of the ladder: the chain as a user runs it, with these flags.
 #[derive(Clone, Debug)]
 pub struct Rung {
     pub name: String,
-    pub photons: u64,
-    pub distance: &'static str,
-    pub neighbours: u32,
-    pub cache_scale: f64,
-    /// March step over the default (a third of a voxel diagonal).
-    pub step_factor: f64,
-    pub spp: u32,
-    /// `vdbcache --paths`: multiple scattering by this many paths per cache voxel instead of
-    /// photons (then `photons` is 0 and vdbphoton is not run); 0 for photons.
-    pub paths: u32,
-    /// `vdbcache --multiple-scale` (None: the cache scale).
-    pub multiple_scale: Option<f64>,
+    /// vdbphoton's photons and distance sampling, where the rung gathers photons; `None`: no
+    /// vdbphoton, vdbcache straight from the density.
+    pub photons: Option<(u64, &'static str)>,
+    /// vdbcache's flags beyond the camera (and, without photons, the optics).
+    pub cache: Vec<String>,
+    /// vdbmarch's flags.
+    pub march: Vec<String>,
 }
 
 impl Rung {
-    fn new(name: &str, photons: u64, distance: &'static str, neighbours: u32, cache_scale: f64, step_factor: f64, spp: u32) -> Rung {
-        Rung { name: name.into(), photons, distance, neighbours, cache_scale, step_factor, spp, paths: 0, multiple_scale: None }
+    fn new(name: &str, cache: &[&str], march: &[&str]) -> Rung {
+        Rung { name: name.into(), photons: None, cache: strings(cache), march: strings(march) }
     }
 
-    /// The chain without photons: vdbcache traces `paths` per voxel on a Li_multiple lattice
-    /// `multiple_scale` density voxels wide.
-    fn paths(name: &str, paths: u32, cache_scale: f64, multiple_scale: f64) -> Rung {
-        Rung { paths, multiple_scale: Some(multiple_scale), ..Rung::new(name, 0, "none", 0, cache_scale, 1.0, 1) }
+    /// The photon chain: vdbphoton, then vdbcache gathering `neighbours` photons.
+    fn photons(name: &str, photons: u64, distance: &'static str, neighbours: u32) -> Rung {
+        let k = neighbours.to_string();
+        Rung { photons: Some((photons, distance)), ..Rung::new(name, &["--gather-neighbours", &k], &[]) }
+    }
+
+    /// The distance mode of the photons, or "none".
+    pub fn distance(&self) -> &'static str {
+        self.photons.map_or("none", |p| p.1)
     }
 }
 
 /// The presets (`--quality`), as the tools apply them.
 pub fn presets() -> Vec<Rung> {
-    Quality::ALL
-        .iter()
-        .map(|q| {
-            let s = q.settings();
-            Rung { paths: s.paths, ..Rung::new(q.name(), 0, "none", 0, s.cache_scale, s.step_factor, s.spp) }
-        })
-        .collect()
+    Quality::ALL.iter().map(|q| Rung::new(q.name(), &["--quality", q.name()], &["--quality", q.name()])).collect()
 }
 
-/// The ladder: the presets, and one setting at a time varied around the tools' defaults
-/// (200k photons, 64 neighbours, cache scale 2, default step, 1 spp), including the paper's
-/// distance modes (they cost more per photon, so each is also scored against delta tracking
-/// at equal time: [`Row::delta_rmse_at_equal_time`]), and two rungs far past the presets
-/// that show what the error costs on its way to 2%.
+/// The ladder: the tools' defaults (no flags at all), the presets, the paths and lattices
+/// around the defaults, the march's samples and step, and the photon chain (the paper's
+/// estimator) over photon counts and the paper's distance modes (they cost more per photon,
+/// so each is also scored against delta tracking at equal time:
+/// [`Row::delta_rmse_at_equal_time`]).
 fn ladder(quick: bool) -> Vec<Rung> {
-    let p = Rung::new("", 200_000, "delta", 64, 2.0, 1.0, 1);
-    let vary = |name: &str, f: &dyn Fn(&mut Rung)| {
-        let mut r = p.clone();
-        f(&mut r);
-        r.name = name.into();
-        r
-    };
-    let mut rungs = presets();
+    let mut rungs = vec![Rung::new("default", &[], &[])];
+    rungs.extend(presets());
     if quick {
         rungs.truncate(2);
         return rungs;
     }
     rungs.extend([
-        vary("photons 50k", &|r| r.photons = 50_000),
-        vary("photons 200k", &|_| ()),
-        vary("photons 800k", &|r| r.photons = 800_000),
-        // Where the error goes with many more photons, and at what time: the neighbour count
-        // grows with them, as the measured optimum does (K 64 at 200k, 128-256 at 3.2-12.8M).
-        vary("photons 3.2M", &|r| {
-            r.photons = 3_200_000;
-            r.neighbours = 128
-        }),
-        vary("photons 12.8M", &|r| {
-            r.photons = 12_800_000;
-            r.neighbours = 256
-        }),
-        vary("exponential 50k", &|r| {
-            r.photons = 50_000;
-            r.distance = "exponential"
-        }),
-        vary("simpson 50k", &|r| {
-            r.photons = 50_000;
-            r.distance = "simpson"
-        }),
-        vary("simpson 200k", &|r| r.distance = "simpson"),
-        vary("simpson 800k", &|r| {
-            r.photons = 800_000;
-            r.distance = "simpson"
-        }),
-        vary("delta 50k", &|r| r.photons = 50_000),
-        vary("neighbours 16", &|r| r.neighbours = 16),
-        vary("neighbours 256", &|r| r.neighbours = 256),
-        vary("cache scale 1", &|r| r.cache_scale = 1.0),
-        vary("cache scale 4", &|r| r.cache_scale = 4.0),
-        vary("step x2", &|r| r.step_factor = 2.0),
-        vary("step x0.5", &|r| r.step_factor = 0.5),
-        vary("spp 4", &|r| r.spp = 4),
+        Rung::new("paths 8", &["--paths", "8"], &[]),
+        Rung::new("paths 32", &["--paths", "32"], &[]),
+        Rung::new("paths 128", &["--paths", "128"], &[]),
+        Rung::new("paths 64 MS scale 1", &["--multiple-scale", "1"], &[]),
+        Rung::new("paths 64 MS scale 3", &["--multiple-scale", "3"], &[]),
+        Rung::new("paths 64 MS scale 4", &["--multiple-scale", "4"], &[]),
+        Rung::new("single scale 2", &["--cache-scale", "2"], &[]),
+        // The shadows as they were traced before the tabled transmittance.
+        Rung::new("shadow rays", &["--shadows", "rays"], &[]),
+        Rung::new("spp 1", &[], &["--spp", "1"]),
+        Rung::new("spp 16", &[], &["--spp", "16"]),
+        Rung::new("step x2", &[], &["--step-factor", "2"]),
     ]);
-    // Multiple scattering by paths from the cache voxels instead of photons: the paths per
-    // voxel, on Li_multiple lattices 4 and 2 density voxels wide (single scattering keeps the
-    // default cache scale 2).
     rungs.extend([
-        Rung::paths("paths 16", 16, 2.0, 4.0),
-        Rung::paths("paths 64", 64, 2.0, 4.0),
-        Rung::paths("paths 256", 256, 2.0, 4.0),
-        Rung::paths("paths 16 fine", 16, 2.0, 2.0),
-        Rung::paths("paths 128 fine", 128, 2.0, 2.0),
+        Rung::photons("photons 200k", 200_000, "delta", 64),
+        Rung::photons("photons 800k", 800_000, "delta", 64),
+        // The neighbour count grows with the photons, as the measured optimum does (K 64 at
+        // 200k, 128-256 at 3.2-12.8M).
+        Rung::photons("photons 3.2M", 3_200_000, "delta", 128),
+        Rung::photons("photons 12.8M", 12_800_000, "delta", 256),
+        Rung::photons("exponential 50k", 50_000, "exponential", 64),
+        Rung::photons("simpson 200k", 200_000, "simpson", 64),
+        Rung::photons("simpson 800k", 800_000, "simpson", 64),
     ]);
-    // "delta 50k" repeats "photons 50k"; keep one.
-    rungs.retain(|r| r.name != "delta 50k");
     rungs
 }
 
@@ -160,6 +125,8 @@ pub struct Row {
     pub photon_s: f64,
     pub cache_s: f64,
     pub march_s: f64,
+    /// CPU seconds (user + system) of the rung's tools.
+    pub cpu_s: f64,
     pub relative_rmse: f64,
     /// The reference's own noise taken out in quadrature (its RMSE estimated from the
     /// spp/4 render: e(spp/4)^2 = 5 sigma(spp)^2 for independent 1/sqrt(spp) noise).
@@ -180,8 +147,21 @@ impl Row {
     }
 }
 
-/// Runs a tool, returning its wall-clock seconds; its stderr goes to `log`.
-fn run_tool(bin: &Path, tool: &str, args: &[String], log: &Path) -> Result<f64> {
+/// CPU seconds (user + system) of this process's waited-for children so far, from
+/// /proc/self/stat (cutime, cstime in clock ticks of 1/100 s: Linux's USER_HZ).
+fn children_cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.rsplit_once(')').map_or("", |r| r.1);
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| fields.get(i).and_then(|f| f.parse::<f64>().ok()).unwrap_or(0.0);
+    // cutime and cstime are fields 16 and 17 of stat(5), 14 and 15 after the name.
+    (tick(14) + tick(15)) / 100.0
+}
+
+/// Runs a tool, returning its wall-clock and CPU seconds; its stderr goes to `log`.
+fn run_tool(bin: &Path, tool: &str, args: &[String], log: &Path) -> Result<(f64, f64)> {
+    let cpu_before = children_cpu_s();
     let start = Instant::now();
     let stderr = std::fs::File::create(log)?;
     let status = Command::new(bin.join(tool))
@@ -193,7 +173,7 @@ fn run_tool(bin: &Path, tool: &str, args: &[String], log: &Path) -> Result<f64> 
     if !status.success() {
         bail!("{tool} {} failed ({status}); see {}", args.join(" "), log.display());
     }
-    Ok(seconds)
+    Ok((seconds, children_cpu_s() - cpu_before))
 }
 
 /// Runs `vdbmarch args -o out` unless `out` is newer than `density` and `key_file` holds the
@@ -206,7 +186,7 @@ fn render_cached(bin: &Path, args: &[String], out: &Path, key_file: &Path, densi
     starting();
     let mut a = args.to_vec();
     a.extend(["-o".into(), out.display().to_string()]);
-    let s = run_tool(bin, "vdbmarch", &a, log)?;
+    let (s, _) = run_tool(bin, "vdbmarch", &a, log)?;
     std::fs::write(key_file, &key)?;
     Ok(Some(s))
 }
@@ -248,7 +228,7 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
         let mut a = vec![scene.particles.to_string()];
         a.extend(strings(scene.density));
         a.extend(["-o".into(), density.display().to_string()]);
-        let s = run_tool(&args.bin, "particles2vdb", &a, &path("density.log"))?;
+        let (s, _) = run_tool(&args.bin, "particles2vdb", &a, &path("density.log"))?;
         eprintln!("{}: density in {s:.1} s", scene.name);
     }
 
@@ -290,61 +270,57 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
     );
 
     // The ladder, each stage run once per distinct input.
-    let mut photon_runs: HashMap<(u64, &str), (PathBuf, f64)> = HashMap::new();
-    let mut cache_runs: HashMap<String, (PathBuf, f64)> = HashMap::new();
+    let mut photon_runs: HashMap<(u64, &str), (PathBuf, f64, f64)> = HashMap::new();
+    let mut cache_runs: HashMap<String, (PathBuf, f64, f64)> = HashMap::new();
     let mut rows = Vec::new();
     let default_step = scene.voxel * 3f64.sqrt() / 3.0;
     for rung in ladder(args.quick) {
-        let (input, photon_s) = if rung.paths > 0 {
-            (density.clone(), 0.0)
-        } else {
-            let pkey = (rung.photons, rung.distance);
-            if !photon_runs.contains_key(&pkey) {
-                let out = path(&format!("photons-{}-{}.vdb", rung.photons, rung.distance));
-                let mut a = vec![density.display().to_string()];
-                a.extend(strings(scene.optics));
-                a.extend(["--photons".into(), rung.photons.to_string(), "--distance".into(), rung.distance.into()]);
-                a.extend(["-o".into(), out.display().to_string()]);
-                let s = run_tool(&args.bin, "vdbphoton", &a, &path("vdbphoton.log"))?;
-                photon_runs.insert(pkey, (out, s));
+        let (input, photon_s, photon_cpu) = match rung.photons {
+            None => (density.clone(), 0.0, 0.0),
+            Some((photons, distance)) => {
+                let pkey = (photons, distance);
+                if !photon_runs.contains_key(&pkey) {
+                    let out = path(&format!("photons-{photons}-{distance}.vdb"));
+                    let mut a = vec![density.display().to_string()];
+                    a.extend(strings(scene.optics));
+                    a.extend(["--photons".into(), photons.to_string(), "--distance".into(), distance.into()]);
+                    a.extend(["-o".into(), out.display().to_string()]);
+                    let (s, cpu) = run_tool(&args.bin, "vdbphoton", &a, &path("vdbphoton.log"))?;
+                    photon_runs.insert(pkey, (out, s, cpu));
+                }
+                photon_runs[&pkey].clone()
             }
-            photon_runs[&pkey].clone()
         };
-        let ckey = match rung.multiple_scale {
-            _ if rung.paths == 0 => format!("{}-{}-{}-{}", rung.photons, rung.distance, rung.neighbours, rung.cache_scale),
-            ms => format!("paths-{}-{}-{}", rung.paths, rung.cache_scale, ms.unwrap_or(rung.cache_scale)),
-        };
+        let ckey = format!("{}-{}", rung.photons.map_or("paths".to_string(), |(n, d)| format!("{n}-{d}")), rung.cache.join("_").replace("--", ""));
         if !cache_runs.contains_key(&ckey) {
             let out = path(&format!("cache-{ckey}.vdb"));
             let mut a = vec![input.display().to_string()];
             a.extend(camera.clone());
-            a.extend(["--cache-scale".into(), rung.cache_scale.to_string()]);
-            if rung.paths > 0 {
+            if rung.photons.is_none() {
                 // Straight from the density: the optics vdbphoton would have recorded.
                 a.extend(strings(scene.optics));
-                a.extend(["--paths".into(), rung.paths.to_string()]);
-            } else {
-                a.extend(["--gather-neighbours".into(), rung.neighbours.to_string()]);
             }
-            if let Some(ms) = rung.multiple_scale {
-                a.extend(["--multiple-scale".into(), ms.to_string()]);
-            }
+            a.extend(rung.cache.iter().cloned());
             a.extend(["-o".into(), out.display().to_string()]);
-            let s = run_tool(&args.bin, "vdbcache", &a, &path("vdbcache.log"))?;
-            cache_runs.insert(ckey.clone(), (out, s));
+            let (s, cpu) = run_tool(&args.bin, "vdbcache", &a, &path("vdbcache.log"))?;
+            cache_runs.insert(ckey.clone(), (out, s, cpu));
         }
-        let (cache, cache_s) = cache_runs[&ckey].clone();
+        let (cache, cache_s, cache_cpu) = cache_runs[&ckey].clone();
         let image = path(&format!("image-{}.exr", rung.name.replace(' ', "-")));
-        let a = vec![
-            cache.display().to_string(),
-            "--step".into(),
-            (default_step * rung.step_factor).to_string(),
-            "--spp".into(),
-            rung.spp.to_string(),
-            "-o".into(),
-            image.display().to_string(),
-        ];
-        let march_s = run_tool(&args.bin, "vdbmarch", &a, &path("vdbmarch.log"))?;
+        let mut a = vec![cache.display().to_string()];
+        // --step-factor is the bench's own: a multiple of the default step.
+        let mut flags = rung.march.iter();
+        while let Some(f) = flags.next() {
+            match f.as_str() {
+                "--step-factor" => {
+                    let factor: f64 = flags.next().and_then(|v| v.parse().ok()).context("--step-factor takes a number")?;
+                    a.extend(["--step".into(), (default_step * factor).to_string()]);
+                }
+                _ => a.push(f.clone()),
+            }
+        }
+        a.extend(["-o".into(), image.display().to_string()]);
+        let (march_s, march_cpu) = run_tool(&args.bin, "vdbmarch", &a, &path("vdbmarch.log"))?;
         let e = compare(&read(&image)?, &reference_image);
         let corrected_rmse = (e.relative_rmse.powi(2) - reference_noise.powi(2)).max(0.0).sqrt();
         let row = Row {
@@ -353,13 +329,23 @@ fn run_scene(args: &Args, scene: &Scene) -> Result<Vec<Row>> {
             photon_s,
             cache_s,
             march_s,
+            cpu_s: photon_cpu + cache_cpu + march_cpu,
             relative_rmse: e.relative_rmse,
             corrected_rmse,
             mean_ratio: e.mean_ratio,
             pareto: false,
             delta_rmse_at_equal_time: None,
         };
-        eprintln!("{}: {:<16} {:>7.2} s  rel. RMSE {:.4} ({:.4} less the reference's noise)  mean ratio {:.3}", scene.name, row.rung.name, row.total_s(), row.relative_rmse, row.corrected_rmse, row.mean_ratio);
+        eprintln!(
+            "{}: {:<20} {:>7.2} s ({:.2} CPU s)  rel. RMSE {:.4} ({:.4} less the reference's noise)  mean ratio {:.3}",
+            scene.name,
+            row.rung.name,
+            row.total_s(),
+            row.cpu_s,
+            row.relative_rmse,
+            row.corrected_rmse,
+            row.mean_ratio
+        );
         rows.push(row);
     }
     Ok(rows)
@@ -383,9 +369,9 @@ fn dominates(a: &Row, b: &Row) -> bool {
 /// Fills [`Row::delta_rmse_at_equal_time`] for the rungs that do not delta-track.
 fn mark_delta_at_equal_time(rows: &mut [Row]) {
     let snapshot = rows.to_vec();
-    for row in rows.iter_mut().filter(|r| r.rung.distance != "delta") {
+    for row in rows.iter_mut().filter(|r| r.rung.distance() != "delta") {
         // The delta rungs no other delta rung of the scene beats in time and error, by time.
-        let delta: Vec<&Row> = snapshot.iter().filter(|o| o.scene == row.scene && o.rung.distance == "delta").collect();
+        let delta: Vec<&Row> = snapshot.iter().filter(|o| o.scene == row.scene && o.rung.distance() == "delta").collect();
         let mut front: Vec<(f64, f64)> = delta
             .iter()
             .filter(|o| !delta.iter().any(|d| dominates(d, o)))
@@ -412,67 +398,65 @@ fn interpolate_log_log(points: &[(f64, f64)], x: f64) -> Option<f64> {
 }
 
 /// The table's columns: (CSV name, Markdown heading).
-const COLUMNS: [(&str, &str); 19] = [
+const COLUMNS: [(&str, &str); 15] = [
     ("scene", "scene"),
     ("rung", "rung"),
     ("photons", "photons"),
     ("distance", "distance"),
-    ("neighbours", "K"),
-    ("paths", "paths"),
-    ("cache_scale", "cache scale"),
-    ("multiple_scale", "MS scale"),
-    ("step_factor", "step x"),
-    ("spp", "spp"),
+    ("vdbcache_flags", "vdbcache flags"),
+    ("vdbmarch_flags", "vdbmarch flags"),
     ("photon_s", "vdbphoton s"),
     ("cache_s", "vdbcache s"),
     ("march_s", "vdbmarch s"),
     ("total_s", "total s"),
+    ("cpu_s", "CPU s"),
     ("relative_rmse", "rel. RMSE"),
     ("corrected_rmse", "less ref. noise"),
     ("mean_ratio", "mean ratio"),
     ("pareto", "Pareto"),
-    ("delta_rmse_at_equal_time", "delta photons at equal time"),
 ];
 
-/// A row's values in [`COLUMNS`] order.
+/// A row's values in [`COLUMNS`] order, and the delta photons' error at equal time.
 fn fields(r: &Row) -> Vec<String> {
     let g = &r.rung;
     vec![
         r.scene.to_string(),
         g.name.clone(),
-        g.photons.to_string(),
-        g.distance.to_string(),
-        g.neighbours.to_string(),
-        g.paths.to_string(),
-        g.cache_scale.to_string(),
-        g.multiple_scale.unwrap_or(g.cache_scale).to_string(),
-        g.step_factor.to_string(),
-        g.spp.to_string(),
+        g.photons.map_or(String::new(), |p| p.0.to_string()),
+        g.distance().to_string(),
+        g.cache.join(" "),
+        g.march.join(" "),
         format!("{:.2}", r.photon_s),
         format!("{:.2}", r.cache_s),
         format!("{:.2}", r.march_s),
         format!("{:.2}", r.total_s()),
+        format!("{:.2}", r.cpu_s),
         format!("{:.4}", r.relative_rmse),
         format!("{:.4}", r.corrected_rmse),
         format!("{:.4}", r.mean_ratio),
         r.pareto.to_string(),
-        r.delta_rmse_at_equal_time.map_or(String::new(), |e| format!("{e:.4}")),
     ]
 }
 
+/// The delta-tracked photon chain's error at the rung's time, where it is measured.
+fn delta_field(r: &Row) -> String {
+    r.delta_rmse_at_equal_time.map_or(String::new(), |e| format!("{e:.4}"))
+}
+
 pub fn to_csv(rows: &[Row]) -> String {
-    let mut out = COLUMNS.map(|c| c.0).join(",") + "\n";
+    let mut out = COLUMNS.map(|c| c.0).join(",") + ",delta_rmse_at_equal_time\n";
     for r in rows {
-        out += &(fields(r).join(",") + "\n");
+        // Flags hold spaces, not commas.
+        out += &(fields(r).join(",") + "," + &delta_field(r) + "\n");
     }
     out
 }
 
 fn print_table(rows: &[Row]) {
-    println!("| {} |", COLUMNS.map(|c| c.1).join(" | "));
-    println!("|{}", "---|".repeat(COLUMNS.len()));
+    println!("| {} | delta photons at equal time |", COLUMNS.map(|c| c.1).join(" | "));
+    println!("|{}", "---|".repeat(COLUMNS.len() + 1));
     for r in rows {
-        println!("| {} |", fields(r).join(" | "));
+        println!("| {} | {} |", fields(r).join(" | "), delta_field(r));
     }
 }
 
@@ -483,10 +467,11 @@ mod tests {
     fn row(scene: &'static str, t: f64, e: f64) -> Row {
         Row {
             scene,
-            rung: Rung::new("delta photons", 200_000, "delta", 64, 2.0, 1.0, 1),
+            rung: Rung::photons("delta photons", 200_000, "delta", 64),
             photon_s: t,
             cache_s: 0.0,
             march_s: 0.0,
+            cpu_s: t,
             relative_rmse: e,
             corrected_rmse: e,
             mean_ratio: 1.0,
@@ -498,9 +483,9 @@ mod tests {
     #[test]
     fn other_distance_modes_are_scored_against_the_delta_front_at_their_time() {
         let mut simpson = row("a", 4.0, 0.3);
-        simpson.rung.distance = "simpson";
+        simpson.rung.photons = Some((200_000, "simpson"));
         let mut late = row("a", 100.0, 0.05);
-        late.rung.distance = "simpson";
+        late.rung.photons = Some((200_000, "simpson"));
         // Delta front at 1 s / 0.4 and 16 s / 0.1 (the 8 s / 0.5 rung is dominated).
         let mut rows = vec![row("a", 1.0, 0.4), row("a", 8.0, 0.5), row("a", 16.0, 0.1), simpson, late, row("b", 4.0, 0.01)];
         mark_delta_at_equal_time(&mut rows);
@@ -508,7 +493,7 @@ mod tests {
         let at4 = rows[3].delta_rmse_at_equal_time.unwrap();
         assert!((at4 - 0.2).abs() < 1e-12, "{at4}");
         assert_eq!(rows[4].delta_rmse_at_equal_time, None, "beyond the front's time span");
-        assert!(rows.iter().filter(|r| r.rung.distance == "delta").all(|r| r.delta_rmse_at_equal_time.is_none()));
+        assert!(rows.iter().filter(|r| r.rung.distance() == "delta").all(|r| r.delta_rmse_at_equal_time.is_none()));
     }
 
     #[test]

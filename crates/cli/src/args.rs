@@ -233,11 +233,12 @@ pub enum Quality {
     Final,
 }
 
-/// What a [`Quality`] sets, tool by tool.
+/// What a [`Quality`] sets, tool by tool; [`QualitySettings::DEFAULT`] is what the tools do
+/// without one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct QualitySettings {
-    /// vdbcache `--paths`: the presets trace multiple scattering from the cache voxels, which
-    /// beat the photon gather at each preset's budget on both bundled scenes (README); an explicit
+    /// vdbcache `--paths`: multiple scattering traced from the cache voxels, which beats the
+    /// photon gather at every budget on the bundled scenes (README); an explicit
     /// `--gather-neighbours` or `--radius` gathers photons instead.
     pub paths: u32,
     /// vdbphoton `--photons`, for the chain that gathers photons.
@@ -247,12 +248,28 @@ pub struct QualitySettings {
     pub distance: &'static str,
     /// vdbcache `--gather-neighbours`, where photons are gathered.
     pub gather_neighbours: u32,
-    /// vdbcache `--cache-scale`.
+    /// vdbcache `--cache-scale`: Li_single's lattice, in density voxels.
     pub cache_scale: f64,
+    /// vdbcache `--multiple-scale`: Li_multiple's lattice, in density voxels.
+    pub multiple_scale: f64,
     /// vdbmarch `--step` as a multiple of its default (a third of a voxel diagonal).
     pub step_factor: f64,
-    /// vdbmarch `--spp`.
-    pub spp: u32,
+    /// vdbmarch `--spp`; None: enough for the pixel's samples to lie half a density voxel
+    /// apart at the volume (`nimbus_march::default_spp`).
+    pub spp: Option<u32>,
+}
+
+impl QualitySettings {
+    /// The tools without `--quality`: the chain within 2% of the path-traced reference on
+    /// the bundled scenes (README, `make bench`). Li_single at the density's resolution
+    /// (its shadows are as sharp as the density; tabled transmittance makes it cheap),
+    /// Li_multiple on a lattice two voxels wide (the best of 1 to 8 at equal time on the
+    /// cloud, the plume and a twenty-times thinner plume: multiple scattering follows the
+    /// medium's wisps, not only its transport mean free path) with 64 paths a voxel (the
+    /// cloud's noise sets it: 32 give 2.4%, 64 1.9-2.0%), and the march's samples per pixel
+    /// by the image's footprint (the plume's sub-pixel wisps: 2.2% at one sample, 1.3% at 16).
+    pub const DEFAULT: QualitySettings =
+        QualitySettings { paths: 64, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 1.0, multiple_scale: 2.0, step_factor: 1.0, spp: None };
 }
 
 impl Quality {
@@ -267,18 +284,20 @@ impl Quality {
     }
 
     pub fn settings(self) -> QualitySettings {
+        let default = QualitySettings::DEFAULT;
         match self {
-            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, distance: "delta", gather_neighbours: 32, cache_scale: 4.0, step_factor: 2.0, spp: 1 },
-            // The measured Pareto front (README): the paths per voxel set the error, on the
-            // coarse lattice while a couple of percent of darkening at the visible surface
-            // (interpolation) is below the noise; a finer march step or more spp buy little.
-            Quality::Preview => QualitySettings { paths: 16, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 4.0, step_factor: 1.0, spp: 1 },
-            // Within 2% of the path-traced reference on both bundled scenes: the lattice 2
-            // density voxels wide (the coarse one's darkening would eat the budget), and 16
-            // stratified samples per pixel, which average the plume's sub-pixel wisps as the
-            // reference does (1.96% -> 1.36% there; the march's time grows with spp and the
-            // image, the bake's with neither).
-            Quality::Final => QualitySettings { paths: 64, photons: 3_200_000, distance: "delta", gather_neighbours: 128, cache_scale: 2.0, step_factor: 1.0, spp: 16 },
+            // Look development: a coarse lattice and few paths (its blur and noise are the
+            // error), one sample per pixel and a long march step.
+            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, gather_neighbours: 32, cache_scale: 2.0, multiple_scale: 4.0, step_factor: 2.0, spp: Some(1), ..default },
+            // The default lattices at a quarter of the paths.
+            Quality::Preview => QualitySettings { paths: 16, ..default },
+            // Four times the default's paths (half its noise) and 16 stratified samples per
+            // pixel, which average sub-pixel wisps as the reference does.
+            Quality::Final => QualitySettings { paths: 256, photons: 3_200_000, gather_neighbours: 128, spp: Some(16), ..default },
         }
+    }
+    /// The settings of `quality`, or the defaults without one.
+    pub fn settings_or_default(quality: Option<Quality>) -> QualitySettings {
+        quality.map_or(QualitySettings::DEFAULT, Quality::settings)
     }
 }

@@ -63,6 +63,13 @@ impl Log {
         }
     }
 
+    /// A line a user should read, not a fault: printed unless `-q`.
+    pub fn note(&self, what: impl std::fmt::Display) {
+        if self.verbosity > Verbosity::Quiet {
+            eprintln!("{}: {what}", self.tool);
+        }
+    }
+
     /// A line printed only with `-v`.
     pub fn verbose(&self, what: impl std::fmt::Display) {
         if self.verbosity == Verbosity::Verbose {
