@@ -151,24 +151,29 @@ pub fn li_multiple(
     (Vec3::new(ratio(estimate.x, mean_sigma_s.x), ratio(estimate.y, mean_sigma_s.y), ratio(estimate.z, mean_sigma_s.z)), used)
 }
 
-/// Li_multiple toward the eye by one path from each of `origins`: each leaves its origin x
-/// in a direction drawn from the phase function about the camera ray's direction there
-/// (-w_out, w_out toward `eye`), so the phase weight cancels, and gathers all the light the
-/// path scatters toward x (its first collision is x's second scattering); the mean over the
-/// origins. `medium`'s majorant must suit delta tracking ([`MajorantGrid::for_tracking`]);
-/// next-event estimation looks transmittance up in `depths` where a light has a table.
+/// Li_multiple toward the eye by `paths` paths, path j from `origins[j % origins.len()]`:
+/// each leaves its origin x in a direction drawn from the phase function about the camera
+/// ray's direction there (-w_out, w_out toward `eye`), so the phase weight cancels, and
+/// gathers all the light the path scatters toward x (its first collision is x's second
+/// scattering); the mean over the paths. `medium`'s majorant must suit delta tracking
+/// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
+/// `depths` where a light has a table.
 #[allow(clippy::too_many_arguments)]
-pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, origins: &[DVec3], eye: DVec3, rng: &mut Rng) -> Vec3 {
+pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, origins: &[DVec3], paths: u32, eye: DVec3, rng: &mut Rng) -> Vec3 {
     let phase = optics.phase();
     let mut sum = Vec3::ZERO;
-    for &x in origins {
+    if origins.is_empty() {
+        return sum;
+    }
+    for j in 0..paths as usize {
+        let x = origins[j % origins.len()];
         let w_out = (eye - x).normalize_or_zero().as_vec3();
         // At the eye itself there is no camera ray; any axis serves.
         let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
         let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
         sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng).total();
     }
-    sum / origins.len().max(1) as f32
+    sum / paths.max(1) as f32
 }
 
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
@@ -228,10 +233,10 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
             let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
             let started = std::time::Instant::now();
             let volume = bake(multiple_plan, &|i, _, _, _| {
-                let origins = path_plan.origins_of(i);
-                traced.fetch_add(origins.len() as u64, Ordering::Relaxed);
+                let paths = path_plan.counts[i];
+                traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, origins, camera.eye(), &mut rng)
+                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, path_plan.origins_of(i), paths, camera.eye(), &mut rng)
             });
             stats.stages.push(("paths", started.elapsed().as_millis() as u64));
             stats.paths = traced.into_inner();
