@@ -1,8 +1,9 @@
 //! The GPU backend against the CPU one on lavapipe (or any adapter): the same plan, the same
-//! voxels, values to float tolerance.
+//! voxels, values to float tolerance; the lights' tables built on the GPU and looked up by
+//! both single scattering and the paths' next-event estimation.
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -44,7 +45,7 @@ fn params(v: &Volume<f32>) -> CacheParams {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 1e-4,
-        shadows: ShadowMode::Rays,
+        shadows: ShadowMode::Table(LightLattice::default()),
     }
 }
 
@@ -79,11 +80,40 @@ fn both(v: &Volume<f32>, map: &PhotonMap, p: &CacheParams) -> Option<(Illuminati
     let (gpu, gpu_stats) = bake_gpu(ctx, v, map, p).unwrap();
     assert_eq!(gpu_stats.baked, cpu_stats.baked);
     assert_eq!(gpu_stats.nonfinite, 0);
+    assert_eq!(gpu_stats.light_table_nodes, cpu_stats.light_table_nodes, "the same tables");
     // The same photons in (nearly) every ball: a k-th-nearest tie broken differently by f32
     // rounding may swap one.
     let (a, b) = (cpu_stats.photons_gathered as f64, gpu_stats.photons_gathered as f64);
     assert!((a - b).abs() <= 1e-3 * a.max(1.0), "photons gathered: CPU {a}, GPU {b}");
     Some((cpu, gpu))
+}
+
+/// The transmittance grids of both backends: the same lights, the same voxels; the worst
+/// difference relative to the transmittance itself over voxels above 1e-3 (f32 sums of the
+/// tables' optical depth), and how many such voxels, and how many in shadow below 0.5.
+fn compare_transmittance(cpu: &IlluminationCache, gpu: &IlluminationCache) -> (f64, usize, usize) {
+    let lights = |c: &IlluminationCache| c.transmittance.iter().map(|(i, _)| *i).collect::<Vec<_>>();
+    assert_eq!(lights(cpu), lights(gpu), "a transmittance grid per tabled light");
+    let (mut worst, mut n, mut shadowed) = (0.0f64, 0, 0);
+    for ((_, c), (_, g)) in cpu.transmittance.iter().zip(&gpu.transmittance) {
+        assert_eq!(c.transform(), g.transform());
+        assert_eq!(c.active_voxel_count(), g.active_voxel_count());
+        for brick in c.bricks() {
+            for (offset, &tc) in brick.values.iter().enumerate() {
+                let ijk = brick.origin + nimbus_volume::brick_local(offset);
+                if !c.is_active(ijk) {
+                    continue;
+                }
+                assert!(g.is_active(ijk), "{ijk} on one backend only");
+                if tc > 1e-3 {
+                    worst = worst.max(((g.get(ijk) - tc) / tc).abs() as f64);
+                    n += 1;
+                    shadowed += (tc < 0.5) as usize;
+                }
+            }
+        }
+    }
+    (worst, n, shadowed)
 }
 
 #[test]
@@ -93,13 +123,57 @@ fn single_and_multiple_scattering_agree_with_the_cpu() {
     let map = photons(&v, &p);
     let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
     let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
-    eprintln!("single: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    eprintln!("single (sun tabled, point light by shadow rays): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
     assert!(n > 1000 && peak > 0.0);
     assert!(worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    let (worst, n, shadowed) = compare_transmittance(&cpu, &gpu);
+    eprintln!("transmittance grid: {n} voxels lit above 1e-3 ({shadowed} below 0.5), worst relative difference {worst:.2e}");
+    assert_eq!(cpu.transmittance.len(), 1, "the sun's, not the point light's");
+    assert!(n > 1000 && shadowed > 100);
+    assert!(worst <= 1e-5, "transmittance: worst relative difference {worst}");
     let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
     eprintln!("multiple (k nearest): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
     assert!(peak > 0.0);
     assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+}
+
+/// Shadow rays instead of tables (`--shadows rays`): composite Simpson on both backends, and
+/// no tables, so no transmittance grids.
+#[test]
+fn single_scattering_by_shadow_rays_agrees_with_the_cpu() {
+    let v = lumpy_ball();
+    let p = CacheParams { multiple: false, shadows: ShadowMode::Rays, ..params(&v) };
+    let Some((cpu, gpu)) = both(&v, &PhotonMap::default(), &p) else { return };
+    let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
+    eprintln!("single by shadow rays: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(n > 1000 && peak > 0.0);
+    assert!(worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    assert!(cpu.transmittance.is_empty() && gpu.transmittance.is_empty());
+}
+
+/// Several suns and a point light: each sun's table in the one node buffer, found through its
+/// own brick index and lattice map; the point light keeps shadow rays.
+#[test]
+fn every_sun_is_tabled_and_looked_up_as_on_the_cpu() {
+    let v = lumpy_ball();
+    let (lo, hi) = v.world_bounds().unwrap();
+    let lights = vec![
+        Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),
+        Light::point(0.5 * (lo + hi) + DVec3::new(0.3, -2.0, 1.5), Vec3::splat(2.0)).unwrap(),
+        Light::sun(Vec3::X, Vec3::new(0.5, 0.5, 0.2)).unwrap(),
+        Light::sun(Vec3::new(-0.4, 0.8, 0.3).normalize(), Vec3::splat(0.7)).unwrap(),
+    ];
+    let p = CacheParams { multiple: false, lights, ..params(&v) };
+    let Some((cpu, gpu)) = both(&v, &PhotonMap::default(), &p) else { return };
+    let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
+    eprintln!("single, three suns and a point light: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(n > 1000 && peak > 0.0);
+    assert!(worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    let (worst, n, shadowed) = compare_transmittance(&cpu, &gpu);
+    eprintln!("transmittance grids: {n} voxels lit above 1e-3 ({shadowed} below 0.5), worst relative difference {worst:.2e}");
+    assert_eq!(gpu.transmittance.iter().map(|(i, _)| *i).collect::<Vec<_>>(), vec![0, 2, 3]);
+    assert!(n > 3000 && shadowed > 300);
+    assert!(worst <= 1e-5, "transmittance: worst relative difference {worst}");
 }
 
 #[test]
@@ -235,6 +309,8 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let (n, lit, same, level, mean, se) = paired_differences(&cpu, &gpu);
     assert_eq!(cpu_stats.paths, per_voxel as u64 * cpu_stats.baked, "N paths per voxel on average");
     assert_eq!(gpu_stats.paths, cpu_stats.paths, "paths traced");
+    assert_eq!(gpu_stats.culled_unseen, cpu_stats.culled_unseen, "the same path plan");
+    assert!(gpu_stats.light_table_nodes > 0 && gpu_stats.light_table_nodes == cpu_stats.light_table_nodes, "the sun's table serves next-event estimation");
     eprintln!("{n} voxels, {lit} lit, {same} of those the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
     assert!(n > 500 && level > 0.0);
     assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
@@ -283,7 +359,9 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
     }
     let (lo, hi) = v.world_bounds().unwrap();
     let suns = [(0.3, 0.2, -1.0), (-0.5, 0.1, -0.8), (0.1, -0.9, -0.3), (0.7, 0.7, 0.1), (-0.2, 0.4, 0.9), (0.0, 0.0, 1.0)];
+    // Shadow rays (tables would look the suns up, with no loop to run out of).
     let p = CacheParams {
+        shadows: ShadowMode::Rays,
         medium: Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 },
         lights: suns.iter().map(|&(x, y, z)| Light::sun(Vec3::new(x, y, z).normalize(), Vec3::ONE).unwrap()).collect(),
         camera: Camera::default_for_bounds(lo, hi).unwrap(),

@@ -18,7 +18,9 @@ use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDep
 pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 
 /// `shaders/path.wgsl`: `trace_path` and its constants, no bindings; composed after
-/// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`.
+/// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`
+/// and `fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32`: [`LIGHT_TABLES_WGSL`]
+/// ([`crate::Shadowing::Tabled`]) or [`NO_LIGHT_TABLES_WGSL`] ([`crate::Shadowing::RatioTracked`]).
 pub const PATH_WGSL: &str = include_str!("../../../shaders/path.wgsl");
 
 /// `shaders/light_tables.wgsl`: the lights' tables at group 2 ([`GpuLightTables::layout`])
