@@ -2,7 +2,9 @@
 // nimbus_tracking::LightDepths::get (which lights have a table) and of
 // OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).
 //
-// Composed after volume.wgsl (its volume_lerp). Binds group 2, whatever the number of lights:
+// Composed after volume.wgsl (its volume_lerp) and the host-generated brick layout
+// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2: GpuLightTables::wgsl prepends it).
+// Binds group 2, whatever the number of lights:
 // - light_tables: one LightTable per light of the scene, `tabled` 0 where the light has none
 //   (point lights, dark suns, or every light when shadows are traced by rays);
 // - light_table_index: per tabled light, a dense index over the bounding box (in bricks) of
@@ -37,10 +39,16 @@ struct LightTable {
 
 // No brick stores the node.
 const LIGHT_TABLE_NO_SLOT: u32 = 0xffffffffu;
+// A brick's edge less one (the local coordinate mask), and its offset steps along y and x
+// (brick_offset: x-major, z fastest).
+const LIGHT_TABLE_LOCAL_MASK: i32 = (1 << LIGHT_TABLE_BRICK_LOG2) - 1;
+const LIGHT_TABLE_STEP_Y: u32 = 1u << LIGHT_TABLE_BRICK_LOG2;
+const LIGHT_TABLE_STEP_X: u32 = 1u << (2u * LIGHT_TABLE_BRICK_LOG2);
+const LIGHT_TABLE_BRICK_NODES: u32 = 1u << (3u * LIGHT_TABLE_BRICK_LOG2);
 
 // Where lattice node `node` of table `t` sits in light_table_nodes, or LIGHT_TABLE_NO_SLOT.
 fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
-    let b = (node >> vec3<u32>(3u)) - t.brick_min;
+    let b = (node >> vec3<u32>(LIGHT_TABLE_BRICK_LOG2)) - t.brick_min;
     if (any(b < vec3<i32>(0)) || any(b >= t.brick_dims)) {
         return LIGHT_TABLE_NO_SLOT;
     }
@@ -48,8 +56,8 @@ fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
     if (entry == 0u) {
         return LIGHT_TABLE_NO_SLOT;
     }
-    let l = vec3<u32>(node & vec3<i32>(7));
-    return (entry - 1u) * 512u + ((l.x << 6u) | (l.y << 3u) | l.z);
+    let l = vec3<u32>(node & vec3<i32>(LIGHT_TABLE_LOCAL_MASK));
+    return (entry - 1u) * LIGHT_TABLE_BRICK_NODES + l.x * LIGHT_TABLE_STEP_X + l.y * LIGHT_TABLE_STEP_Y + l.z;
 }
 
 fn light_table_node(t: LightTable, node: vec3<i32>) -> f32 {
@@ -73,15 +81,17 @@ fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {
     let w = p - base;
     let c = vec3<i32>(base);
     var v: array<f32, 8>;
-    let local = c & vec3<i32>(7);
-    if (all(local < vec3<i32>(7))) {
+    let local = c & vec3<i32>(LIGHT_TABLE_LOCAL_MASK);
+    if (all(local < vec3<i32>(LIGHT_TABLE_LOCAL_MASK))) {
         // The whole cell lies in one brick: one index lookup, eight loads (Volume::corners).
         let s = light_table_slot(t, c);
         if (s == LIGHT_TABLE_NO_SLOT) {
             return 1.0;
         }
-        v = array<f32, 8>(light_table_nodes[s], light_table_nodes[s + 1u], light_table_nodes[s + 8u], light_table_nodes[s + 9u],
-                          light_table_nodes[s + 64u], light_table_nodes[s + 65u], light_table_nodes[s + 72u], light_table_nodes[s + 73u]);
+        let sy = LIGHT_TABLE_STEP_Y;
+        let sx = LIGHT_TABLE_STEP_X;
+        v = array<f32, 8>(light_table_nodes[s], light_table_nodes[s + 1u], light_table_nodes[s + sy], light_table_nodes[s + sy + 1u],
+                          light_table_nodes[s + sx], light_table_nodes[s + sx + 1u], light_table_nodes[s + sx + sy], light_table_nodes[s + sx + sy + 1u]);
     } else {
         for (var n = 0; n < 8; n = n + 1) {
             v[n] = light_table_node(t, c + vec3<i32>((n >> 2u) & 1, (n >> 1u) & 1, n & 1));

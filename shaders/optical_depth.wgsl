@@ -8,8 +8,8 @@
 // that skips empty space) + light_tables.wgsl (group 2: where each node is stored, and the
 // nodes this writes) + nimbus_gpu::LoopGuard::wgsl (binding 3 of group 1) + this file. Each
 // dispatch takes rays first_ray .. first_ray + ray_count of one light: ray r is ray
-// (r / 8 % 8, r % 8) of brick column r / 64, so a workgroup of 64 is one column, as one CPU
-// task is. Every ray ends with loop_guard_check(): llvmpipe (lavapipe) silently ends loops
+// (r / 8 % 8, r % 8) of brick column r / 64 (for 8^3 bricks), so a workgroup is one column,
+// as one CPU task is. Every ray ends with loop_guard_check(): llvmpipe (lavapipe) silently ends loops
 // past 65535 iterations per SIMD group, which a ray through thousands of cells could reach.
 //
 // Everything is f32 (the CPU integrates in f64): the nodes agree to f32 rounding of the
@@ -180,17 +180,20 @@ fn integrate_light_ray(first: vec3<i32>, count: u32) {
     }
 }
 
-const LIGHT_RAYS_WORKGROUP: u32 = 64u;
+// The rays of a brick column: a brick's edge of them on each lattice axis across the light.
+const LIGHT_COLUMN_EDGE: u32 = 1u << LIGHT_TABLE_BRICK_LOG2;
+const LIGHT_COLUMN_RAYS: u32 = LIGHT_COLUMN_EDGE * LIGHT_COLUMN_EDGE;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(LIGHT_COLUMN_RAYS)
 fn integrate_light_rays(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                         @builtin(local_invocation_index) local: u32) {
-    let i = dispatch_linear_index(wg, nwg, local, LIGHT_RAYS_WORKGROUP);
+    let i = dispatch_linear_index(wg, nwg, local, LIGHT_COLUMN_RAYS);
     if (i >= rays.ray_count) {
         return;
     }
     let r = rays.first_ray + i;
-    let column = columns[r / 64u];
-    integrate_light_ray(vec3<i32>(column.x + i32(r / 8u % 8u), column.y + i32(r % 8u), column.k0), column.nodes);
+    let column = columns[r / LIGHT_COLUMN_RAYS];
+    let across = vec2<u32>(r / LIGHT_COLUMN_EDGE % LIGHT_COLUMN_EDGE, r % LIGHT_COLUMN_EDGE);
+    integrate_light_ray(vec3<i32>(column.x + i32(across.x), column.y + i32(across.y), column.k0), column.nodes);
     loop_guard_check();
 }

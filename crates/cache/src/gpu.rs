@@ -9,7 +9,7 @@ use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
@@ -257,7 +257,8 @@ impl<'a> GpuBaker<'a> {
         let tables_layout = GpuLightTables::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            light_tables_wgsl(),
             constants_wgsl(),
             guard.wgsl(1)
         ));

@@ -19,16 +19,23 @@ pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 
 /// `shaders/path.wgsl`: `trace_path` and its constants, no bindings; composed after
 /// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`
-/// and `fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32`: [`LIGHT_TABLES_WGSL`]
+/// and `fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32`: [`light_tables_wgsl`]
 /// ([`crate::Shadowing::Tabled`]) or [`NO_LIGHT_TABLES_WGSL`] ([`crate::Shadowing::RatioTracked`]).
 pub const PATH_WGSL: &str = include_str!("../../../shaders/path.wgsl");
 
-/// `shaders/light_tables.wgsl`: the lights' tables at group 2 ([`GpuLightTables::layout`])
-/// and `light_table_transmittance`, their lookup; composed after the volume.
-pub const LIGHT_TABLES_WGSL: &str = include_str!("../../../shaders/light_tables.wgsl");
+/// `shaders/light_tables.wgsl`, composed by [`light_tables_wgsl`].
+const LIGHT_TABLES_WGSL: &str = include_str!("../../../shaders/light_tables.wgsl");
+
+/// `shaders/light_tables.wgsl` after the brick layout it indexes nodes by, generated from
+/// nimbus_volume's so the two cannot drift apart: the lights' tables at group 2
+/// ([`GpuLightTables::layout`]) and `light_table_transmittance`, their lookup; composed
+/// after the volume.
+pub fn light_tables_wgsl() -> String {
+    format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\n{LIGHT_TABLES_WGSL}")
+}
 
 /// What a stage whose paths ratio-track every light composes in place of
-/// [`LIGHT_TABLES_WGSL`] (the reference path tracer: [`crate::Shadowing::RatioTracked`]): no
+/// [`light_tables_wgsl`] (the reference path tracer: [`crate::Shadowing::RatioTracked`]): no
 /// light has a table, and no bindings.
 pub const NO_LIGHT_TABLES_WGSL: &str = "fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {\n    return -1.0;\n}\n";
 
@@ -116,7 +123,7 @@ const GUARD_BINDING: u32 = 3;
 /// light's [`LightTablePlan`] (decided on the host, as the CPU decides it), its nodes in one
 /// storage buffer for all lights, a dense brick index per light and a [`GpuLightTable`] per
 /// light (its world-to-lattice map), so the bindings do not depend on the light count.
-/// Bind it at group 2 of a stage that composes [`LIGHT_TABLES_WGSL`].
+/// Bind it at group 2 of a stage that composes [`light_tables_wgsl`].
 pub struct GpuLightTables {
     tables: wgpu::Buffer,
     index: wgpu::Buffer,
@@ -157,7 +164,7 @@ impl GpuLightTables {
         let layout = ctx.bind_group_layout("light rays", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
         let tables_layout = Self::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{LIGHT_TABLES_WGSL}\n{}\n{OPTICAL_DEPTH_WGSL}", guard.wgsl(1)));
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{OPTICAL_DEPTH_WGSL}", light_tables_wgsl(), guard.wgsl(1)));
         let pipeline = ctx.compute_pipeline("light rays", &source, "integrate_light_rays", &[&volume_layout, &layout, &tables_layout])?;
         let majorant = majorant_buffer(ctx, medium.majorant)?;
         let grid = GpuMajorantInfo::new(medium.majorant, medium.density.background());
@@ -263,7 +270,7 @@ impl GpuLightTables {
         })
     }
 
-    /// The layout of group 2 for [`LIGHT_TABLES_WGSL`].
+    /// The layout of group 2 for [`light_tables_wgsl`].
     pub fn layout(ctx: &GpuContext) -> Result<wgpu::BindGroupLayout, GpuError> {
         ctx.bind_group_layout("light tables", &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false)])
     }
@@ -308,11 +315,12 @@ mod tests {
         assert!(super::OPTICAL_DEPTH_WGSL.contains("struct LightRays") && super::OPTICAL_DEPTH_WGSL.contains("struct LightColumn"));
     }
 
-    /// The kernel takes a brick column per workgroup of 64, as the CPU a column per task.
+    /// The host dispatches a brick column's rays per workgroup, as the kernel takes them.
     #[test]
     fn a_workgroup_is_one_brick_column() {
-        assert_eq!(super::COLUMN_RAYS, 64);
-        assert!(super::OPTICAL_DEPTH_WGSL.contains("@workgroup_size(64)") && super::OPTICAL_DEPTH_WGSL.contains("LIGHT_RAYS_WORKGROUP: u32 = 64u"));
+        assert_eq!(super::COLUMN_RAYS, nimbus_volume::BRICK_DIM as u64 * nimbus_volume::BRICK_DIM as u64);
+        assert!(super::OPTICAL_DEPTH_WGSL.contains("@workgroup_size(LIGHT_COLUMN_RAYS)"));
+        assert!(super::light_tables_wgsl().starts_with(&format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {}u;", nimbus_volume::BRICK_LOG2)));
     }
 
     #[test]

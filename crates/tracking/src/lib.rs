@@ -37,7 +37,7 @@ mod gpu;
 mod optical_depth;
 mod path;
 
-pub use gpu::{majorant_buffer, GpuLightTables, GpuMajorantInfo, LIGHT_TABLES_WGSL, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
+pub use gpu::{light_tables_wgsl, majorant_buffer, GpuLightTables, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
 pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing};
 pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 

@@ -7,27 +7,11 @@ use std::time::Instant;
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
 use nimbus_gpu::{storage_entry, GpuContext, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{Light, Rng};
-use nimbus_tracking::{DensityMedium, GpuLightTables, LightDepths, LightLattice, LIGHT_TABLES_WGSL};
+use nimbus_tracking::{DensityMedium, GpuLightTables, LightDepths, LightLattice, light_tables_wgsl};
 use nimbus_volume::{MajorantGrid, Transform, Volume};
 
-/// A lumpy blob: a Gaussian with two denser knots, on `transform`'s lattice over index box
-/// [-n, n]^3 (tens of thousands of voxels: lavapipe is slow).
-fn blob(transform: Transform, n: i32) -> Volume<f32> {
-    let mut v = Volume::new(transform, 0.0);
-    for x in -n..=n {
-        for y in -n..=n {
-            for z in -n..=n {
-                let p = IVec3::new(x, y, z).as_dvec3() / n as f64;
-                let g = |c: DVec3, s: f64| (-(p - c).length_squared() / (s * s)).exp();
-                let d = g(DVec3::ZERO, 0.5) + 3.0 * g(DVec3::new(0.3, -0.2, 0.1), 0.15) + 2.0 * g(DVec3::new(-0.35, 0.3, -0.2), 0.1);
-                if d > 1e-3 {
-                    v.set(IVec3::new(x, y, z), d as f32);
-                }
-            }
-        }
-    }
-    v
-}
+mod common;
+use common::blob;
 
 /// Anisotropic, sheared voxels far from the world origin (the anvil case).
 fn sheared() -> Transform {
@@ -149,7 +133,7 @@ fn lookup(@builtin(global_invocation_id) id: vec3<u32>) {
     results[i] = light_table_transmittance(i / n, points[i % n].xyz);
 }
 "#;
-    let source = ctx.compose_shader(&format!("{LIGHT_TABLES_WGSL}\n{KERNEL}"));
+    let source = ctx.compose_shader(&format!("{}\n{KERNEL}", light_tables_wgsl()));
     let empty = ctx.bind_group_layout("nothing at group 0", &[]).unwrap();
     let layout = ctx.bind_group_layout("lookups", &[storage_entry(0, true), storage_entry(1, false)]).unwrap();
     let tables_layout = GpuLightTables::layout(ctx).unwrap();
