@@ -62,8 +62,8 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             }
             var tr = light_table_transmittance(i, x);
             if (tr < 0.0) {
-                tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid, min(inc.distance, TRACK_FAR),
-                                               RATIO_ROULETTE, rng);
+                tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
+                                               min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng);
             }
             if (tr > 0.0) {
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
