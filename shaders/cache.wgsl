@@ -1,24 +1,27 @@
 // vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0, sampled exactly) + optics.wgsl
-// + tracking.wgsl + path.wgsl + the host-generated constants (CACHE_MAX_NEIGHBOURS,
-// CACHE_PATHS_DOMAIN, BALL_SHELLS, BALL_DIRECTIONS, from crates/cache/src/cpu.rs) + this
-// file. Mirrors crates/cache/src/cpu.rs:
-// - bake_single: li_single, one Simpson shadow ray per light (track_transmittance);
+// + tracking.wgsl + light_tables.wgsl (the lights' tables, group 2) + path.wgsl + the
+// host-generated constants (CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, BALL_SHELLS,
+// BALL_DIRECTIONS, from crates/cache/src/cpu.rs) + this file. Mirrors crates/cache/src/cpu.rs:
+// - bake_single: li_single, per light its tabled transmittance where it has a table (zero
+//   below the cut-off), else one Simpson shadow ray (track_transmittance);
 // - bake_multiple: li_multiple, the photons' radiance estimate over the k nearest (the same
 //   shell-by-shell bounded search over the same counting-sort bins as PhotonBins::nearest,
 //   with the same max-heap order) or within a fixed radius, divided by the mean sigma_s over
 //   the ball (the same 42-point quadrature);
-// - seed_paths then bake_paths: li_multiple_paths, the host's count of paths from each voxel
-//   (CameraImportance::paths, uploaded in out.used; path.wgsl's trace_path, the first
-//   direction by HG about the camera ray), drawing from the CPU's stream: voxel i's Rng (seed, i, CACHE_PATHS_DOMAIN), one stream
-//   for all its paths in turn, kept in path_rngs between dispatches. The host binds the
-//   tracking majorant (MajorantGrid::for_tracking) for these, the plain one for the others.
+// - seed_paths then bake_paths: li_multiple_paths over the host's PathPlan (voxel v's count
+//   in out.used, its paths' origins from path_origins[path_first[v]]; path.wgsl's trace_path
+//   from each origin, the first direction by HG about the camera ray there, next-event
+//   estimation through the lights' tables where they have one), drawing from the CPU's
+//   stream: voxel i's Rng (seed, i, CACHE_PATHS_DOMAIN), one stream for all its paths in
+//   turn, kept in path_rngs between dispatches. The host binds the tracking majorant
+//   (MajorantGrid::for_tracking) for these, the plain one for the others.
 //   The CPU decides in f64 and this in f32, so a path can take another turn now and then:
 //   the two agree in distribution, not voxel for voxel.
 // Positions are f32 relative to the host's origin, which is the photon bins' origin when
 // there are photons, so bin-local positions are the very f32 values the CPU compares.
-// Composed after nimbus_gpu::LoopGuard::wgsl (binding 8 of group 1): every voxel ends with
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 10 of group 1): every voxel ends with
 // loop_guard_check(), so a software adapter that cut a shadow ray, a photon search or a path
 // short says so. llvmpipe (lavapipe) ends any loop of a SIMD group after 65535 iterations
 // counted over the whole invocation, so each bake_paths dispatch traces a few paths per
@@ -89,6 +92,9 @@ const GATHER_RADIUS: u32 = 1u;
 @group(1) @binding(6) var<storage, read_write> out: array<CacheOut>;
 // Each voxel's path Rng between the dispatches of bake_paths.
 @group(1) @binding(7) var<storage, read_write> path_rngs: array<Rng>;
+// PathPlan::first and PathPlan::origins (relative to the host's origin) for bake_paths.
+@group(1) @binding(8) var<storage, read> path_first: array<u32>;
+@group(1) @binding(9) var<storage, read> path_origins: array<vec4<f32>>;
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -119,9 +125,14 @@ fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
         if (all(inc.irradiance == vec3<f32>(0.0))) {
             continue;
         }
-        let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
-        let ray = TrackRay(o, d, params.medium.extinction);
-        let tr = track_transmittance(ray, params.grid, inc.distance, params.step, params.cutoff);
+        var tr = light_table_transmittance(i, x);
+        if (tr < 0.0) {
+            let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
+            let ray = TrackRay(o, d, params.medium.extinction);
+            tr = track_transmittance(ray, params.grid, inc.distance, params.step, params.cutoff);
+        } else if (tr < params.cutoff) {
+            tr = 0.0;
+        }
         sum = sum + inc.irradiance * tr * hg_eval(params.medium.g, dot(-inc.to_light, w_out));
     }
     return sum;
@@ -341,24 +352,25 @@ fn start_paths(v: u32) {
     path_rngs[v] = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
 }
 
-// Paths first_path .. first_path + path_count of voxel v (those it has), added to its sum;
-// the dispatch that traces its last path divides by the count.
+// Paths first_path .. first_path + path_count of voxel v (those it has), each from its own
+// origin with w_out toward the eye from there, added to its sum; the dispatch that traces
+// its last path divides by the count.
 fn continue_paths(v: u32) {
     let n = out[v].used;
     if (params.first_path >= n) {
         return;
     }
-    let x = points[v].xyz;
-    let w_out = toward_eye(x);
-    // At the eye itself there is no camera ray; any axis serves.
-    var axis = vec3<f32>(0.0, 0.0, 1.0);
-    if (any(w_out != vec3<f32>(0.0))) {
-        axis = -w_out;
-    }
     var rng = path_rngs[v];
     var sum = out[v].li;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
+        let x = path_origins[path_first[v] + p].xyz;
+        let w_out = toward_eye(x);
+        // At the eye itself there is no camera ray; any axis serves.
+        var axis = vec3<f32>(0.0, 0.0, 1.0);
+        if (any(w_out != vec3<f32>(0.0))) {
+            axis = -w_out;
+        }
         // From the phase function about the camera ray's direction: the phase weight cancels.
         let dir = normalize(hg_sample(params.medium.g, axis, rng_next_vec2(&rng)).w_out);
         let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, &rng);

@@ -5,7 +5,11 @@
 // Composed after volume.wgsl (the density is the default volume at group 0), optics.wgsl and
 // tracking.wgsl. The stage shader provides, besides tracking.wgsl's majorant_fetch,
 //     fn path_light(index: u32) -> Light
-// returning light `index` of the scene (usually from a storage buffer); what else differs
+// returning light `index` of the scene (usually from a storage buffer), and
+//     fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32
+// the light's tabled transmittance at x, negative where it has no table: light_tables.wgsl's
+// (nimbus_tracking::Shadowing::Tabled, vdbcache's paths) or NO_LIGHT_TABLES_WGSL's, which
+// has none (Shadowing::RatioTracked, the reference's); what else differs
 // between the two users (where the path starts, the medium, the majorant grid, which must
 // suit delta tracking: MajorantGrid::for_tracking, the depth bound, the light count) comes in
 // as arguments. Positions are f32 world positions relative to the stage's origin (the volume
@@ -34,8 +38,9 @@ fn path_track_ray(x: vec3<f32>, w: vec3<f32>, extinction: f32) -> TrackRay {
 
 // The radiance arriving at `origin` from direction -dir, scattered in the medium, by one
 // path: delta-tracked free flights, albedo at each collision, next-event estimation toward
-// every light with ratio-tracked shadow rays, Russian roulette from ROULETTE_FROM_DEPTH, HG
-// scattering; at most `max_depth` collisions.
+// every light, its transmittance looked up where the light has a table and ratio-tracked
+// otherwise, Russian roulette from ROULETTE_FROM_DEPTH, HG scattering; at most `max_depth`
+// collisions.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
               rng: ptr<function, Rng>) -> PathLight {
     var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0));
@@ -55,8 +60,11 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             if (all(inc.irradiance == vec3<f32>(0.0))) {
                 continue;
             }
-            let tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid, min(inc.distance, TRACK_FAR),
-                                               RATIO_ROULETTE, rng);
+            var tr = light_table_transmittance(i, x);
+            if (tr < 0.0) {
+                tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
+                                               min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng);
+            }
             if (tr > 0.0) {
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
             }

@@ -1,17 +1,22 @@
 //! The GPU backend: one wgpu invocation per planned cache voxel (`shaders/cache.wgsl`), over
-//! the same [`CachePlan`]s and [`PhotonBins`] as the CPU backend; path-traced Li_multiple
-//! through `shaders/path.wgsl`, the reference path tracer's paths.
+//! the same [`CachePlan`]s, [`PhotonBins`] and [`crate::PathPlan`] as the CPU backend;
+//! path-traced Li_multiple through `shaders/path.wgsl`, the reference path tracer's paths;
+//! the lights' tables built on the GPU ([`GpuLightTables`]) on the CPU's plans, looked up by
+//! both, and read back for the transmittance grids.
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuLight, GpuMedium, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
+use crate::{
+    transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathPlan, PhotonBins,
+    PATH_MAX_DEPTH,
+};
 
 /// The cache kernels, `shaders/cache.wgsl`.
 pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
@@ -23,8 +28,8 @@ pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 const WORKGROUP_SIZE: u32 = 64;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
-/// Group 1 binding of the [`LoopGuard`] flag (after the 8 buffers).
-const GUARD_BINDING: u32 = 8;
+/// Group 1 binding of the [`LoopGuard`] flag (after the 10 buffers).
+const GUARD_BINDING: u32 = 10;
 
 /// WGSL `CacheUniforms`.
 #[repr(C)]
@@ -87,8 +92,8 @@ fn constants_wgsl() -> String {
     )
 }
 
-/// Bakes the cache on the GPU: the same plans, shadow rays, photon search, paths and
-/// estimators as [`crate::bake_cpu`], in f32.
+/// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
+/// paths and estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
     let single = params.bakes_single();
@@ -113,14 +118,46 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         (None, Some((lo, hi))) => 0.5 * (lo + hi),
         (None, None) => DVec3::ZERO,
     };
-    // The paths per voxel are decided on the host, by the CPU's very rule.
-    let counts = match params.estimator {
-        MultipleEstimator::Paths { per_voxel } if multiple => CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel).counts,
-        _ => Vec::new(),
+    // The paths, their counts and origins, are decided on the host by the CPU's very rule.
+    let path_plan = match params.estimator {
+        MultipleEstimator::Paths { per_voxel } if multiple => {
+            Some(stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel)))
+        }
+        _ => None,
     };
-    let kernel = if params.estimator == MultipleEstimator::Photons { Kernel::Photons } else { Kernel::Paths(&counts) };
+    stats.culled_unseen = path_plan.as_ref().map_or(0, PathPlan::unseen);
+    let kernel = match &path_plan {
+        Some(paths) => Kernel::Paths(paths),
+        None => Kernel::Photons,
+    };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
-    let baker = work.then(|| GpuBaker::new(ctx, density, &majorant, photons, bins.as_ref(), params, origin)).transpose()?;
+    let lattice = params.light_lattice(photons);
+    // The CPU tables the lights whenever something reads them, baked voxels or not (the
+    // transmittance grids are view-independent): so does this.
+    let volume = (work || lattice.is_some())
+        .then(|| -> Result<GpuVolume, GpuError> {
+            let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
+            volume.set_world_origin(ctx, origin);
+            Ok(volume)
+        })
+        .transpose()?;
+    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    // Read back at once (which waits for the build): the transmittance grids need them.
+    let (tables, depths) = stats.time("light tables", || -> Result<_, GpuError> {
+        Ok(match (lattice, &volume) {
+            (Some(lattice), Some(volume)) => {
+                let tables = GpuLightTables::build(ctx, volume, medium, &params.lights, lattice, params.opaque_depth(), origin)?;
+                let depths = tables.read(ctx)?;
+                (tables, depths)
+            }
+            _ => (GpuLightTables::none(ctx, params.lights.len())?, Default::default()),
+        })
+    })?;
+    stats.light_table_nodes = tables.nodes();
+    let baker = match &volume {
+        Some(volume) if work => Some(GpuBaker::new(ctx, density, volume, &majorant, photons, bins.as_ref(), &tables, params, origin)?),
+        _ => None,
+    };
 
     let mut nonfinite = 0;
     let mut run = |kernel: Kernel<'_>, plan: &CachePlan| -> Result<Volume<Vec3>, CacheError> {
@@ -142,19 +179,20 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
     let li_multiple = multiple.then(|| run(kernel, multiple_plan)).transpose()?;
     stats.nonfinite = nonfinite;
-    Ok((IlluminationCache { li_single, li_multiple, transmittance: Vec::new() }, stats))
+    let transmittance = stats.time("transmittance grids", || transmittance_grids(density, &depths));
+    Ok((IlluminationCache { li_single, li_multiple, transmittance }, stats))
 }
 
 /// What one [`GpuBaker::run`] bakes.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy)]
 enum Kernel<'a> {
     /// Li_single (`bake_single`).
     Single,
     /// Li_multiple from the photons (`bake_multiple`).
     Photons,
-    /// Li_multiple by paths, so many per voxel (`seed_paths`, then `bake_paths` in passes
-    /// of [`PATHS_PER_DISPATCH`]).
-    Paths(&'a [u32]),
+    /// Li_multiple by the plan's paths (`seed_paths`, then `bake_paths` in passes of
+    /// [`PATHS_PER_DISPATCH`]).
+    Paths(&'a PathPlan),
 }
 
 /// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
@@ -178,8 +216,10 @@ struct GpuBaker<'a> {
     buffers: [wgpu::Buffer; 3],
     /// The paths' majorant (MajorantGrid::for_tracking), where paths are traced.
     tracking: Option<(wgpu::Buffer, GpuMajorantInfo)>,
+    /// The lights' tables at group 2.
+    tables_layout: wgpu::BindGroupLayout,
+    tables_group: wgpu::BindGroup,
     guard: LoopGuard,
-    _volume: GpuVolume,
 }
 
 impl<'a> GpuBaker<'a> {
@@ -187,14 +227,14 @@ impl<'a> GpuBaker<'a> {
     fn new(
         ctx: &'a GpuContext,
         density: &Volume<f32>,
+        volume: &GpuVolume,
         majorant: &MajorantGrid,
         photons: &PhotonMap,
         bins: Option<&PhotonBins>,
+        tables: &GpuLightTables,
         params: &CacheParams,
         origin: DVec3,
     ) -> Result<Self, GpuError> {
-        let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
-        volume.set_world_origin(ctx, origin);
         let volume_layout = GpuVolume::bind_group_layout(ctx)?;
         let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
@@ -209,11 +249,16 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(5, true),
                 storage_entry(6, false),
                 storage_entry(7, false),
+                storage_entry(8, true),
+                storage_entry(9, true),
                 guard.layout_entry(),
             ],
         )?;
+        let tables_layout = GpuLightTables::layout(ctx)?;
+        let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            light_tables_wgsl(),
             constants_wgsl(),
             guard.wgsl(1)
         ));
@@ -283,8 +328,9 @@ impl<'a> GpuBaker<'a> {
             majorant: majorant_buffer(ctx, majorant)?,
             buffers: [lights_buffer, ctx.storage_buffer("photon bin starts", &starts)?, ctx.storage_buffer("photons by bin", &sorted)?],
             tracking,
+            tables_layout,
+            tables_group,
             guard,
-            _volume: volume,
         })
     }
 
@@ -300,18 +346,30 @@ impl<'a> GpuBaker<'a> {
         let points = ctx.storage_buffer("cache voxels", &points)?;
         let out = match kernel {
             // Each voxel's path count goes in with its zero sum.
-            Kernel::Paths(counts) => ctx.storage_buffer("cache values", &counts.iter().map(|&used| GpuOut { li: [0.0; 3], used }).collect::<Vec<_>>())?,
+            Kernel::Paths(paths) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used }).collect::<Vec<_>>())?,
             _ => ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
         };
+        // Where each voxel's paths start (one dummy each for the other kernels: bindings
+        // cannot be empty). u32 offsets suffice: 2^32 origins would be 64 GiB, past any
+        // storage binding, and the upload fails on its size first.
+        let (path_first, path_origins) = match kernel {
+            Kernel::Paths(paths) if !paths.origins.is_empty() => (
+                paths.first.iter().map(|&f| f as u32).collect(),
+                paths.origins.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect(),
+            ),
+            _ => (vec![0u32], vec![[0f32; 4]]),
+        };
+        let path_first = ctx.storage_buffer("cache path firsts", &path_first)?;
+        let path_origins = ctx.storage_buffer("cache path origins", &path_origins)?;
         // (entry, first path) in order; the same voxels' state passes between them in `out`
         // and the Rng buffer.
         let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
             Kernel::Single => (vec![("bake_single", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's shadow rays", "or a longer --step"),
             Kernel::Photons => (vec![("bake_multiple", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's photon search", "or fewer --gather-neighbours"),
-            Kernel::Paths(counts) => {
-                assert_eq!(counts.len() as u64, voxels, "one path count per voxel");
+            Kernel::Paths(paths) => {
+                assert_eq!(paths.counts.len() as u64, voxels, "one path count per voxel");
                 let (buffer, grid) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
-                let most = counts.iter().copied().max().unwrap_or(0);
+                let most = paths.counts.iter().copied().max().unwrap_or(0);
                 let passes = std::iter::once(("seed_paths", 0)).chain((0..most).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
                 let uniforms = GpuCacheParams { grid: *grid, ..self.uniforms };
                 (passes, voxels * GPU_RNG_BYTES, uniforms, buffer, "a cache voxel's paths", "or a longer --step")
@@ -321,7 +379,7 @@ impl<'a> GpuBaker<'a> {
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
         for &(entry, first_path) in &passes {
             if !pipelines.iter().any(|(e, _)| *e == entry) {
-                pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout])?));
+                pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout, &self.tables_layout])?));
             }
             let pipeline = &pipelines.iter().find(|(e, _)| *e == entry).expect("compiled above").1;
             let mut first = 0;
@@ -330,8 +388,13 @@ impl<'a> GpuBaker<'a> {
                 let dispatch = GpuCacheParams { first: first as u32, count: count as u32, first_path, ..uniforms };
                 let uniform_buffer = ctx.uniform_buffer("cache params", &dispatch)?;
                 let [lights, starts, sorted] = &self.buffers;
-                let group = self.guard.buffer_bind_group(ctx, "cache", &self.layout, &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs])?;
-                ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
+                let group = self.guard.buffer_bind_group(
+                    ctx,
+                    "cache",
+                    &self.layout,
+                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins],
+                )?;
+                ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group], count, WORKGROUP_SIZE)?;
                 first += count;
             }
         }

@@ -234,10 +234,19 @@ impl CacheParams {
     /// The lights' tabled optical depths, where the shadows are tabled and something reads
     /// them (single scattering, or paths' next-event estimation); none otherwise.
     pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap) -> LightDepths {
+        match self.light_lattice(photons) {
+            Some(lattice) => LightDepths::build(medium, &self.lights, lattice, self.opaque_depth()),
+            None => LightDepths::default(),
+        }
+    }
+
+    /// The lattice [`CacheParams::light_depths`] tables on, where it tables anything (both
+    /// backends ask).
+    pub fn light_lattice(&self, photons: &nimbus_photon::PhotonMap) -> Option<LightLattice> {
         let reads = self.bakes_single() || (self.bakes_multiple(photons) && matches!(self.estimator, MultipleEstimator::Paths { .. }));
         match self.shadows {
-            ShadowMode::Table(lattice) if reads => LightDepths::build(medium, &self.lights, lattice, self.opaque_depth()),
-            _ => LightDepths::default(),
+            ShadowMode::Table(lattice) if reads => Some(lattice),
+            _ => None,
         }
     }
 

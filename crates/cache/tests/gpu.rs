@@ -1,8 +1,9 @@
 //! The GPU backend against the CPU one on lavapipe (or any adapter): the same plan, the same
-//! voxels, values to float tolerance.
+//! voxels, values to float tolerance; the lights' tables built on the GPU and looked up by
+//! both single scattering and the paths' next-event estimation.
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{Transform, Volume};
@@ -44,7 +45,7 @@ fn params(v: &Volume<f32>) -> CacheParams {
         estimator: MultipleEstimator::Photons,
         seed: 0,
         min_transmittance: 1e-4,
-        shadows: ShadowMode::Rays,
+        shadows: ShadowMode::Table(LightLattice::default()),
     }
 }
 
@@ -79,11 +80,52 @@ fn both(v: &Volume<f32>, map: &PhotonMap, p: &CacheParams) -> Option<(Illuminati
     let (gpu, gpu_stats) = bake_gpu(ctx, v, map, p).unwrap();
     assert_eq!(gpu_stats.baked, cpu_stats.baked);
     assert_eq!(gpu_stats.nonfinite, 0);
+    assert_eq!(gpu_stats.light_table_nodes, cpu_stats.light_table_nodes, "the same tables");
     // The same photons in (nearly) every ball: a k-th-nearest tie broken differently by f32
     // rounding may swap one.
     let (a, b) = (cpu_stats.photons_gathered as f64, gpu_stats.photons_gathered as f64);
     assert!((a - b).abs() <= 1e-3 * a.max(1.0), "photons gathered: CPU {a}, GPU {b}");
     Some((cpu, gpu))
+}
+
+/// Li_single of both backends, voxel by voxel, to f32 rounding of the peak.
+fn assert_single_agrees(cpu: &IlluminationCache, gpu: &IlluminationCache, what: &str) {
+    let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
+    eprintln!("single ({what}): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(n > 1000 && peak > 0.0, "{what}: {n} voxels, peak {peak}");
+    assert!(worst <= 1e-5 * peak, "single scattering ({what}): worst {worst} of peak {peak}");
+}
+
+/// The transmittance grids of both backends: one for each of the `tabled` lights, the same
+/// voxels, and values to 1e-5 of the transmittance itself (f32 sums of the tables' optical
+/// depth; measured 2e-6) over the voxels above 1e-3, of which there must be `min_lit`, a
+/// third of them in shadow below 0.5.
+fn assert_transmittance_agrees(cpu: &IlluminationCache, gpu: &IlluminationCache, tabled: &[usize], min_lit: usize) {
+    let lights = |c: &IlluminationCache| c.transmittance.iter().map(|(i, _)| *i).collect::<Vec<_>>();
+    assert_eq!(lights(cpu), tabled, "a transmittance grid per tabled light");
+    assert_eq!(lights(gpu), tabled, "a transmittance grid per tabled light");
+    let (mut worst, mut n, mut shadowed) = (0.0f64, 0, 0);
+    for ((_, c), (_, g)) in cpu.transmittance.iter().zip(&gpu.transmittance) {
+        assert_eq!(c.transform(), g.transform());
+        assert_eq!(c.active_voxel_count(), g.active_voxel_count());
+        for brick in c.bricks() {
+            for (offset, &tc) in brick.values.iter().enumerate() {
+                let ijk = brick.origin + nimbus_volume::brick_local(offset);
+                if !c.is_active(ijk) {
+                    continue;
+                }
+                assert!(g.is_active(ijk), "{ijk} on one backend only");
+                if tc > 1e-3 {
+                    worst = worst.max(((g.get(ijk) - tc) / tc).abs() as f64);
+                    n += 1;
+                    shadowed += (tc < 0.5) as usize;
+                }
+            }
+        }
+    }
+    eprintln!("transmittance grids {tabled:?}: {n} voxels lit above 1e-3 ({shadowed} below 0.5), worst relative difference {worst:.2e}");
+    assert!(n >= min_lit && 3 * shadowed >= n, "{n} lit voxels, {shadowed} in shadow");
+    assert!(worst <= 1e-5, "transmittance: worst relative difference {worst}");
 }
 
 #[test]
@@ -92,14 +134,42 @@ fn single_and_multiple_scattering_agree_with_the_cpu() {
     let p = params(&v);
     let map = photons(&v, &p);
     let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
-    let (worst, peak, n) = compare(cpu.li_single.as_ref().unwrap(), gpu.li_single.as_ref().unwrap());
-    eprintln!("single: {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
-    assert!(n > 1000 && peak > 0.0);
-    assert!(worst <= 1e-5 * peak, "single scattering: worst {worst} of peak {peak}");
+    assert_single_agrees(&cpu, &gpu, "the sun tabled, the point light by shadow rays");
+    // The sun's, not the point light's.
+    assert_transmittance_agrees(&cpu, &gpu, &[0], 3000);
     let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
     eprintln!("multiple (k nearest): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
     assert!(peak > 0.0);
     assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+}
+
+/// Shadow rays instead of tables (`--shadows rays`): composite Simpson on both backends, and
+/// no tables, so no transmittance grids.
+#[test]
+fn single_scattering_by_shadow_rays_agrees_with_the_cpu() {
+    let v = lumpy_ball();
+    let p = CacheParams { multiple: false, shadows: ShadowMode::Rays, ..params(&v) };
+    let Some((cpu, gpu)) = both(&v, &PhotonMap::default(), &p) else { return };
+    assert_single_agrees(&cpu, &gpu, "shadow rays");
+    assert_transmittance_agrees(&cpu, &gpu, &[], 0);
+}
+
+/// Several suns and a point light: each sun's table in the one node buffer, found through its
+/// own brick index and lattice map; the point light keeps shadow rays.
+#[test]
+fn every_sun_is_tabled_and_looked_up_as_on_the_cpu() {
+    let v = lumpy_ball();
+    let (lo, hi) = v.world_bounds().unwrap();
+    let lights = vec![
+        Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),
+        Light::point(0.5 * (lo + hi) + DVec3::new(0.3, -2.0, 1.5), Vec3::splat(2.0)).unwrap(),
+        Light::sun(Vec3::X, Vec3::new(0.5, 0.5, 0.2)).unwrap(),
+        Light::sun(Vec3::new(-0.4, 0.8, 0.3).normalize(), Vec3::splat(0.7)).unwrap(),
+    ];
+    let p = CacheParams { multiple: false, lights, ..params(&v) };
+    let Some((cpu, gpu)) = both(&v, &PhotonMap::default(), &p) else { return };
+    assert_single_agrees(&cpu, &gpu, "three suns tabled and a point light");
+    assert_transmittance_agrees(&cpu, &gpu, &[0, 2, 3], 10_000);
 }
 
 #[test]
@@ -235,6 +305,8 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let (n, lit, same, level, mean, se) = paired_differences(&cpu, &gpu);
     assert_eq!(cpu_stats.paths, per_voxel as u64 * cpu_stats.baked, "N paths per voxel on average");
     assert_eq!(gpu_stats.paths, cpu_stats.paths, "paths traced");
+    assert_eq!(gpu_stats.culled_unseen, cpu_stats.culled_unseen, "the same path plan");
+    assert!(gpu_stats.light_table_nodes > 0 && gpu_stats.light_table_nodes == cpu_stats.light_table_nodes, "the sun's table serves next-event estimation");
     eprintln!("{n} voxels, {lit} lit, {same} of those the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
     assert!(n > 500 && level > 0.0);
     assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
@@ -283,7 +355,9 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
     }
     let (lo, hi) = v.world_bounds().unwrap();
     let suns = [(0.3, 0.2, -1.0), (-0.5, 0.1, -0.8), (0.1, -0.9, -0.3), (0.7, 0.7, 0.1), (-0.2, 0.4, 0.9), (0.0, 0.0, 1.0)];
+    // Shadow rays (tables would look the suns up, with no loop to run out of).
     let p = CacheParams {
+        shadows: ShadowMode::Rays,
         medium: Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 },
         lights: suns.iter().map(|&(x, y, z)| Light::sun(Vec3::new(x, y, z).normalize(), Vec3::ONE).unwrap()).collect(),
         camera: Camera::default_for_bounds(lo, hi).unwrap(),

@@ -1,18 +1,47 @@
 //! The GPU side of this crate: `shaders/tracking.wgsl` (the WGSL twin of the majorant DDA and
 //! the free-path samplers) and the host data it reads, shared by every stage shader that
 //! walks rays through the density; `shaders/path.wgsl` (the twin of [`crate::trace_path`]),
-//! shared by the reference path tracer and vdbcache's path-traced multiple scattering.
+//! shared by the reference path tracer and vdbcache's path-traced multiple scattering; and
+//! the lights' tables: [`GpuLightTables`] builds them (`shaders/optical_depth.wgsl`, the twin
+//! of [`crate::ray_optical_depths`]) and binds them for lookups (`shaders/light_tables.wgsl`,
+//! the twin of [`crate::OpticalDepthVolume::transmittance`]).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{wgpu, GpuContext, GpuError};
-use nimbus_volume::MajorantGrid;
+use glam::{DAffine3, DMat4, DVec3, IVec3};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard};
+use nimbus_optics::{Light, OPTICS_WGSL};
+use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
+
+use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume};
 
 /// `shaders/tracking.wgsl`: plain functions, no bindings; stage shaders concatenate it.
 pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 
 /// `shaders/path.wgsl`: `trace_path` and its constants, no bindings; composed after
-/// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`.
+/// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`
+/// and `fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32`: [`light_tables_wgsl`]
+/// ([`crate::Shadowing::Tabled`]) or [`NO_LIGHT_TABLES_WGSL`] ([`crate::Shadowing::RatioTracked`]).
 pub const PATH_WGSL: &str = include_str!("../../../shaders/path.wgsl");
+
+/// `shaders/light_tables.wgsl`, composed by [`light_tables_wgsl`].
+const LIGHT_TABLES_WGSL: &str = include_str!("../../../shaders/light_tables.wgsl");
+
+/// `shaders/light_tables.wgsl` after the brick layout it indexes nodes by, generated from
+/// nimbus_volume's so the two cannot drift apart: the lights' tables at group 2
+/// ([`GpuLightTables::layout`]) and `light_table_transmittance`, their lookup; composed
+/// after the volume.
+pub fn light_tables_wgsl() -> String {
+    format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\n{LIGHT_TABLES_WGSL}")
+}
+
+/// What a stage whose paths ratio-track every light composes in place of
+/// [`light_tables_wgsl`] (the reference path tracer: [`crate::Shadowing::RatioTracked`]): no
+/// light has a table, and no bindings.
+pub const NO_LIGHT_TABLES_WGSL: &str = "fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {\n    return -1.0;\n}\n";
+
+/// `shaders/optical_depth.wgsl`: the kernel [`GpuLightTables::build`] integrates the lattice
+/// rays with.
+pub const OPTICAL_DEPTH_WGSL: &str = include_str!("../../../shaders/optical_depth.wgsl");
 
 /// WGSL `MajorantGridInfo` (tracking.wgsl).
 #[repr(C)]
@@ -41,12 +70,257 @@ pub fn majorant_buffer(ctx: &GpuContext, grid: &MajorantGrid) -> Result<wgpu::Bu
     }
 }
 
+/// WGSL `LightTable` (light_tables.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuLightTable {
+    world_to_lattice: [[f32; 4]; 4],
+    brick_min: [i32; 3],
+    index_first: u32,
+    brick_dims: [i32; 3],
+    tabled: u32,
+}
+
+/// WGSL `LightRays` (optical_depth.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuLightRays {
+    across_i: [f32; 3],
+    step: f32,
+    across_j: [f32; 3],
+    extinction: f32,
+    along: [f32; 3],
+    opaque_depth: f32,
+    dir: [f32; 3],
+    light: u32,
+    grid: GpuMajorantInfo,
+    first_ray: u32,
+    ray_count: u32,
+    _pad: [u32; 2],
+}
+
+/// WGSL `LightColumn` (optical_depth.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct GpuLightColumn {
+    x: i32,
+    y: i32,
+    k0: i32,
+    nodes: u32,
+}
+
+/// Rays of a lattice brick column: 8 x 8.
+const COLUMN_RAYS: u64 = (1 << (2 * BRICK_LOG2)) as u64;
+/// Rays per dispatch: bounds how long one submission runs (drivers reset long ones).
+const RAYS_PER_DISPATCH: u64 = 1 << 15;
+/// Most entries of all lights' dense brick indices together: 256 MiB, as
+/// `GpuVolumeOptions`' default bounds a volume's indirection table.
+const MAX_INDEX_ENTRIES: u64 = 1 << 26;
+/// Group 1 binding of the build's [`LoopGuard`] flag (after its three buffers).
+const GUARD_BINDING: u32 = 3;
+
+/// Every light's tabled transmittance on the GPU, the twin of [`LightDepths`]: each tabled
+/// light's [`LightTablePlan`] (decided on the host, as the CPU decides it), its nodes in one
+/// storage buffer for all lights, a dense brick index per light and a [`GpuLightTable`] per
+/// light (its world-to-lattice map), so the bindings do not depend on the light count.
+/// Bind it at group 2 of a stage that composes [`light_tables_wgsl`].
+pub struct GpuLightTables {
+    tables: wgpu::Buffer,
+    index: wgpu::Buffer,
+    nodes: wgpu::Buffer,
+    /// Per light: its plan and its first brick in `nodes`, where it has a table.
+    plans: Vec<Option<(LightTablePlan, usize)>>,
+    opaque_depth: f64,
+}
+
+impl GpuLightTables {
+    /// No light of `light_count` has a table: lookups say so and callers trace shadow rays.
+    pub fn none(ctx: &GpuContext, light_count: usize) -> Result<GpuLightTables, GpuError> {
+        Self::upload(ctx, (0..light_count).map(|_| None).collect(), DVec3::ZERO, 0.0)
+    }
+
+    /// Tables each light [`LightDepths::build`] tables, on the GPU: `density` is `medium`'s
+    /// density uploaded, `origin` the world origin lookups' positions are relative to.
+    /// [`GpuLightTables::read`] then holds what [`LightDepths::build`] holds, to f32 rounding.
+    #[allow(clippy::too_many_arguments)]
+    pub fn build(
+        ctx: &GpuContext,
+        density: &GpuVolume,
+        medium: DensityMedium,
+        lights: &[Light],
+        lattice: LightLattice,
+        opaque_depth: f64,
+        origin: DVec3,
+    ) -> Result<GpuLightTables, GpuError> {
+        let plans: Vec<Option<LightTablePlan>> =
+            lights.iter().map(|light| LightDepths::tabled_direction(light).map(|dir| LightTablePlan::new(medium.density, dir, lattice))).collect();
+        let tables = Self::upload(ctx, plans, origin, opaque_depth)?;
+        if tables.plans.iter().flatten().all(|(plan, _)| plan.brick_count() == 0) {
+            return Ok(tables);
+        }
+        let volume_layout = GpuVolume::bind_group_layout(ctx)?;
+        let volume_group = density.bind_group(ctx, &volume_layout)?;
+        let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
+        let layout = ctx.bind_group_layout("light rays", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
+        let tables_layout = Self::layout(ctx)?;
+        let tables_group = tables.bind_group(ctx, &tables_layout)?;
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{OPTICAL_DEPTH_WGSL}", light_tables_wgsl(), guard.wgsl(1)));
+        let pipeline = ctx.compute_pipeline("light rays", &source, "integrate_light_rays", &[&volume_layout, &layout, &tables_layout])?;
+        let majorant = majorant_buffer(ctx, medium.majorant)?;
+        let grid = GpuMajorantInfo::new(medium.majorant, medium.density.background());
+        for (light, entry) in tables.plans.iter().enumerate() {
+            let Some((plan, _)) = entry else { continue };
+            if plan.brick_count() == 0 {
+                continue;
+            }
+            let columns: Vec<GpuLightColumn> = plan
+                .columns()
+                .iter()
+                .map(|&((x, y), ref ks)| {
+                    let (k0, nodes) = LightTablePlan::column_nodes(ks);
+                    GpuLightColumn { x, y, k0, nodes: nodes as u32 }
+                })
+                .collect();
+            let columns_buffer = ctx.storage_buffer("light columns", &columns)?;
+            let m = plan.to_density();
+            let uniforms = GpuLightRays {
+                across_i: m.x_axis.as_vec3().to_array(),
+                step: plan.step() as f32,
+                across_j: m.y_axis.as_vec3().to_array(),
+                extinction: medium.extinction,
+                along: m.z_axis.as_vec3().to_array(),
+                // WGSL has no infinity; past f32's range every ray integrates to its end.
+                opaque_depth: opaque_depth.min(f32::MAX as f64) as f32,
+                dir: plan.dir_index().as_vec3().to_array(),
+                light: light as u32,
+                grid,
+                first_ray: 0,
+                ray_count: 0,
+                _pad: [0; 2],
+            };
+            let rays = columns.len() as u64 * COLUMN_RAYS;
+            let mut first = 0;
+            while first < rays {
+                let count = (rays - first).min(RAYS_PER_DISPATCH);
+                let dispatch = GpuLightRays { first_ray: first as u32, ray_count: count as u32, ..uniforms };
+                let uniform_buffer = ctx.uniform_buffer("light rays", &dispatch)?;
+                let group = guard.buffer_bind_group(ctx, "light rays", &layout, &[&uniform_buffer, &majorant, &columns_buffer])?;
+                ctx.dispatch_1d("light rays", &pipeline, &[&volume_group, &group, &tables_group], count, COLUMN_RAYS as u32)?;
+                first += count;
+            }
+        }
+        guard.check(ctx, "a light table's ray", "or --shadows rays")?;
+        Ok(tables)
+    }
+
+    /// The buffers for `plans`: the tables, the brick indices, and room for the nodes.
+    fn upload(ctx: &GpuContext, plans: Vec<Option<LightTablePlan>>, origin: DVec3, opaque_depth: f64) -> Result<GpuLightTables, GpuError> {
+        let mut tables = Vec::with_capacity(plans.len());
+        let mut index: Vec<u32> = Vec::new();
+        let mut bricks = 0usize;
+        let mut placed = Vec::with_capacity(plans.len());
+        for plan in plans {
+            let Some(plan) = plan else {
+                tables.push(GpuLightTable::zeroed());
+                placed.push(None);
+                continue;
+            };
+            let coords: Vec<IVec3> = plan.bricks().map(|o| o >> BRICK_LOG2 as i32).collect();
+            let lo = coords.iter().fold(IVec3::MAX, |a, &c| a.min(c));
+            let hi = coords.iter().fold(IVec3::MIN, |a, &c| a.max(c));
+            let dims = if coords.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
+            let entries = dims.as_i64vec3().element_product() as u64;
+            if index.len() as u64 + entries > MAX_INDEX_ENTRIES {
+                return Err(GpuError::VolumeLayout(format!(
+                    "a light table's bricks span {}x{}x{} bricks, a brick index of {entries} entries, over the budget of {MAX_INDEX_ENTRIES} for all lights",
+                    dims.x, dims.y, dims.z
+                )));
+            }
+            let first = index.len();
+            index.resize(first + entries as usize, 0);
+            for (n, c) in coords.iter().enumerate() {
+                let b = *c - lo;
+                index[first + ((b.x * dims.y + b.y) * dims.z + b.z) as usize] = (bricks + n + 1) as u32;
+            }
+            let world_to_lattice = DMat4::from(plan.transform().world_to_index() * DAffine3::from_translation(origin));
+            tables.push(GpuLightTable {
+                world_to_lattice: world_to_lattice.as_mat4().to_cols_array_2d(),
+                brick_min: lo.to_array(),
+                index_first: first as u32,
+                brick_dims: dims.to_array(),
+                tabled: 1,
+            });
+            placed.push(Some((plan, bricks)));
+            bricks += coords.len();
+        }
+        // Bindings cannot be empty.
+        if tables.is_empty() {
+            tables.push(GpuLightTable::zeroed());
+        }
+        if index.is_empty() {
+            index.push(0);
+        }
+        let node_bytes = (bricks.max(1) * BRICK_VOXELS * size_of::<f32>()) as u64;
+        Ok(GpuLightTables {
+            tables: ctx.storage_buffer("light tables", &tables)?,
+            index: ctx.storage_buffer("light table index", &index)?,
+            nodes: ctx.storage_buffer_zeroed("light table nodes", node_bytes)?,
+            plans: placed,
+            opaque_depth,
+        })
+    }
+
+    /// The layout of group 2 for [`light_tables_wgsl`].
+    pub fn layout(ctx: &GpuContext) -> Result<wgpu::BindGroupLayout, GpuError> {
+        ctx.bind_group_layout("light tables", &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false)])
+    }
+
+    /// These tables as group 2, for a layout from [`GpuLightTables::layout`].
+    pub fn bind_group(&self, ctx: &GpuContext, layout: &wgpu::BindGroupLayout) -> Result<wgpu::BindGroup, GpuError> {
+        ctx.buffer_bind_group("light tables", layout, &[&self.tables, &self.index, &self.nodes])
+    }
+
+    /// Nodes stored over all lights (as [`LightDepths::nodes`]).
+    pub fn nodes(&self) -> u64 {
+        self.plans.iter().flatten().map(|(plan, _)| (plan.brick_count() * BRICK_VOXELS) as u64).sum()
+    }
+
+    /// The tables read back: what [`LightDepths::build`] would hold, from the GPU's nodes.
+    pub fn read(&self, ctx: &GpuContext) -> Result<LightDepths, GpuError> {
+        let nodes: Vec<f32> = if self.nodes() == 0 { Vec::new() } else { ctx.read_buffer(&self.nodes)? };
+        let per_light = self
+            .plans
+            .iter()
+            .map(|entry| {
+                entry.as_ref().map(|(plan, first)| {
+                    let range = first * BRICK_VOXELS..(first + plan.brick_count()) * BRICK_VOXELS;
+                    OpticalDepthVolume::from_nodes(plan, &nodes[range], self.opaque_depth)
+                })
+            })
+            .collect();
+        Ok(LightDepths { per_light })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
     fn layout_matches_the_wgsl_struct() {
         assert_eq!(size_of::<super::GpuMajorantInfo>(), 32);
         assert!(super::TRACKING_WGSL.contains("struct MajorantGridInfo"));
+        assert_eq!(size_of::<super::GpuLightTable>(), 96);
+        assert!(super::LIGHT_TABLES_WGSL.contains("struct LightTable"));
+        assert_eq!(size_of::<super::GpuLightRays>(), 112);
+        assert_eq!(size_of::<super::GpuLightColumn>(), 16);
+        assert!(super::OPTICAL_DEPTH_WGSL.contains("struct LightRays") && super::OPTICAL_DEPTH_WGSL.contains("struct LightColumn"));
+    }
+
+    /// The host dispatches a brick column's rays per workgroup, as the kernel takes them.
+    #[test]
+    fn a_workgroup_is_one_brick_column() {
+        assert_eq!(super::COLUMN_RAYS, nimbus_volume::BRICK_DIM as u64 * nimbus_volume::BRICK_DIM as u64);
+        assert!(super::OPTICAL_DEPTH_WGSL.contains("@workgroup_size(LIGHT_COLUMN_RAYS)"));
+        assert!(super::light_tables_wgsl().starts_with(&format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {}u;", nimbus_volume::BRICK_LOG2)));
     }
 
     #[test]

@@ -37,8 +37,8 @@ mod gpu;
 mod optical_depth;
 mod path;
 
-pub use gpu::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
-pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, OpticalDepthVolume, Shadowing};
+pub use gpu::{light_tables_wgsl, majorant_buffer, GpuLightTables, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
+pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing};
 pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;

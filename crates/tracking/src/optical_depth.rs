@@ -82,21 +82,20 @@ pub struct OpticalDepthVolume {
 impl OpticalDepthVolume {
     /// Tables the optical depth toward a sun whose light travels along `sun_dir` (unit).
     pub fn build(medium: DensityMedium, sun_dir: Vec3, lattice: LightLattice, opaque_depth: f64) -> OpticalDepthVolume {
-        let density = medium.density;
-        let geometry = LatticeGeometry::new(density.transform(), sun_dir.as_dvec3(), lattice);
-        let transform = Transform::new(density.transform().index_to_world() * geometry.to_density)
-            .expect("a shear of an invertible map along a non-degenerate direction is invertible");
-        let columns = geometry.brick_columns(density);
-        let bricks: Vec<(IVec3, Vec<f32>)> = columns
+        let plan = LightTablePlan::new(medium.density, sun_dir, lattice);
+        let bricks: Vec<(IVec3, Vec<f32>)> = plan
+            .columns
             .par_iter()
-            .flat_map_iter(|(column, ks)| geometry.integrate_brick_column(medium, *column, ks, opaque_depth))
+            .flat_map_iter(|(column, ks)| plan.geometry.integrate_brick_column(medium, *column, ks, opaque_depth))
             .collect();
-        let mut transmittance = Volume::new(transform, 1.0f32);
-        const ALL: [u64; 8] = [u64::MAX; 8];
-        for (origin, values) in &bricks {
-            transmittance.insert_brick(*origin, values, &ALL);
-        }
-        OpticalDepthVolume { transmittance, opaque_depth, lattice }
+        plan.table(bricks.iter().map(|(origin, values)| (*origin, values.as_slice())), opaque_depth)
+    }
+
+    /// The table of `plan` from its nodes integrated elsewhere (the GPU backend): brick after
+    /// brick in [`LightTablePlan::bricks`]' order, each in [`brick_offset`] order.
+    pub fn from_nodes(plan: &LightTablePlan, nodes: &[f32], opaque_depth: f64) -> OpticalDepthVolume {
+        assert_eq!(nodes.len(), plan.brick_count() * BRICK_VOXELS, "one value per node of the plan's bricks");
+        plan.table(plan.bricks().zip(nodes.chunks_exact(BRICK_VOXELS)), opaque_depth)
     }
 
     /// Transmittance toward the light from world point `x`, interpolated.
@@ -127,14 +126,17 @@ pub struct LightDepths {
 impl LightDepths {
     /// Tables each sun of `lights`; `opaque_depth` as in [`OpticalDepthVolume::build`].
     pub fn build(medium: DensityMedium, lights: &[Light], lattice: LightLattice, opaque_depth: f64) -> LightDepths {
-        let per_light = lights
-            .iter()
-            .map(|light| match *light {
-                Light::Sun { dir, irradiance } if irradiance != Vec3::ZERO => Some(OpticalDepthVolume::build(medium, dir, lattice, opaque_depth)),
-                _ => None,
-            })
-            .collect();
+        let per_light = lights.iter().map(|light| Self::tabled_direction(light).map(|dir| OpticalDepthVolume::build(medium, dir, lattice, opaque_depth))).collect();
         LightDepths { per_light }
+    }
+
+    /// The direction a light's table is built along, for the lights that get one: suns that
+    /// shine. Both backends ask this.
+    pub fn tabled_direction(light: &Light) -> Option<Vec3> {
+        match *light {
+            Light::Sun { dir, irradiance } if irradiance != Vec3::ZERO => Some(dir),
+            _ => None,
+        }
     }
 
     /// Light `index`'s table, if it has one.
@@ -158,8 +160,89 @@ pub enum Shadowing<'a> {
     Tabled(&'a LightDepths),
 }
 
+/// How one sun's table is laid out, decided on the host once for both backends: the
+/// lattice's geometry, which of its bricks are stored and in what order (brick columns in
+/// order, each column's bricks along the light). Only the integration of the rays differs:
+/// [`OpticalDepthVolume::build`] here in f64, the GPU backend in f32
+/// (`shaders/optical_depth.wgsl`), each then handing its nodes to the same assembly.
+#[derive(Clone, Debug)]
+pub struct LightTablePlan {
+    geometry: LatticeGeometry,
+    /// Lattice index -> world: the table's transform.
+    transform: Transform,
+    /// The stored bricks by brick column (the lattice x, y of the bricks' origin), each
+    /// column's bricks' lattice z sorted.
+    columns: Vec<((i32, i32), Vec<i32>)>,
+}
+
+impl LightTablePlan {
+    /// The lattice of a sun whose light travels along `sun_dir` (unit) through `density`.
+    pub fn new(density: &Volume<f32>, sun_dir: Vec3, lattice: LightLattice) -> LightTablePlan {
+        let geometry = LatticeGeometry::new(density.transform(), sun_dir.as_dvec3(), lattice);
+        let transform = Transform::new(density.transform().index_to_world() * geometry.to_density)
+            .expect("a shear of an invertible map along a non-degenerate direction is invertible");
+        let columns = geometry.brick_columns(density);
+        LightTablePlan { geometry, transform, columns }
+    }
+
+    /// Lattice index -> world.
+    pub fn transform(&self) -> &Transform {
+        &self.transform
+    }
+
+    /// Lattice index -> density index: linear, the two lattices' origins coincide.
+    pub fn to_density(&self) -> DMat3 {
+        self.geometry.to_density.matrix3
+    }
+
+    /// The light's direction in density index space, per unit of world distance.
+    pub fn dir_index(&self) -> DVec3 {
+        self.geometry.dir_index
+    }
+
+    /// World distance between consecutive nodes along a ray.
+    pub fn step(&self) -> f64 {
+        self.geometry.step
+    }
+
+    /// The stored bricks by brick column: the column's lattice (x, y) and its bricks' z,
+    /// sorted. Each column's 8 x 8 rays are integrated over [`LightTablePlan::column_nodes`].
+    pub fn columns(&self) -> &[((i32, i32), Vec<i32>)] {
+        &self.columns
+    }
+
+    /// The nodes a column's rays are integrated over: the lattice z of the first and how
+    /// many, from its first stored brick's first node (upstream of which the ray meets no
+    /// medium) to its last's last, through any unstored bricks between.
+    pub fn column_nodes(ks: &[i32]) -> (i32, usize) {
+        let (k0, k1) = (ks[0], ks[ks.len() - 1] + BRICK_DIM - 1);
+        (k0, (k1 - k0 + 1) as usize)
+    }
+
+    /// The stored bricks' origins (lattice index) in storage order.
+    pub fn bricks(&self) -> impl Iterator<Item = IVec3> + '_ {
+        self.columns.iter().flat_map(|((x, y), ks)| ks.iter().map(move |&z| IVec3::new(*x, *y, z)))
+    }
+
+    pub fn brick_count(&self) -> usize {
+        self.columns.iter().map(|(_, ks)| ks.len()).sum()
+    }
+
+    /// The table holding `bricks` (origin, values in [`brick_offset`] order), in storage order.
+    fn table<'a>(&self, bricks: impl Iterator<Item = (IVec3, &'a [f32])>, opaque_depth: f64) -> OpticalDepthVolume {
+        let mut transmittance = Volume::new(self.transform, 1.0f32);
+        const ALL: [u64; 8] = [u64::MAX; 8];
+        for (origin, values) in bricks {
+            transmittance.insert_brick(origin, values, &ALL);
+        }
+        OpticalDepthVolume { transmittance, opaque_depth, lattice: self.geometry.lattice }
+    }
+}
+
 /// How the light lattice sits in the density's index space.
+#[derive(Clone, Debug)]
 struct LatticeGeometry {
+    lattice: LightLattice,
     /// Lattice index -> density index (linear: the origins coincide).
     to_density: DAffine3,
     to_lattice: DAffine3,
@@ -184,7 +267,7 @@ impl LatticeGeometry {
         let along = d * (lattice.along / d[a].abs());
         let m = DMat3::from_cols(axis(b) * lattice.across, axis(c) * lattice.across, along);
         let to_density = DAffine3::from_mat3(m);
-        LatticeGeometry { to_density, to_lattice: to_density.inverse(), dir_index: d, step: lattice.along / d[a].abs() }
+        LatticeGeometry { lattice, to_density, to_lattice: to_density.inverse(), dir_index: d, step: lattice.along / d[a].abs() }
     }
 
     /// The lattice bricks a lookup can land in, grouped by brick column (the brick's first
@@ -232,8 +315,7 @@ impl LatticeGeometry {
     /// Integrates the 8 x 8 rays of one brick column from its first stored node to its last,
     /// and returns its bricks of transmittance (values in brick order).
     fn integrate_brick_column(&self, medium: DensityMedium, (bx, by): (i32, i32), ks: &[i32], opaque_depth: f64) -> Vec<(IVec3, Vec<f32>)> {
-        let (k0, k1) = (ks[0], ks[ks.len() - 1] + BRICK_DIM - 1);
-        let count = (k1 - k0 + 1) as usize;
+        let (k0, count) = LightTablePlan::column_nodes(ks);
         let mut bricks: Vec<(IVec3, Vec<f32>)> = ks.iter().map(|&z| (IVec3::new(bx, by, z), vec![0.0f32; BRICK_VOXELS])).collect();
         let mut tau = vec![0.0f64; count];
         for li in 0..BRICK_DIM {

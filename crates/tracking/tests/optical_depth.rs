@@ -2,29 +2,13 @@
 //! at the density's nodes when the sun falls along an index axis (every density node is then
 //! a lattice node), bounded elsewhere by the interpolation between rays half a voxel apart.
 
-use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
+use glam::{DAffine3, DMat3, DVec3, Vec3};
 use nimbus_optics::Rng;
 use nimbus_tracking::{ray_optical_depths, DensityMedium, LightLattice, MediumRay, OpticalDepthVolume};
-use nimbus_volume::{MajorantGrid, Transform, Volume};
+use nimbus_volume::{MajorantGrid, Transform};
 
-/// A lumpy blob: a Gaussian with two denser knots, on `transform`'s lattice over index box
-/// [-n, n]^3.
-fn blob(transform: Transform, n: i32) -> Volume<f32> {
-    let mut v = Volume::new(transform, 0.0);
-    for x in -n..=n {
-        for y in -n..=n {
-            for z in -n..=n {
-                let p = IVec3::new(x, y, z).as_dvec3() / n as f64;
-                let g = |c: DVec3, s: f64| (-(p - c).length_squared() / (s * s)).exp();
-                let d = g(DVec3::ZERO, 0.5) + 3.0 * g(DVec3::new(0.3, -0.2, 0.1), 0.15) + 2.0 * g(DVec3::new(-0.35, 0.3, -0.2), 0.1);
-                if d > 1e-3 {
-                    v.set(IVec3::new(x, y, z), d as f32);
-                }
-            }
-        }
-    }
-    v
-}
+mod common;
+use common::blob;
 
 /// The optical depth from `x` toward the light by composite Simpson along a shadow ray.
 fn shadow_ray(medium: DensityMedium, x: DVec3, sun: Vec3, step: f64) -> f64 {

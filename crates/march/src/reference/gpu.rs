@@ -3,7 +3,7 @@
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use super::ReferenceParams;
@@ -62,7 +62,8 @@ pub fn render_reference_gpu(
         "reference",
         &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), guard.layout_entry()],
     )?;
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
+    // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 

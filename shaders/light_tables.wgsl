@@ -1,0 +1,105 @@
+// The lights' tabled transmittance on the GPU (nimbus_tracking::GpuLightTables): the twin of
+// nimbus_tracking::LightDepths::get (which lights have a table) and of
+// OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).
+//
+// Composed after volume.wgsl (its volume_lerp) and the host-generated brick layout
+// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2: GpuLightTables::wgsl prepends it).
+// Binds group 2, whatever the number of lights:
+// - light_tables: one LightTable per light of the scene, `tabled` 0 where the light has none
+//   (point lights, dark suns, or every light when shadows are traced by rays);
+// - light_table_index: per tabled light, a dense index over the bounding box (in bricks) of
+//   its stored bricks, x-major and z fastest, each entry 1 + the brick's number in
+//   light_table_nodes, 0 where no brick is stored;
+// - light_table_nodes: every stored brick of every light, 512 transmittances each in
+//   nimbus_volume::brick_offset order (x-major, z fastest), the bricks in
+//   LightTablePlan::bricks' order light after light. optical_depth.wgsl writes them (hence
+//   read_write), lookups read them.
+// A node no brick stores holds 1, the CPU table's background: no medium lies toward the
+// light from there.
+//
+// Positions are f32 world positions relative to the stage's origin (the one the density
+// volume was told of by GpuVolume::set_world_origin). Lattice coordinates are f32 like the
+// density's index coordinates, so lookups agree with the CPU's f64 ones to f32 rounding.
+
+struct LightTable {
+    // (world - origin) -> lattice index, rounded to f32 on the host from the f64 transform.
+    world_to_lattice: mat4x4<f32>,
+    // Brick coordinate (lattice index >> 3) of the index's entry 0, and the index's size.
+    brick_min: vec3<i32>,
+    // The index's first entry in light_table_index.
+    index_first: u32,
+    brick_dims: vec3<i32>,
+    // 0: the light has no table.
+    tabled: u32,
+}
+
+@group(2) @binding(0) var<storage, read> light_tables: array<LightTable>;
+@group(2) @binding(1) var<storage, read> light_table_index: array<u32>;
+@group(2) @binding(2) var<storage, read_write> light_table_nodes: array<f32>;
+
+// No brick stores the node.
+const LIGHT_TABLE_NO_SLOT: u32 = 0xffffffffu;
+// A brick's edge less one (the local coordinate mask), and its offset steps along y and x
+// (brick_offset: x-major, z fastest).
+const LIGHT_TABLE_LOCAL_MASK: i32 = (1 << LIGHT_TABLE_BRICK_LOG2) - 1;
+const LIGHT_TABLE_STEP_Y: u32 = 1u << LIGHT_TABLE_BRICK_LOG2;
+const LIGHT_TABLE_STEP_X: u32 = 1u << (2u * LIGHT_TABLE_BRICK_LOG2);
+const LIGHT_TABLE_BRICK_NODES: u32 = 1u << (3u * LIGHT_TABLE_BRICK_LOG2);
+
+// Where lattice node `node` of table `t` sits in light_table_nodes, or LIGHT_TABLE_NO_SLOT.
+fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
+    let b = (node >> vec3<u32>(LIGHT_TABLE_BRICK_LOG2)) - t.brick_min;
+    if (any(b < vec3<i32>(0)) || any(b >= t.brick_dims)) {
+        return LIGHT_TABLE_NO_SLOT;
+    }
+    let entry = light_table_index[t.index_first + u32((b.x * t.brick_dims.y + b.y) * t.brick_dims.z + b.z)];
+    if (entry == 0u) {
+        return LIGHT_TABLE_NO_SLOT;
+    }
+    let l = vec3<u32>(node & vec3<i32>(LIGHT_TABLE_LOCAL_MASK));
+    return (entry - 1u) * LIGHT_TABLE_BRICK_NODES + l.x * LIGHT_TABLE_STEP_X + l.y * LIGHT_TABLE_STEP_Y + l.z;
+}
+
+fn light_table_node(t: LightTable, node: vec3<i32>) -> f32 {
+    let slot = light_table_slot(t, node);
+    if (slot == LIGHT_TABLE_NO_SLOT) {
+        return 1.0;
+    }
+    return light_table_nodes[slot];
+}
+
+// Transmittance toward light `light` from x, trilinear between the lattice nodes around it
+// in Volume::sample_index's corner order and nested lerps; negative where the light has no
+// table (the caller then traces a shadow ray, as the CPU does where LightDepths::get is None).
+fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {
+    let t = light_tables[light];
+    if (t.tabled == 0u) {
+        return -1.0;
+    }
+    let p = (t.world_to_lattice * vec4<f32>(x, 1.0)).xyz;
+    let base = floor(p);
+    let w = p - base;
+    let c = vec3<i32>(base);
+    var v: array<f32, 8>;
+    let local = c & vec3<i32>(LIGHT_TABLE_LOCAL_MASK);
+    if (all(local < vec3<i32>(LIGHT_TABLE_LOCAL_MASK))) {
+        // The whole cell lies in one brick: one index lookup, eight loads (Volume::corners).
+        let s = light_table_slot(t, c);
+        if (s == LIGHT_TABLE_NO_SLOT) {
+            return 1.0;
+        }
+        let sy = LIGHT_TABLE_STEP_Y;
+        let sx = LIGHT_TABLE_STEP_X;
+        v = array<f32, 8>(light_table_nodes[s], light_table_nodes[s + 1u], light_table_nodes[s + sy], light_table_nodes[s + sy + 1u],
+                          light_table_nodes[s + sx], light_table_nodes[s + sx + 1u], light_table_nodes[s + sx + sy], light_table_nodes[s + sx + sy + 1u]);
+    } else {
+        for (var n = 0; n < 8; n = n + 1) {
+            v[n] = light_table_node(t, c + vec3<i32>((n >> 2u) & 1, (n >> 1u) & 1, n & 1));
+        }
+    }
+    let l = volume_lerp(
+        volume_lerp(volume_lerp(vec4<f32>(v[0]), vec4<f32>(v[1]), w.z), volume_lerp(vec4<f32>(v[2]), vec4<f32>(v[3]), w.z), w.y),
+        volume_lerp(volume_lerp(vec4<f32>(v[4]), vec4<f32>(v[5]), w.z), volume_lerp(vec4<f32>(v[6]), vec4<f32>(v[7]), w.z), w.y),
+        w.x);
+    return l.x;
+}
