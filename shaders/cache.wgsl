@@ -352,9 +352,10 @@ fn start_paths(v: u32) {
     path_rngs[v] = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
 }
 
-// Paths first_path .. first_path + path_count of voxel v (those it has), each from its own
-// origin with w_out toward the eye from there, added to its sum; the dispatch that traces
-// its last path divides by the count.
+// Paths first_path .. first_path + path_count of voxel v (those it has), path p from the
+// voxel's origin p modulo its origins' count (at most CACHE_MAX_ORIGINS, as PathPlan keeps),
+// with w_out toward the eye from there, added to its sum; the dispatch that traces its last
+// path divides by the count.
 fn continue_paths(v: u32) {
     let n = out[v].used;
     if (params.first_path >= n) {
@@ -364,7 +365,7 @@ fn continue_paths(v: u32) {
     var sum = out[v].li;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
-        let x = path_origins[path_first[v] + p].xyz;
+        let x = path_origins[path_first[v] + p % min(n, CACHE_MAX_ORIGINS)].xyz;
         let w_out = toward_eye(x);
         // At the eye itself there is no camera ray; any axis serves.
         var axis = vec3<f32>(0.0, 0.0, 1.0);

@@ -13,6 +13,7 @@ use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLigh
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
+use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
     transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathPlan, PhotonBins,
     PATH_MAX_DEPTH,
@@ -85,6 +86,7 @@ fn constants_wgsl() -> String {
     format!(
         "const CACHE_MAX_NEIGHBOURS: u32 = {GPU_MAX_NEIGHBOURS}u;\n\
          const CACHE_PATHS_DOMAIN: u32 = {CACHE_PATHS_DOMAIN}u;\n\
+         const CACHE_MAX_ORIGINS: u32 = {MAX_ORIGINS_PER_VOXEL}u;\n\
          var<private> BALL_SHELLS: array<f32, 3> = array<f32, 3>({});\n\
          var<private> BALL_DIRECTIONS: array<vec3<f32>, 14> = array<vec3<f32>, 14>({});\n",
         shells.join(", "),

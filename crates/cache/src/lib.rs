@@ -50,7 +50,7 @@ mod plan;
 pub use bins::PhotonBins;
 pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
-pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS};
+pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 
