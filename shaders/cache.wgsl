@@ -125,12 +125,15 @@ fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
         if (all(inc.irradiance == vec3<f32>(0.0))) {
             continue;
         }
-        var tr = light_table_transmittance(i, x);
-        if (tr < 0.0) {
+        // The light's table, and a shadow ray where it does not resolve x (LightDepths::transmittance).
+        let table = light_table_lookup(i, x);
+        var tr = table.x;
+        if (table.y > 0.0) {
             let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
             let ray = TrackRay(o, d, params.medium.extinction);
-            tr = track_transmittance(ray, params.grid, inc.distance, params.step, params.cutoff);
-        } else if (tr < params.cutoff) {
+            tr = mix(table.x, track_transmittance(ray, params.grid, inc.distance, params.step, params.cutoff), table.y);
+        }
+        if (tr < params.cutoff) {
             tr = 0.0;
         }
         sum = sum + inc.irradiance * tr * hg_eval(params.medium.g, dot(-inc.to_light, w_out));

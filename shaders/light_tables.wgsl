@@ -68,13 +68,16 @@ fn light_table_node(t: LightTable, node: vec3<i32>) -> f32 {
     return light_table_nodes[slot];
 }
 
-// Transmittance toward light `light` from x, trilinear between the lattice nodes around it
-// in Volume::sample_index's corner order and nested lerps; negative where the light has no
-// table (the caller then traces a shadow ray, as the CPU does where LightDepths::get is None).
-fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {
+// Transmittance toward light `light` from x as its table resolves it
+// (OpticalDepthVolume::lookup): x, trilinear between the lattice nodes around it in
+// Volume::sample_index's corner order and nested lerps; y, the weight of the caller's own
+// shadow ray beside it, 1 where the light has no table, rising across LIGHT_TABLE_SPREAD as
+// the nodes stray from the interpolation (their weighted mean absolute deviation from it) over
+// a shadow edge sharper than the lattice.
+fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
     let t = light_tables[light];
     if (t.tabled == 0u) {
-        return -1.0;
+        return vec2<f32>(1.0, 1.0);
     }
     let p = (t.world_to_lattice * vec4<f32>(x, 1.0)).xyz;
     let base = floor(p);
@@ -86,7 +89,7 @@ fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {
         // The whole cell lies in one brick: one index lookup, eight loads (Volume::corners).
         let s = light_table_slot(t, c);
         if (s == LIGHT_TABLE_NO_SLOT) {
-            return 1.0;
+            return vec2<f32>(1.0, 0.0);
         }
         let sy = LIGHT_TABLE_STEP_Y;
         let sx = LIGHT_TABLE_STEP_X;
@@ -101,5 +104,11 @@ fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {
         volume_lerp(volume_lerp(vec4<f32>(v[0]), vec4<f32>(v[1]), w.z), volume_lerp(vec4<f32>(v[2]), vec4<f32>(v[3]), w.z), w.y),
         volume_lerp(volume_lerp(vec4<f32>(v[4]), vec4<f32>(v[5]), w.z), volume_lerp(vec4<f32>(v[6]), vec4<f32>(v[7]), w.z), w.y),
         w.x);
-    return l.x;
+    var deviation = 0.0;
+    for (var n = 0; n < 8; n = n + 1) {
+        let f = select(vec3<f32>(1.0) - w, w, vec3<bool>(((n >> 2u) & 1) == 1, ((n >> 1u) & 1) == 1, (n & 1) == 1));
+        deviation = deviation + f.x * f.y * f.z * abs(v[n] - l.x);
+    }
+    let ray_weight = clamp((deviation - LIGHT_TABLE_SPREAD.x) / (LIGHT_TABLE_SPREAD.y - LIGHT_TABLE_SPREAD.x), 0.0, 1.0);
+    return vec2<f32>(l.x, ray_weight);
 }

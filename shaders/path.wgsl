@@ -6,8 +6,9 @@
 // tracking.wgsl. The stage shader provides, besides tracking.wgsl's majorant_fetch,
 //     fn path_light(index: u32) -> Light
 // returning light `index` of the scene (usually from a storage buffer), and
-//     fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32
-// the light's tabled transmittance at x, negative where it has no table: light_tables.wgsl's
+//     fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32>
+// the light's tabled transmittance at x and the weight of a shadow ray beside it (1 where it
+// has no table): light_tables.wgsl's
 // (nimbus_tracking::Shadowing::Tabled, vdbcache's paths) or NO_LIGHT_TABLES_WGSL's, which
 // has none (Shadowing::RatioTracked, the reference's); what else differs
 // between the two users (where the path starts, the medium, the majorant grid, which must
@@ -60,10 +61,11 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             if (all(inc.irradiance == vec3<f32>(0.0))) {
                 continue;
             }
-            var tr = light_table_transmittance(i, x);
-            if (tr < 0.0) {
-                tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
-                                               min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng);
+            let table = light_table_lookup(i, x);
+            var tr = table.x;
+            if (table.y > 0.0) {
+                tr = mix(table.x, track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
+                                                            min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng), table.y);
             }
             if (tr > 0.0) {
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));

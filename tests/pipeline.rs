@@ -463,3 +463,52 @@ fn the_gpu_backend_runs_in_the_chain() {
     assert!(cpu > 0.0 && (gpu / cpu - 1.0).abs() < 0.02, "images from the CPU and GPU path caches: total {cpu} against {gpu}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The chain at its defaults (no vdbphoton, no quality flags) against the unbiased path
+/// tracer on a small scene: what `make bench` shows on the bundled scenes at 2%, here on a
+/// ball at a size `make test` can afford, to the reference's noise.
+#[test]
+fn the_default_chain_matches_the_path_traced_reference() {
+    let dir = scratch("defaults");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 4000);
+    let d = dir.join("d.vdb");
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "32"]).arg("-o").arg(&d));
+    let scene = ["--extinction", "0.01", "--g", "0.4", "--sun", "dir=0.4,0.5,-0.75,irradiance=2", "--width", "32", "--height", "24"];
+    let c = dir.join("c.vdb");
+    let out = run(Command::new(bin("vdbcache")).arg(&d).args(scene).arg("-v").arg("-o").arg(&c));
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(log.contains("paths traced") && log.contains("light table nodes"), "{log}");
+    let (chain, reference) = (dir.join("chain.exr"), dir.join("reference.exr"));
+    run(Command::new(bin("vdbmarch")).arg(&c).arg("-o").arg(&chain));
+    run(Command::new(bin("vdbmarch")).arg("--reference").arg(&d).args(scene).args(["--spp", "2048"]).arg("-o").arg(&reference));
+    let (a, r) = (read_rgba(&chain), read_rgba(&reference));
+    let mean = |img: &[[f32; 4]]| img.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let ratio = mean(&a) / mean(&r);
+    // Relative RMSE over 2x2 blocks the reference sees covered, as nimbus-bench scores.
+    let block = |img: &[[f32; 4]], x: usize, y: usize, c: usize| (0..4).map(|k| img[(2 * y + k / 2) * 32 + 2 * x + k % 2][c] as f64).sum::<f64>() / 4.0;
+    let (mut sq, mut level, mut n) = (0.0, 0.0, 0);
+    for y in 0..12 {
+        for x in 0..16 {
+            if block(&r, x, y, 3) > 0.01 {
+                for c in 0..3 {
+                    sq += (block(&a, x, y, c) - block(&r, x, y, c)).powi(2) / 3.0;
+                    level += block(&r, x, y, c) / 3.0;
+                }
+                n += 1;
+            }
+        }
+    }
+    let rmse = (sq / n as f64).sqrt() / (level / n as f64);
+    eprintln!("default chain against the reference: mean ratio {ratio:.4}, relative RMSE {rmse:.4} over {n} blocks");
+    assert!(n >= 30, "the ball covers the image: {n} blocks");
+    assert!((ratio - 1.0).abs() < 0.03, "mean ratio {ratio}");
+    assert!(rmse < 0.06, "relative RMSE {rmse}");
+    // The transmittance toward the sun, on the density's voxels, within [0, 1] and shadowed
+    // somewhere.
+    let t = nimbus_vdb::VdbFile::open(&c).unwrap().read_float("transmittance").unwrap();
+    let values: Vec<f32> = t.bricks().flat_map(|b| b.values.iter().copied()).collect();
+    assert!(values.iter().all(|v| (0.0..=1.0).contains(v)), "transmittance within [0, 1]");
+    assert!(values.iter().any(|&v| v < 0.5) && values.iter().any(|&v| v > 0.9), "lit and shadowed voxels");
+    std::fs::remove_dir_all(&dir).ok();
+}

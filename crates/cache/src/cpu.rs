@@ -31,10 +31,9 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], depth
             if incident.irradiance == Vec3::ZERO {
                 return Vec3::ZERO;
             }
-            let tr = match depths.get(index) {
-                Some(depth) => Some(depth.transmittance(x)).filter(|&t| t >= cutoff).unwrap_or(0.0),
-                None => MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance(step, cutoff),
-            } as f32;
+            let ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance(step, cutoff);
+            let tr = depths.transmittance(index, x, ray);
+            let tr = if tr >= cutoff { tr } else { 0.0 } as f32;
             incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out)
         })
         .sum()

@@ -19,7 +19,8 @@ pub const TRACKING_WGSL: &str = include_str!("../../../shaders/tracking.wgsl");
 
 /// `shaders/path.wgsl`: `trace_path` and its constants, no bindings; composed after
 /// [`TRACKING_WGSL`] by a stage shader that provides `fn path_light(index: u32) -> Light`
-/// and `fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32`: [`light_tables_wgsl`]
+/// and `fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32>` (the tabled transmittance and
+/// the shadow ray's weight, [`crate::TabledTransmittance`]): [`light_tables_wgsl`]
 /// ([`crate::Shadowing::Tabled`]) or [`NO_LIGHT_TABLES_WGSL`] ([`crate::Shadowing::RatioTracked`]).
 pub const PATH_WGSL: &str = include_str!("../../../shaders/path.wgsl");
 
@@ -28,16 +29,17 @@ const LIGHT_TABLES_WGSL: &str = include_str!("../../../shaders/light_tables.wgsl
 
 /// `shaders/light_tables.wgsl` after the brick layout it indexes nodes by, generated from
 /// nimbus_volume's so the two cannot drift apart: the lights' tables at group 2
-/// ([`GpuLightTables::layout`]) and `light_table_transmittance`, their lookup; composed
+/// ([`GpuLightTables::layout`]) and `light_table_lookup`, their lookup; composed
 /// after the volume.
 pub fn light_tables_wgsl() -> String {
-    format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\n{LIGHT_TABLES_WGSL}")
+    let [from, to] = crate::TABLED_SPREAD;
+    format!("const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\nconst LIGHT_TABLE_SPREAD: vec2<f32> = vec2<f32>({from:?}, {to:?});\n{LIGHT_TABLES_WGSL}")
 }
 
 /// What a stage whose paths ratio-track every light composes in place of
 /// [`light_tables_wgsl`] (the reference path tracer: [`crate::Shadowing::RatioTracked`]): no
 /// light has a table, and no bindings.
-pub const NO_LIGHT_TABLES_WGSL: &str = "fn light_table_transmittance(light: u32, x: vec3<f32>) -> f32 {\n    return -1.0;\n}\n";
+pub const NO_LIGHT_TABLES_WGSL: &str = "fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {\n    return vec2<f32>(1.0, 1.0);\n}\n";
 
 /// `shaders/optical_depth.wgsl`: the kernel [`GpuLightTables::build`] integrates the lattice
 /// rays with.

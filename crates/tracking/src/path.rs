@@ -55,14 +55,11 @@ pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], shad
             if incident.irradiance == Vec3::ZERO {
                 continue;
             }
-            let table = match shadowing {
-                Shadowing::Tabled(depths) => depths.get(index),
-                Shadowing::RatioTracked => None,
-            };
-            let tr = match table {
-                Some(depth) => depth.transmittance(x) as f32,
-                None => MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE) as f32,
-            };
+            let mut ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
+            let tr = match shadowing {
+                Shadowing::Tabled(depths) => depths.transmittance(index, x, ray),
+                Shadowing::RatioTracked => ray(),
+            } as f32;
             if tr > 0.0 {
                 direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
             }

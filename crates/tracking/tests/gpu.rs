@@ -116,12 +116,12 @@ fn gpu_tables_hold_the_cpu_nodes_on_a_sheared_anisotropic_lattice_far_away() {
     assert!(below(&cpu) > 1000, "the opaque depth must be reached ({} nodes past it)", below(&cpu));
 }
 
-/// The GPU's `light_table_transmittance` at `points` (world) for every light, positions
-/// relative to `origin` as the stages pass them.
-fn gpu_lookups(ctx: &GpuContext, tables: &GpuLightTables, lights: usize, points: &[DVec3], origin: DVec3) -> Vec<f32> {
+/// The GPU's `light_table_lookup` (the tabled transmittance and the shadow ray's weight) at
+/// `points` (world) for every light, positions relative to `origin` as the stages pass them.
+fn gpu_lookups(ctx: &GpuContext, tables: &GpuLightTables, lights: usize, points: &[DVec3], origin: DVec3) -> Vec<[f32; 2]> {
     const KERNEL: &str = r#"
 @group(1) @binding(0) var<storage, read> points: array<vec4<f32>>;
-@group(1) @binding(1) var<storage, read_write> results: array<f32>;
+@group(1) @binding(1) var<storage, read_write> results: array<vec2<f32>>;
 
 @compute @workgroup_size(64)
 fn lookup(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -130,7 +130,7 @@ fn lookup(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let n = arrayLength(&points);
-    results[i] = light_table_transmittance(i / n, points[i % n].xyz);
+    results[i] = light_table_lookup(i / n, points[i % n].xyz);
 }
 "#;
     let source = ctx.compose_shader(&format!("{}\n{KERNEL}", light_tables_wgsl()));
@@ -141,7 +141,7 @@ fn lookup(@builtin(global_invocation_id) id: vec3<u32>) {
     let relative: Vec<[f32; 4]> = points.iter().map(|&p| (p - origin).as_vec3().extend(0.0).to_array()).collect();
     let points_buffer = ctx.storage_buffer("points", &relative).unwrap();
     let count = (points.len() * lights) as u64;
-    let results = ctx.storage_buffer_zeroed("results", count * 4).unwrap();
+    let results = ctx.storage_buffer_zeroed("results", count * 8).unwrap();
     let groups = [
         ctx.bind_group("nothing", &empty, &[]).unwrap(),
         ctx.buffer_bind_group("lookups", &layout, &[&points_buffer, &results]).unwrap(),
@@ -166,24 +166,28 @@ fn gpu_lookups_agree_with_the_cpu_lookups_of_the_same_tables() {
     let mut rng = Rng::new(11, 0);
     let points: Vec<DVec3> = (0..4000).map(|_| v.transform().to_world((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 14.0)).collect();
     let got = gpu_lookups(ctx, &tables, lights.len(), &points, c);
-    let (mut worst, mut shadowed, mut outside) = (0.0f64, 0, 0);
+    let (mut worst, mut worst_weight, mut shadowed, mut outside, mut edges) = (0.0f64, 0.0f64, 0, 0, 0);
     for (l, table) in gpu.per_light.iter().enumerate() {
         for (i, &x) in points.iter().enumerate() {
-            let g = got[l * points.len() + i] as f64;
+            let [g, weight] = got[l * points.len() + i].map(f64::from);
             let Some(table) = table else {
-                assert_eq!(g, -1.0, "light {l} has no table: the lookup says so");
+                assert_eq!(weight, 1.0, "light {l} has no table: the lookup leaves it to the shadow ray");
                 continue;
             };
-            let want = table.transmittance(x);
-            worst = worst.max((g - want).abs());
-            shadowed += (want < 0.5) as usize;
-            outside += (want == 1.0) as usize;
+            let want = table.lookup(x);
+            worst = worst.max((g - want.table).abs());
+            worst_weight = worst_weight.max((weight - want.ray_weight).abs());
+            shadowed += (want.table < 0.5) as usize;
+            outside += (want.table == 1.0) as usize;
+            edges += (want.ray_weight > 0.0) as usize;
         }
     }
-    eprintln!("{} lookups: worst |dT| {worst:.2e}; {shadowed} in deep shadow, {outside} where nothing lies toward the light", 2 * points.len());
+    eprintln!("{} lookups: worst |dT| {worst:.2e}, worst ray weight difference {worst_weight:.2e}; {shadowed} in deep shadow, {outside} where nothing lies toward the light, {edges} across sharp edges", 2 * points.len());
     assert!(shadowed > 200 && outside > 200, "the points must cover shadow and clear air");
     // f32 lattice coordinates move the trilinear weights by ~1e-7 (measured 1.2e-7).
     assert!(worst < 1e-6, "worst lookup difference {worst}");
+    // The spread of the same nodes, through the blend's 10x slope.
+    assert!(worst_weight < 1e-5, "worst ray weight difference {worst_weight}");
 }
 
 /// A ray through 12,000 cells takes more loop iterations per SIMD group than a software

@@ -101,3 +101,62 @@ fn nodes_along_a_ray_hold_the_closed_form_depth_and_stop_past_the_opaque_depth()
     assert!(past.iter().all(|&t| t > 1.0) && past.windows(2).all(|w| w[0] <= w[1]), "opaque and non-decreasing past it");
     assert!(capped[59] < out[59] && past.iter().filter(|&&t| t == capped[59]).count() > past.len() / 2, "integration stopped soon after");
 }
+
+/// Where the medium is optically thick within a voxel the shadow edge is sharper than any
+/// lattice: the lookup hands those points to the shadow ray (blending across
+/// TABLED_SPREAD), so the transmittance it resolves stays with the ray's where the
+/// interpolation alone lights the far side; where the medium is smooth the ray is never asked
+/// for; and the answer is continuous across cell faces.
+#[test]
+fn lookups_hand_shadow_edges_sharper_than_the_lattice_to_the_shadow_ray() {
+    use nimbus_volume::Volume;
+    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
+    for x in -10..=10 {
+        for y in -10..=10 {
+            for z in -10..=10 {
+                v.set(glam::IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    let majorant = MajorantGrid::build(&v);
+    // Optical depth 250 a voxel: a lattice node is either lit or black.
+    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 2500.0 };
+    let sun = Vec3::new(0.3, 0.2, -1.0).normalize();
+    let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
+    let mut rng = Rng::new(9, 0);
+    let (mut err_lookup, mut err_table, mut n, mut asked) = (0.0f64, 0.0f64, 0, 0);
+    for _ in 0..4000 {
+        // Points in the block's top cell, where the density falls to zero and the sun enters.
+        let x = DVec3::new(rng.next_f64() * 1.6 - 0.8, rng.next_f64() * 1.6 - 0.8, 1.0 + rng.next_f64() * 0.1);
+        let ray = (-shadow_ray(medium, x, sun, 0.0005)).exp();
+        let look = table.lookup(x);
+        err_lookup += (look.resolve(|| ray) - ray).abs();
+        err_table += (look.table - ray).abs();
+        asked += (look.ray_weight > 0.0) as usize;
+        n += 1;
+    }
+    let (err_lookup, err_table) = (err_lookup / n as f64, err_table / n as f64);
+    eprintln!("sharp edge: mean |dT| lookup {err_lookup:.4}, interpolation alone {err_table:.4}; {asked} of {n} asked for a ray");
+    assert!(err_table > 0.05, "the interpolation alone must miss the edge here ({err_table})");
+    assert!(err_lookup < 0.2 * err_table, "the lookup resolves the edge: {err_lookup} against {err_table}");
+
+    // A smooth blob: the table answers alone.
+    let b = blob(Transform::uniform(0.05, DVec3::ZERO), 16);
+    let majorant = MajorantGrid::build(&b);
+    let smooth = DensityMedium { density: &b, majorant: &majorant, extinction: 2.0 };
+    let table = OpticalDepthVolume::build(smooth, sun, LightLattice::default(), f64::INFINITY);
+    let asked = (0..2000)
+        .filter(|_| table.lookup((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 0.8).ray_weight > 0.0)
+        .count();
+    assert_eq!(asked, 0, "a smooth medium needs no shadow rays");
+
+    // Continuity: points a hair apart on either side of the thick block's lattice cell faces.
+    let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
+    let mut worst = 0.0f64;
+    for _ in 0..2000 {
+        let x = DVec3::new(rng.next_f64() * 1.6 - 0.8, rng.next_f64() * 1.6 - 0.8, 1.0 + rng.next_f64() * 0.1);
+        let (a, b) = (table.lookup(x), table.lookup(x + DVec3::splat(1e-9)));
+        worst = worst.max((a.ray_weight - b.ray_weight).abs()).max((a.table - b.table).abs());
+    }
+    assert!(worst < 1e-5, "the lookup jumps by {worst} over 1e-9");
+}
