@@ -1,12 +1,17 @@
-//! The CPU backend: pixels in parallel with rayon.
+//! The CPU backend: pixels in parallel with rayon; [`march_ray`] is the estimator in its
+//! plainest form (f64, the sparse volumes' own lookups), [`render_cpu`] the same over the
+//! march's layout of the volume (`layout.rs`).
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
 use nimbus_optics::noise::fbm3_vec;
 use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
+#[cfg(target_arch = "x86_64")]
+use crate::layout::Fused;
+use crate::layout::{Arith, DensityPoint, Lattice, Layer, MarchVolume, Unfused, LANES, OUTSIDE};
 use crate::{assemble, Image, MarchError, MarchParams};
 
 /// Random-number domain of camera samples.
@@ -111,37 +116,379 @@ pub(crate) fn pixel_jitter(s: u32, spp: u32, u: f64, v: f64) -> (f64, f64) {
     }
 }
 
-/// Renders the image on the CPU.
+/// Renders the image on the CPU: [`march_ray`]'s estimator over the march's own layout
+/// of the volume ([`MarchVolume`], built once), in f32 where f64 buys nothing (positions
+/// and the step lattice stay f64), pixels in 8 x 8 tiles so that neighbouring rays, which
+/// read the same bricks, run back to back on one core.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = march_majorant(density, params);
+    // The layout's own brick table skips empty space unless offset noise moves samples
+    // off the ray, which needs the dilated majorant grid.
+    let majorant = (params.offset_noise > 0.0).then(|| march_majorant(density, params));
+    let albedo = params.medium.albedo;
+    let pixels = if params.aovs {
+        match MarchVolume::<[Vec4; 2]>::new(density, cache, albedo) {
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
+            None => render_plain(density, cache, params, majorant),
+        }
+    } else {
+        match MarchVolume::<Vec4>::new(density, cache, albedo) {
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
+            None => render_plain(density, cache, params, majorant),
+        }
+    };
+    Ok(assemble(params, &pixels))
+}
+
+/// [`march_ray`] itself over the image, where the layout does not apply.
+fn render_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, majorant: Option<MajorantGrid>) -> Vec<RayResult> {
+    let majorant = majorant.unwrap_or_else(|| march_majorant(density, params));
+    render_tiles(params, &Plain { density, majorant: &majorant, cache, params })
+}
+
+/// Pixel edge of the square tiles the CPU marches one after another.
+const TILE: usize = 8;
+
+/// One camera ray's march from `origin` along `dir` with lattice offset `xi`: what
+/// [`render_tiles`] runs per sample (a trait rather than a closure so that the march is
+/// inlined into the FMA copy of the tile loop, and compiled for it).
+trait Marcher: Sync {
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult;
+}
+
+/// [`march_ray`] itself, where the layout does not apply.
+struct Plain<'a> {
+    density: &'a Volume<f32>,
+    majorant: &'a MajorantGrid,
+    cache: &'a IlluminationCache,
+    params: &'a MarchParams,
+}
+
+impl Marcher for Plain<'_> {
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+        march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi)
+    }
+}
+
+struct Fast<'a, T: DensityPoint> {
+    volume: &'a MarchVolume<T>,
+    /// The dilated majorant grid, with offset noise.
+    majorant: Option<&'a MajorantGrid>,
+    params: &'a MarchParams,
+}
+
+impl<T: DensityPoint> Marcher for Fast<'_, T> {
+    #[inline(always)]
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+        match self.majorant {
+            Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi),
+            None => self.volume.march(arith, self.params, origin, dir, xi),
+        }
+    }
+}
+
+/// Every pixel's average over its `spp` samples of `march`, in bands of [`TILE`] rows in
+/// parallel, each band tile by tile.
+fn render_tiles<M: Marcher>(params: &MarchParams, march: &M) -> Vec<RayResult> {
     let camera = &params.camera;
     let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let mut pixels = vec![RayResult::default(); w * h];
+    #[cfg(target_arch = "x86_64")]
+    let fused = Fused::detect();
+    pixels.par_chunks_mut(w * TILE).enumerate().for_each(|(band, rows)| {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(fused) = fused {
+            // SAFETY: `Fused` exists only where the CPU has AVX2 and FMA.
+            return unsafe { band_fma(fused, params, march, band * TILE, rows) };
+        }
+        render_band(Unfused, params, march, band * TILE, rows)
+    });
+    pixels
+}
+
+/// [`render_band`] compiled for AVX2 and FMA: floor is an instruction, and the lerps and
+/// the exponential's polynomial are chains of fused multiply-adds.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn band_fma<M: Marcher>(fused: Fused, params: &MarchParams, march: &M, y0: usize, rows: &mut [RayResult]) {
+    render_band(fused, params, march, y0, rows)
+}
+
+/// The rows from `y0` that `rows` holds, tile by tile.
+#[inline(always)]
+fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, y0: usize, rows: &mut [RayResult]) {
+    let camera = &params.camera;
+    let w = camera.width() as usize;
     let spp = params.spp;
-    let pixels: Vec<RayResult> = (0..w * h)
-        .into_par_iter()
-        .map(|index| {
-            let (px, py) = ((index % w) as f64, (index / w) as f64);
-            let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
-            let mut sum = RayResult::default();
-            let mut depth = f32::INFINITY;
-            for s in 0..spp {
-                // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
-                // in its edges; stratified over the pixel otherwise.
-                let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
-                let xi = rng.next_f64();
-                let (origin, dir) = camera.ray(px + jx, py + jy);
-                let r = march_ray(density, &majorant, cache, params, origin, dir, xi);
-                sum.single += r.single;
-                sum.multiple += r.multiple;
-                sum.transmittance += r.transmittance;
-                depth = depth.min(r.depth);
+    for x0 in (0..w).step_by(TILE) {
+        for y in 0..rows.len() / w {
+            for x in x0..(x0 + TILE).min(w) {
+                let index = (y0 + y) * w + x;
+                let (px, py) = (x as f64, (y0 + y) as f64);
+                let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
+                let mut sum = RayResult::default();
+                let mut depth = f32::INFINITY;
+                for s in 0..spp {
+                    // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
+                    // in its edges; stratified over the pixel otherwise.
+                    let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
+                    let xi = rng.next_f64();
+                    let (origin, dir) = camera.ray(px + jx, py + jy);
+                    let r = march.march(arith, origin, dir, xi);
+                    sum.single += r.single;
+                    sum.multiple += r.multiple;
+                    sum.transmittance += r.transmittance;
+                    depth = depth.min(r.depth);
+                }
+                let inv = 1.0 / spp as f32;
+                rows[y * w + x] =
+                    RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth };
             }
-            let inv = 1.0 / spp as f32;
-            RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth }
-        })
-        .collect();
-    Ok(assemble(params, &pixels))
+        }
+    }
+}
+
+/// `e^-x` for `x >= 0` in f32 (Cephes' expf: a degree-7 polynomial on [-ln2/2, ln2/2]
+/// after a two-part ln 2 reduction, within 2 ulp); about 1e-38 past e^-87, the least
+/// normal, instead of 0. Branch-free, so a batch of them vectorises. libm's f64 exp took
+/// a tenth of the march.
+#[inline(always)]
+fn exp_neg<A: Arith>(a: A, x: f32) -> f32 {
+    let x = x.min(87.0);
+    // Round to nearest without a libm call or a float-to-int conversion: adding 1.5 * 2^23
+    // pushes the fraction out, leaving n in the low bits of the sum.
+    const SHIFTER: f32 = 12_582_912.0;
+    let shifted = a.fma(-x, std::f32::consts::LOG2_E, SHIFTER);
+    let n = shifted - SHIFTER;
+    let r = a.fma(n, 2.121_944_4e-4, a.fma(n, -0.693_359_4, -x));
+    let mut p = a.fma(1.987_569_1e-4, r, 1.398_199_9e-3);
+    for c in [8.333_452e-3, 4.166_579_6e-2, 1.666_666_5e-1, 5.000_000_1e-1] {
+        p = a.fma(p, r, c);
+    }
+    let e = a.fma(p, r * r, r + 1.0);
+    // 2^n from its bits (n is whole, in [-126, 0]).
+    let n = shifted.to_bits().wrapping_sub(SHIFTER.to_bits());
+    e * f32::from_bits(n.wrapping_add(127) << 23)
+}
+
+/// `1 - e^-x` for `x >= 0`, given `e = e^-x`, without the cancellation that costs thin
+/// media their precision in f32 (the same series as `shaders/march.wgsl`).
+#[inline(always)]
+fn one_minus_exp_neg(x: f32, e: f32) -> f32 {
+    let series = x * (1.0 - 0.5 * x * (1.0 - x / 3.0 * (1.0 - 0.25 * x)));
+    if x < 0.03 {
+        series
+    } else {
+        1.0 - e
+    }
+}
+
+/// A ray's sums so far and its pending samples, up to [`LANES`]: their exponentials are
+/// computed together (vectorised), then the serial part, transmittance and sums, runs.
+struct Composite {
+    r: RayResult,
+    single: Vec4,
+    multiple: Vec4,
+    tr: f32,
+    split: bool,
+    min_transmittance: f32,
+    n: usize,
+    t: [f64; LANES],
+    tau: [f32; LANES],
+    /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
+    li_single: [Vec4; LANES],
+    li_multiple: [Vec4; LANES],
+}
+
+impl Composite {
+    fn new(split: bool, min_transmittance: f32) -> Self {
+        Composite {
+            r: RayResult { depth: f32::INFINITY, ..RayResult::default() },
+            single: Vec4::ZERO,
+            multiple: Vec4::ZERO,
+            tr: 1.0,
+            split,
+            min_transmittance,
+            n: 0,
+            t: [0.0; LANES],
+            tau: [0.0; LANES],
+            li_single: [Vec4::ZERO; LANES],
+            li_multiple: [Vec4::ZERO; LANES],
+        }
+    }
+
+    /// Queues the sample at `t` of optical depth `tau` over its step (the batch must have
+    /// room).
+    #[inline(always)]
+    fn push(&mut self, t: f64, tau: f32, single: Vec4, multiple: Vec4) {
+        let i = self.n;
+        (self.t[i], self.tau[i], self.li_single[i], self.li_multiple[i]) = (t, tau, single, multiple);
+        self.n += 1;
+    }
+
+    #[inline(always)]
+    fn full(&self) -> bool {
+        self.n == LANES
+    }
+
+    /// Composites the pending samples in order; false once the transmittance fell below
+    /// the threshold.
+    #[inline(always)]
+    fn flush<A: Arith>(&mut self, arith: A) -> bool {
+        let mut e = [0.0f32; LANES];
+        let mut absorbed = [0.0f32; LANES];
+        // All LANES lanes, so the loop vectorises; entries past n are stale and unread.
+        for i in 0..LANES {
+            e[i] = exp_neg(arith, self.tau[i]);
+            absorbed[i] = one_minus_exp_neg(self.tau[i], e[i]);
+        }
+        let n = std::mem::take(&mut self.n);
+        for i in 0..n {
+            let weight = Vec4::splat(self.tr * absorbed[i]);
+            self.single = arith.fma4(weight, self.li_single[i], self.single);
+            if self.split {
+                self.multiple = arith.fma4(weight, self.li_multiple[i], self.multiple);
+            }
+            self.tr *= e[i];
+            if self.r.depth.is_infinite() && self.tr < 0.99 {
+                self.r.depth = self.t[i] as f32;
+            }
+            if self.tr < self.min_transmittance {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// The result, `done` when the ray stopped early (its transmittance is then 0).
+    #[inline(always)]
+    fn finish<A: Arith>(mut self, arith: A, done: bool) -> RayResult {
+        let done = done || !self.flush(arith);
+        self.r.single = self.single.truncate();
+        self.r.multiple = self.multiple.truncate();
+        self.r.transmittance = if done { 0.0 } else { self.tr };
+        self.r
+    }
+}
+
+impl<T: DensityPoint> MarchVolume<T> {
+    /// Each other lattice's ray, in its own index space.
+    #[inline(always)]
+    fn other_rays(&self, origin: DVec3, dir: DVec3) -> [(DVec3, DVec3); 2] {
+        let mut rays = [(DVec3::ZERO, DVec3::ZERO); 2];
+        for (ray, (lattice, _)) in rays.iter_mut().zip(&self.others) {
+            let m = lattice.world_to_index();
+            *ray = (m.transform_point3(origin), m.transform_vector3(dir));
+        }
+        rays
+    }
+
+    /// Queues the sample at `t` whose density-lattice point is `v` (the batch must have
+    /// room), reading the other lattices at `t` along their rays, displaced by `shift`
+    /// (world), where it has extinction; a sample without adds nothing and leaves T as it
+    /// is (its cache values, never read by [`march_ray`], are not read here either).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn queue<A: Arith>(&self, arith: A, c: &mut Composite, dtau: f32, t: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
+        let tau = dtau * v.density().max(0.0);
+        let lit = tau > 0.0;
+        let (mut single, mut multiple) = if lit { (v.single(), v.multiple()) } else { (Vec4::ZERO, Vec4::ZERO) };
+        if lit {
+            for ((lattice, layer), &(o, d)) in self.others.iter().zip(rays) {
+                let m = lattice.world_to_index();
+                let li = lattice.sample(arith, o + d * t + shift.map_or(DVec3::ZERO, |s| m.transform_vector3(s)));
+                match layer {
+                    Layer::Multiple if T::SPLIT => multiple += li,
+                    _ => single += li,
+                }
+            }
+        }
+        c.push(t, tau, single, multiple);
+    }
+
+    /// [`march_ray`] over this layout without offset noise: the same samples, in f32 from
+    /// each sample's lattice lookup on, bricks found by the layout's own DDA, once per
+    /// brick rather than once per sample, and a brick's samples [`LANES`] at a time. Within
+    /// a brick the position is f32 relative to the brick's first sample (the offset from
+    /// it at most a brick's diagonal, so within about 1e-6 voxels), and the lattice index k
+    /// carries over between adjacent bricks (as on the GPU), so a sample on a boundary
+    /// within rounding is taken exactly once.
+    #[inline(always)]
+    fn march<A: Arith>(&self, arith: A, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+        let to_index = self.density.world_to_index();
+        let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
+        let rays = self.other_rays(origin, dir);
+        let dt = params.step;
+        let dtau = dt as f32 * params.medium.extinction;
+        let step = (d * dt).as_vec3a();
+        let mut c = Composite::new(T::SPLIT, params.min_transmittance as f32);
+        let (mut k_next, mut prev_end) = (f64::NEG_INFINITY, f64::NAN);
+        for (t_start, t_end, brick, brick_origin) in self.density.bricks_along(o, d, 0.0) {
+            let k0 = if t_start == prev_end { k_next } else { (t_start / dt - xi).ceil() };
+            // The brick's samples are those k >= k0 with (k + xi) dt < t_end: counted once,
+            // by the same test, from the estimate.
+            let taken = |n: f64| (k0 + n + xi) * dt < t_end;
+            let mut n = ((t_end / dt - xi).ceil() - k0).max(0.0);
+            while taken(n) {
+                n += 1.0;
+            }
+            while n > 0.0 && !taken(n - 1.0) {
+                n -= 1.0;
+            }
+            let first = (o - brick_origin + d * ((k0 + xi) * dt)).as_vec3a();
+            let n = n as usize;
+            let mut k = k0;
+            for from in (0..n).step_by(LANES) {
+                let cells = arith.cells(first, step, from as f32);
+                for j in 0..LANES.min(n - from) {
+                    let t = (k + xi) * dt;
+                    k += 1.0;
+                    let v = match cells.index[j] {
+                        OUTSIDE => self.density.sample(arith, o + d * t),
+                        i => Lattice::interpolate_at(arith, brick, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
+                    };
+                    self.queue(arith, &mut c, dtau, t, v, &rays, None);
+                }
+                if !c.flush(arith) {
+                    return c.finish(arith, true);
+                }
+            }
+            (k_next, prev_end) = (k0 + n as f64, t_end);
+        }
+        c.finish(arith, false)
+    }
+
+    /// [`march_ray`] over this layout with offset noise, over the dilated majorant grid.
+    #[inline(always)]
+    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+        let to_index = self.density.world_to_index();
+        let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
+        let rays = self.other_rays(origin, dir);
+        let dt = params.step;
+        let dtau = dt as f32 * params.medium.extinction;
+        let mut c = Composite::new(T::SPLIT, params.min_transmittance as f32);
+        for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
+            if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
+                continue;
+            }
+            let mut k = (seg.t_start / dt - xi).ceil();
+            loop {
+                let t = (k + xi) * dt;
+                if t >= seg.t_end {
+                    break;
+                }
+                k += 1.0;
+                let x = origin + dir * t;
+                let shift = fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
+                let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
+                self.queue(arith, &mut c, dtau, t, v, &rays, Some(shift));
+                if c.full() && !c.flush(arith) {
+                    return c.finish(arith, true);
+                }
+            }
+        }
+        c.finish(arith, false)
+    }
 }
 
 #[cfg(test)]

@@ -46,6 +46,7 @@
 mod cpu;
 mod gpu;
 mod image;
+mod layout;
 mod reference;
 
 pub use cpu::{march_ray, render_cpu, RayResult};

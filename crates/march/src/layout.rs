@@ -1,0 +1,699 @@
+//! The march's own layout of the density and the illumination cache, built once per render
+//! in O(voxels): what a march step reads, in the fewest loads.
+//!
+//! A [`Lattice`] stores `C` f32 channels per lattice point in bricks of 8^3 cells, each
+//! holding the 9^3 points its cells read (a one-point apron on the upper faces), found
+//! through a dense table of brick slots over the bricks' bounding box. A cell therefore
+//! never straddles bricks: a sample costs one table load and eight `[f32; C]` loads, where
+//! [`Volume::sample_index`] costs a hash probe per grid (eight at brick borders, a third of
+//! the cells).
+//!
+//! The density lattice also carries the cache, premultiplied by the albedo: `C = 4`
+//! (density, albedo * (Li_single + Li_multiple)) or, when the single and multiple layers
+//! are kept apart, `C = 8` (density, albedo * Li_single, albedo * Li_multiple, unused). A
+//! cache grid whose lattice is the density's coarsened by a whole factor per axis on the
+//! same lattice points (vdbcache's `--cache-scale`/`--multiple-scale` N: its points are every
+//! N-th density point) is resampled onto the density lattice, and that is exact, not an
+//! approximation: each density cell then lies inside one cache cell, the cache's trilinear
+//! interpolant is multilinear over it, and trilinear interpolation of a multilinear function
+//! from its eight corner values reproduces it. What changes is f32 rounding (the lerps
+//! in another order). A cache grid on any other lattice keeps a [`Lattice`] of its own,
+//! looked up at each sample as before.
+//!
+//! Only bricks whose 9^3 points hold positive density are stored in the density lattice:
+//! elsewhere every sample interpolates to at most zero, takes no extinction, and reads no
+//! cache. So the layout holds exactly what the march can read (it assumes a density
+//! background <= 0, checked by [`MarchVolume::new`]).
+
+use glam::{DAffine3, DVec3, IVec3, Vec3, Vec3A, Vec4};
+use nimbus_cache::IlluminationCache;
+use nimbus_volume::{Voxel, Volume, BRICK_DIM, BRICK_LOG2};
+use rayon::prelude::*;
+
+/// Lattice points a brick stores per axis: its 8 cells' lower corners and the apron.
+const EDGE: usize = BRICK_DIM as usize + 1;
+const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
+const EMPTY: u32 = u32::MAX;
+/// Offsets of a cell's +x, +y neighbours in a brick's points (z fastest).
+const X: usize = EDGE * EDGE;
+const Y: usize = EDGE;
+
+/// What one lattice point holds: a few f32 channels in SIMD registers.
+pub(crate) trait Point: bytemuck::Zeroable + Copy + Send + Sync + 'static {
+    /// `a + (b - a) w`, per channel.
+    fn lerp<A: Arith>(arith: A, a: Self, b: Self, w: f32) -> Self;
+}
+
+impl Point for Vec4 {
+    #[inline(always)]
+    fn lerp<A: Arith>(arith: A, a: Self, b: Self, w: f32) -> Self {
+        arith.fma4(b - a, Vec4::splat(w), a)
+    }
+}
+
+impl Point for [Vec4; 2] {
+    #[inline(always)]
+    fn lerp<A: Arith>(arith: A, a: Self, b: Self, w: f32) -> Self {
+        [<Vec4 as Point>::lerp(arith, a[0], b[0], w), <Vec4 as Point>::lerp(arith, a[1], b[1], w)]
+    }
+}
+
+/// Multiply-adds, fused where the CPU has FMA ([`Fused`]), else a multiply and an add
+/// ([`Unfused`]): the march's lerps and exponentials are chains of them.
+pub(crate) trait Arith: Copy + Send + Sync {
+    /// `a * b + c`.
+    fn fma(self, a: f32, b: f32, c: f32) -> f32;
+    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4;
+
+    /// The cells of the samples `first + step * (from + j)`, j < [`LANES`], positions
+    /// relative to a brick's origin that lie in its cells but for rounding.
+    #[inline(always)]
+    fn cells(self, first: Vec3A, step: Vec3A, from: f32) -> Cells {
+        let mut c = Cells { index: [0; LANES], w: [[0.0; LANES]; 3] };
+        for j in 0..LANES {
+            let q = (first + step * (from + j as f32)).clamp(Vec3A::splat(-1.0), Vec3A::splat(9.0));
+            let f = q.floor();
+            let l = f.as_ivec3();
+            for a in 0..3 {
+                c.w[a][j] = q[a] - f[a];
+            }
+            c.index[j] = cell_index(l);
+        }
+        c
+    }
+}
+
+/// The offset of cell `l`'s first corner in a brick's points, or [`OUTSIDE`] for a cell
+/// outside the brick.
+#[inline(always)]
+fn cell_index(l: IVec3) -> u32 {
+    // Negative cells wrap to large unsigned ones.
+    if ((l.x | l.y | l.z) as u32) < BRICK_DIM as u32 {
+        ((l.x * EDGE as i32 + l.y) * EDGE as i32 + l.z) as u32
+    } else {
+        OUTSIDE
+    }
+}
+
+#[derive(Clone, Copy)]
+pub(crate) struct Unfused;
+
+impl Arith for Unfused {
+    #[inline(always)]
+    fn fma(self, a: f32, b: f32, c: f32) -> f32 {
+        a * b + c
+    }
+    #[inline(always)]
+    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4 {
+        a * b + c
+    }
+}
+
+/// FMA instructions; a value exists only where the CPU has them ([`Fused::detect`]). Its
+/// code is meant to be inlined into functions compiled with `target_feature(enable = "fma")`.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Fused(());
+
+#[cfg(target_arch = "x86_64")]
+impl Fused {
+    pub fn detect() -> Option<Fused> {
+        (std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")).then_some(Fused(()))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Arith for Fused {
+    #[inline(always)]
+    fn fma(self, a: f32, b: f32, c: f32) -> f32 {
+        a.mul_add(b, c)
+    }
+    #[inline(always)]
+    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4 {
+        use std::arch::x86_64::_mm_fmadd_ps;
+        // SAFETY: a `Fused` exists only where the CPU has FMA.
+        unsafe { Vec4::from(_mm_fmadd_ps(a.into(), b.into(), c.into())) }
+    }
+
+    /// Eight lanes of AVX2 (LLVM left the portable loop scalar).
+    #[inline(always)]
+    fn cells(self, first: Vec3A, step: Vec3A, from: f32) -> Cells {
+        use std::arch::x86_64::*;
+        const _: () = assert!(LANES == 8);
+        let mut c = Cells { index: [0; LANES], w: [[0.0; LANES]; 3] };
+        // SAFETY: a `Fused` exists only where the CPU has AVX2 and FMA; the stores write
+        // 8 lanes into arrays of 8.
+        unsafe {
+            let j = _mm256_add_ps(_mm256_set1_ps(from), _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0));
+            let mut l = [_mm256_setzero_si256(); 3];
+            for a in 0..3 {
+                let q = _mm256_fmadd_ps(_mm256_set1_ps(step[a]), j, _mm256_set1_ps(first[a]));
+                // Clamped so that the conversion is in range (NaN goes to -1).
+                let q = _mm256_min_ps(_mm256_max_ps(q, _mm256_set1_ps(-1.0)), _mm256_set1_ps(9.0));
+                let f = _mm256_floor_ps(q);
+                _mm256_storeu_ps(c.w[a].as_mut_ptr(), _mm256_sub_ps(q, f));
+                l[a] = _mm256_cvttps_epi32(f);
+            }
+            let nine = |v| _mm256_add_epi32(_mm256_slli_epi32::<3>(v), v);
+            let index = _mm256_add_epi32(nine(_mm256_add_epi32(nine(l[0]), l[1])), l[2]);
+            // Inside when no bit above the low three is set in any axis (negatives have).
+            let any = _mm256_or_si256(_mm256_or_si256(l[0], l[1]), l[2]);
+            let inside = _mm256_cmpeq_epi32(_mm256_and_si256(any, _mm256_set1_epi32(!(BRICK_DIM - 1))), _mm256_setzero_si256());
+            let index = _mm256_blendv_epi8(_mm256_set1_epi32(OUTSIDE as i32), index, inside);
+            _mm256_storeu_si256(c.index.as_mut_ptr().cast(), index);
+        }
+        c
+    }
+}
+
+/// Values of type `T` on a lattice (see the module doc).
+pub(crate) struct Lattice<T: Point> {
+    world_to_index: DAffine3,
+    /// Brick coordinates (voxel index >> 3) of the table's first brick, and its extent.
+    lo: IVec3,
+    dims: IVec3,
+    /// The cells the table covers, [cell_lo, cell_hi) in voxel index, for the range test.
+    cell_lo: DVec3,
+    cell_hi: DVec3,
+    table: Vec<u32>,
+    values: Vec<T>,
+    background: T,
+}
+
+impl<T: Point> Lattice<T> {
+    /// A lattice of the bricks at brick coordinates `bricks` (repeats allowed), each filled
+    /// by `fill(voxel origin, its 9^3 points)`, in parallel; `background` everywhere else.
+    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) + Sync) -> Self {
+        let (lo, hi) = bricks.iter().fold((IVec3::MAX, IVec3::MIN), |(l, h), &b| (l.min(b), h.max(b)));
+        let dims = if bricks.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
+        let index = |b: IVec3| (((b.x - lo.x) * dims.y + (b.y - lo.y)) * dims.z + (b.z - lo.z)) as usize;
+        let mut table = vec![EMPTY; (dims.x as usize) * (dims.y as usize) * (dims.z as usize)];
+        for &b in bricks {
+            table[index(b)] = 0;
+        }
+        // Slots in table order, so neighbouring bricks sit near each other in memory.
+        let mut origins = Vec::new();
+        for (i, slot) in table.iter_mut().enumerate() {
+            if *slot != EMPTY {
+                *slot = origins.len() as u32;
+                let (yz, z) = (i / dims.z as usize, i % dims.z as usize);
+                let b = lo + IVec3::new((yz / dims.y as usize) as i32, (yz % dims.y as usize) as i32, z as i32);
+                origins.push(b << BRICK_LOG2);
+            }
+        }
+        // Zeroed by the allocator (fresh pages come zeroed; the fill then touches them in
+        // parallel): writing T::ZERO first cost a single-threaded pass over all of it.
+        let mut values: Vec<T> = bytemuck::zeroed_vec(origins.len() * BRICK_VALUES);
+        values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).for_each(|(v, &o)| fill(o, v));
+        let cell_lo = (lo << BRICK_LOG2).as_dvec3();
+        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, background }
+    }
+
+    pub fn world_to_index(&self) -> &DAffine3 {
+        &self.world_to_index
+    }
+
+    /// Trilinear interpolation at index-space point `p`, in the order of
+    /// [`Volume::sample_index`] (z, then y, then x), in f32.
+    #[inline(always)]
+    pub fn sample<A: Arith>(&self, arith: A, p: DVec3) -> T {
+        let f = p.floor();
+        // A non-finite point fails both tests.
+        if !(f.cmpge(self.cell_lo).all() && f.cmplt(self.cell_hi).all()) {
+            return self.background;
+        }
+        // SAFETY: finite and inside the table's cells, so within i32.
+        let i = unsafe { IVec3::new(f.x.to_int_unchecked(), f.y.to_int_unchecked(), f.z.to_int_unchecked()) };
+        let b = (i >> BRICK_LOG2 as i32) - self.lo;
+        let slot = self.table[((b.x * self.dims.y + b.y) * self.dims.z + b.z) as usize];
+        if slot == EMPTY {
+            return self.background;
+        }
+        self.interpolate(arith, self.brick(slot), i & IVec3::splat(BRICK_DIM - 1), (p - f).as_vec3())
+    }
+
+    /// The points of the brick in `slot`.
+    #[inline(always)]
+    pub fn brick(&self, slot: u32) -> &[T] {
+        &self.values[slot as usize * BRICK_VALUES..(slot as usize + 1) * BRICK_VALUES]
+    }
+
+    /// Trilinear interpolation in cell `l` (0..8 per axis) of `brick` at fraction `w`.
+    #[inline(always)]
+    fn interpolate<A: Arith>(&self, arith: A, brick: &[T], l: IVec3, w: Vec3) -> T {
+        Self::interpolate_at(arith, brick, (l.x as usize * EDGE + l.y as usize) * EDGE + l.z as usize, w.x, w.y, w.z)
+    }
+
+    /// Trilinear interpolation in the cell whose first corner is point `base` of `brick`
+    /// (as [`Cells::index`] gives it), at fractions `wx, wy, wz`.
+    #[inline(always)]
+    pub fn interpolate_at<A: Arith>(arith: A, brick: &[T], base: usize, wx: f32, wy: f32, wz: f32) -> T {
+        let v = &brick[base..base + X + Y + 2];
+        let lerp = |a, b, w| T::lerp(arith, a, b, w);
+        lerp(
+            lerp(lerp(v[0], v[1], wz), lerp(v[Y], v[Y + 1], wz), wy),
+            lerp(lerp(v[X], v[X + 1], wz), lerp(v[X + Y], v[X + Y + 1], wz), wy),
+            wx,
+        )
+    }
+
+    /// The bricks a ray `o + t d` (index space) crosses for `t >= t_min`, in order, as
+    /// `(t_start, t_end, slot, brick origin)`, skipping empty table entries: a 3D DDA over
+    /// the brick table, whose occupied bricks are exactly the cells where the density can
+    /// interpolate above zero.
+    #[inline(always)]
+    pub fn bricks_along(&self, o: DVec3, d: DVec3, t_min: f64) -> BrickWalk<'_, T> {
+        let scale = 1.0 / BRICK_DIM as f64;
+        let q0 = (o - self.cell_lo) * scale;
+        let dq = d * scale;
+        let dims = self.dims.as_dvec3();
+        let (mut ta, mut tb) = (t_min, f64::INFINITY);
+        let mut inv = DVec3::ZERO;
+        for a in 0..3 {
+            if dq[a] == 0.0 {
+                if !(q0[a] >= 0.0 && q0[a] < dims[a]) {
+                    tb = f64::NEG_INFINITY;
+                }
+            } else {
+                inv[a] = 1.0 / dq[a];
+                let (t0, t1) = ((0.0 - q0[a]) * inv[a], (dims[a] - q0[a]) * inv[a]);
+                ta = ta.max(t0.min(t1));
+                tb = tb.min(t0.max(t1));
+            }
+        }
+        let mut walk = BrickWalk { lattice: self, t: ta, t_end: tb, cell: IVec3::ZERO, step: IVec3::ZERO, plane: DVec3::ZERO, q0, inv, next: DVec3::INFINITY };
+        if !(ta < tb) {
+            walk.t_end = f64::NEG_INFINITY;
+            return walk;
+        }
+        // At the entry point the ray sits on the table's boundary: clamping puts it in the
+        // first brick inside whichever face it came through.
+        walk.cell = (q0 + dq * ta).floor().clamp(DVec3::ZERO, dims - 1.0).as_ivec3();
+        for a in 0..3 {
+            if dq[a] != 0.0 {
+                walk.step[a] = if dq[a] > 0.0 { 1 } else { -1 };
+                walk.plane[a] = (walk.cell[a] + (dq[a] > 0.0) as i32) as f64;
+                walk.next[a] = (walk.plane[a] - q0[a]) * inv[a];
+            }
+        }
+        walk
+    }
+}
+
+/// [`Lattice::bricks_along`]'s iterator.
+pub(crate) struct BrickWalk<'a, T: Point> {
+    lattice: &'a Lattice<T>,
+    t: f64,
+    t_end: f64,
+    /// Table coordinates of the current brick.
+    cell: IVec3,
+    step: IVec3,
+    /// Per axis, the brick plane (table coordinates) the ray crosses next, and when.
+    plane: DVec3,
+    q0: DVec3,
+    inv: DVec3,
+    next: DVec3,
+}
+
+impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
+    type Item = (f64, f64, &'a [T], DVec3);
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<Self::Item> {
+        let l = self.lattice;
+        while self.t < self.t_end {
+            let axis = if self.next.x <= self.next.y && self.next.x <= self.next.z { 0 } else if self.next.y <= self.next.z { 1 } else { 2 };
+            let exit = self.next[axis].min(self.t_end);
+            let c = self.cell;
+            let slot = l.table[((c.x * l.dims.y + c.y) * l.dims.z + c.z) as usize];
+            let start = self.t;
+            self.t = exit;
+            self.cell[axis] += self.step[axis];
+            if self.cell[axis] < 0 || self.cell[axis] >= l.dims[axis] {
+                self.t_end = exit;
+            }
+            // Planes computed from the ray each time rather than accumulated, so the
+            // brick boundaries carry one rounding, not one per brick crossed.
+            self.plane[axis] += self.step[axis] as f64;
+            self.next[axis] = (self.plane[axis] - self.q0[axis]) * self.inv[axis];
+            if slot != EMPTY && exit > start {
+                let origin = ((c + l.lo) << BRICK_LOG2 as i32).as_dvec3();
+                return Some((start, exit, l.brick(slot), origin));
+            }
+        }
+        None
+    }
+}
+
+/// Samples a march handles together: their cells are found together (vectorised), and
+/// their exponentials computed together.
+pub(crate) const LANES: usize = 8;
+
+/// Where `LANES` samples fall in a brick's cells ([`cells`]).
+pub(crate) struct Cells {
+    /// The offset of each sample's cell's first corner in the brick's points, or
+    /// [`OUTSIDE`] where rounding put it in a neighbour's cell.
+    pub index: [u32; LANES],
+    /// The fractions across the cell, per axis.
+    pub w: [[f32; LANES]; 3],
+}
+
+pub(crate) const OUTSIDE: u32 = u32::MAX;
+
+/// The values of `volume` over the index box `[lo, lo + n)` into `out` (x-major, z fastest),
+/// the background where no brick is stored: one brick lookup per brick the box touches.
+fn gather<T: Voxel>(volume: &Volume<T>, lo: IVec3, n: IVec3, out: &mut [T]) {
+    let hi = lo + n - 1;
+    let (b0, b1) = (lo >> BRICK_LOG2 as i32, hi >> BRICK_LOG2 as i32);
+    let at = |p: IVec3| (((p.x - lo.x) * n.y + (p.y - lo.y)) * n.z + (p.z - lo.z)) as usize;
+    for bx in b0.x..=b1.x {
+        for by in b0.y..=b1.y {
+            for bz in b0.z..=b1.z {
+                let origin = IVec3::new(bx, by, bz) << BRICK_LOG2 as i32;
+                let (a, b) = (origin.max(lo), (origin + BRICK_DIM - 1).min(hi));
+                let brick = volume.brick_index(origin).map(|i| volume.brick(i));
+                for x in a.x..=b.x {
+                    for y in a.y..=b.y {
+                        let row = &mut out[at(IVec3::new(x, y, a.z))..=at(IVec3::new(x, y, b.z))];
+                        match &brick {
+                            Some(brick) => {
+                                let l = IVec3::new(x, y, a.z) - origin;
+                                let from = ((l.x << (2 * BRICK_LOG2)) | (l.y << BRICK_LOG2) | l.z) as usize;
+                                row.copy_from_slice(&brick.values[from..from + row.len()]);
+                            }
+                            None => row.fill(volume.background()),
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// How a cache lattice maps onto the density lattice when it is the density's coarsened by
+/// a whole factor per axis on the same points: cache index `q = scale * p + offset` per
+/// axis for density index `p`, with `1 / scale` an integer and the cache points on density
+/// points. `None` for any other lattice.
+fn coarsening(density: &DAffine3, cache_world_to_index: &DAffine3) -> Option<(DVec3, DVec3)> {
+    let m = *cache_world_to_index * *density;
+    let mut scale = DVec3::ZERO;
+    for a in 0..3 {
+        let col = m.matrix3.col(a);
+        let s = col[a];
+        let off = col.abs().element_sum() - s.abs();
+        let n = (1.0 / s).round();
+        let aligned = n >= 1.0 && (1.0 / s - n).abs() <= 1e-9 * n && off <= 1e-12 * s.abs();
+        // Cache point k sits at density index n (k - offset): a density point when n * offset is whole.
+        let shift = n * m.translation[a];
+        if !aligned || (shift - shift.round()).abs() > 1e-9 * shift.abs().max(1.0) {
+            return None;
+        }
+        scale[a] = s;
+    }
+    Some((scale, m.translation))
+}
+
+/// `volume` trilinearly interpolated at the 9^3 density points from `origin` (density
+/// index), where density index `p` is cache index `scale * p + offset` per axis
+/// ([`coarsening`]): separably, z then y then x, which are exactly the nested lerps of
+/// [`Volume::sample_index`] at each point, shared between points.
+fn resample(volume: &Volume<Vec3>, scale: DVec3, offset: DVec3, origin: IVec3, out: &mut [Vec3; BRICK_VALUES]) {
+    let mut cells = [[0i32; EDGE]; 3];
+    let mut weights = [[0f64; EDGE]; 3];
+    for a in 0..3 {
+        for j in 0..EDGE {
+            let q = scale[a] * (origin[a] + j as i32) as f64 + offset[a];
+            let k = q.floor();
+            cells[a][j] = k as i32;
+            weights[a][j] = q - k;
+        }
+    }
+    let k0 = IVec3::new(cells[0][0], cells[1][0], cells[2][0]);
+    let n = IVec3::new(cells[0][EDGE - 1], cells[1][EDGE - 1], cells[2][EDGE - 1]) + 2 - k0;
+    let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
+    let mut corners = vec![Vec3::ZERO; nx * ny * nz];
+    gather(volume, k0, n, &mut corners);
+    let rel = |a: usize, j: usize| (cells[a][j] - k0[a]) as usize;
+    // Along z: (cache x, cache y, density z).
+    let mut zs = vec![Vec3::ZERO; nx * ny * EDGE];
+    for xy in 0..nx * ny {
+        for j in 0..EDGE {
+            let c = xy * nz + rel(2, j);
+            zs[xy * EDGE + j] = <Vec3 as Voxel>::lerp(corners[c], corners[c + 1], weights[2][j]);
+        }
+    }
+    // Along y: (cache x, density y, density z).
+    let mut ys = vec![Vec3::ZERO; nx * EDGE * EDGE];
+    for x in 0..nx {
+        for j in 0..EDGE {
+            let c = (x * ny + rel(1, j)) * EDGE;
+            for z in 0..EDGE {
+                ys[(x * EDGE + j) * EDGE + z] = <Vec3 as Voxel>::lerp(zs[c + z], zs[c + EDGE + z], weights[1][j]);
+            }
+        }
+    }
+    for j in 0..EDGE {
+        let c = rel(0, j) * EDGE * EDGE;
+        for yz in 0..EDGE * EDGE {
+            out[j * EDGE * EDGE + yz] = <Vec3 as Voxel>::lerp(ys[c + yz], ys[c + EDGE * EDGE + yz], weights[0][j]);
+        }
+    }
+}
+
+/// Which sum of a ray's result a cache lattice adds to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Layer {
+    Single,
+    Multiple,
+}
+
+/// What the density lattice holds at a point: the density and the cache resampled onto
+/// it, premultiplied by the albedo, in one of two layouts.
+pub(crate) trait DensityPoint: Point {
+    /// Whether single and multiple are kept apart (else `single` holds their sum).
+    const SPLIT: bool;
+    fn new(density: f32, single: Vec3, multiple: Vec3) -> Self;
+    fn density(&self) -> f32;
+    /// albedo * Li_single (or the sum) in xyz; w is not part of it.
+    fn single(&self) -> Vec4;
+    /// albedo * Li_multiple in xyz when [`DensityPoint::SPLIT`]; w is not part of it.
+    fn multiple(&self) -> Vec4;
+}
+
+/// albedo * (Li_single + Li_multiple) and the density, one register.
+impl DensityPoint for Vec4 {
+    const SPLIT: bool = false;
+    #[inline(always)]
+    fn new(density: f32, single: Vec3, multiple: Vec3) -> Self {
+        (single + multiple).extend(density)
+    }
+    #[inline(always)]
+    fn density(&self) -> f32 {
+        self.w
+    }
+    #[inline(always)]
+    fn single(&self) -> Vec4 {
+        *self
+    }
+    #[inline(always)]
+    fn multiple(&self) -> Vec4 {
+        Vec4::ZERO
+    }
+}
+
+/// albedo * Li_single and the density; albedo * Li_multiple.
+impl DensityPoint for [Vec4; 2] {
+    const SPLIT: bool = true;
+    #[inline(always)]
+    fn new(density: f32, single: Vec3, multiple: Vec3) -> Self {
+        [single.extend(density), multiple.extend(0.0)]
+    }
+    #[inline(always)]
+    fn density(&self) -> f32 {
+        self[0].w
+    }
+    #[inline(always)]
+    fn single(&self) -> Vec4 {
+        self[0]
+    }
+    #[inline(always)]
+    fn multiple(&self) -> Vec4 {
+        self[1]
+    }
+}
+
+/// The density lattice with the cache grids that resample onto it, and the cache grids
+/// that do not, on lattices of their own (albedo * Li in xyz).
+pub(crate) struct MarchVolume<T: DensityPoint> {
+    pub density: Lattice<T>,
+    pub others: Vec<(Lattice<Vec4>, Layer)>,
+}
+
+/// Brick coordinates of the bricks whose 9^3 points (origin to origin + 8 per axis) hold a
+/// value `keep` accepts: a brick's own, and the bricks below it whose aprons reach its
+/// lower faces.
+fn bricks_reading<T: Voxel>(volume: &Volume<T>, keep: impl Fn(T) -> bool + Sync) -> Vec<IVec3> {
+    let per_brick: Vec<Vec<IVec3>> = volume
+        .par_bricks()
+        .map(|brick| {
+            // Bit e of `reach` (e's bits x, y, z): some kept value lies on the lower face of
+            // each axis set in e, so the brick at origin - 8 e reads it.
+            let mut reach = 0u8;
+            for (offset, &v) in brick.values.iter().enumerate() {
+                if keep(v) {
+                    let l = nimbus_volume::brick_local(offset);
+                    let faces = (l.x == 0) as usize * 4 + (l.y == 0) as usize * 2 + (l.z == 0) as usize;
+                    // Every subset of the faces the point lies on.
+                    reach |= SUBSETS[faces];
+                }
+            }
+            let b = brick.origin >> BRICK_LOG2 as i32;
+            (0..8).filter(|e| reach & (1 << e) != 0).map(|e| b - IVec3::new(e >> 2 & 1, e >> 1 & 1, e & 1)).collect()
+        })
+        .collect();
+    per_brick.concat()
+}
+
+/// `SUBSETS[m]`: bit e set for every e whose bits are a subset of m's (3 bits).
+const SUBSETS: [u8; 8] = {
+    let mut t = [0u8; 8];
+    let mut m = 0;
+    while m < 8 {
+        let mut e = 0;
+        while e < 8 {
+            if e & m == e {
+                t[m] |= 1 << e;
+            }
+            e += 1;
+        }
+        m += 1;
+    }
+    t
+};
+
+impl<T: DensityPoint> MarchVolume<T> {
+    /// The layout of `density` and `cache` for a march with this albedo; `None` where it
+    /// does not apply: a density background above zero fills all space.
+    pub fn new(density: &Volume<f32>, cache: &IlluminationCache, albedo: Vec3) -> Option<Self> {
+        if !(density.background() <= 0.0) {
+            return None;
+        }
+        let to_world = density.transform().index_to_world();
+        let mut fused = Vec::new();
+        let mut others = Vec::new();
+        for (grid, layer) in [(&cache.li_single, Layer::Single), (&cache.li_multiple, Layer::Multiple)] {
+            let Some(grid) = grid else { continue };
+            match coarsening(&to_world, &grid.transform().world_to_index()) {
+                Some((scale, offset)) => fused.push((grid, layer, scale, offset)),
+                None => others.push((own_lattice(grid, albedo), layer)),
+            }
+        }
+        // albedo * Li of the fused grids as (single, multiple).
+        let split = |li: Vec3, layer: Layer| if layer == Layer::Multiple { (Vec3::ZERO, li) } else { (li, Vec3::ZERO) };
+        let background = fused.iter().fold(T::new(density.background(), Vec3::ZERO, Vec3::ZERO), |acc, &(grid, layer, _, _)| {
+            let (s, m) = split(albedo * grid.background(), layer);
+            T::new(acc.density(), acc.single().truncate() + s, acc.multiple().truncate() + m)
+        });
+        let bricks = bricks_reading(density, |v| v > 0.0);
+        let lattice = Lattice::build(density.transform().world_to_index(), &bricks, background, |origin, out| {
+            let mut d = [0.0f32; BRICK_VALUES];
+            gather(density, origin, IVec3::splat(EDGE as i32), &mut d);
+            let mut sums = [(Vec3::ZERO, Vec3::ZERO); BRICK_VALUES];
+            let mut li = [Vec3::ZERO; BRICK_VALUES];
+            for &(grid, layer, scale, offset) in &fused {
+                resample(grid, scale, offset, origin, &mut li);
+                for (sum, &v) in sums.iter_mut().zip(&li) {
+                    let (s, m) = split(albedo * v, layer);
+                    *sum = (sum.0 + s, sum.1 + m);
+                }
+            }
+            for ((o, &d), &(s, m)) in out.iter_mut().zip(&d).zip(&sums) {
+                *o = T::new(d, s, m);
+            }
+        });
+        Some(MarchVolume { density: lattice, others })
+    }
+}
+
+/// A cache grid on its own lattice, premultiplied by the albedo: every stored brick and the
+/// bricks below whose aprons reach it.
+fn own_lattice(grid: &Volume<Vec3>, albedo: Vec3) -> Lattice<Vec4> {
+    let bg = grid.background();
+    let bricks = bricks_reading(grid, |_| true);
+    Lattice::build(grid.transform().world_to_index(), &bricks, (albedo * bg).extend(0.0), |origin, out| {
+        let mut li = [Vec3::ZERO; BRICK_VALUES];
+        gather(grid, origin, IVec3::splat(EDGE as i32), &mut li);
+        for (o, v) in out.iter_mut().zip(li) {
+            *o = (albedo * v).extend(0.0);
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nimbus_volume::Transform;
+
+    fn ramp(transform: Transform) -> Volume<Vec3> {
+        let mut v = Volume::new(transform, Vec3::ZERO);
+        for x in -9..20 {
+            for y in -3..12 {
+                for z in -17..5 {
+                    let p = IVec3::new(x, y, z).as_vec3();
+                    v.set(IVec3::new(x, y, z), Vec3::new(p.x * p.y - p.z, (p.x * 0.3).sin() + p.z * p.z, 1.0 + p.y));
+                }
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn subsets_of_face_sets() {
+        assert_eq!(SUBSETS[0], 0b1);
+        assert_eq!(SUBSETS[0b100], 0b1_0001);
+        assert_eq!(SUBSETS[7], 0xff);
+    }
+
+    #[test]
+    fn lattices_sample_as_the_volume_does() {
+        let t = Transform::uniform(0.7, DVec3::new(0.3, -1.1, 2.0));
+        let v = ramp(t);
+        let lattice = own_lattice(&v, Vec3::ONE);
+        let w2i = t.world_to_index();
+        for i in 0..4000 {
+            let f = i as f64;
+            let p = DVec3::new((f * 0.137) % 34.0 - 12.0, (f * 0.0731) % 20.0 - 6.0, (f * 0.311) % 28.0 - 20.0);
+            let want = v.sample_index(p);
+            let got = lattice.sample(Unfused, w2i.transform_point3(t.to_world(p))).truncate();
+            assert!((got - want).abs().max_element() <= 1e-5 * want.abs().max_element().max(1.0), "{p}: {got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn whole_factor_coarsenings_resample_exactly() {
+        let density = Transform::uniform(0.5, DVec3::new(1.0, 2.0, 3.0));
+        let coarse = |s: f64, shift: DVec3| {
+            Transform::new(density.index_to_world() * DAffine3::from_scale(DVec3::splat(s)) * DAffine3::from_translation(shift)).unwrap()
+        };
+        let d2w = density.index_to_world();
+        assert!(coarsening(&d2w, &coarse(1.0, DVec3::ZERO).world_to_index()).is_some());
+        assert!(coarsening(&d2w, &coarse(4.0, DVec3::new(-0.25, 0.5, 0.0)).world_to_index()).is_some());
+        assert!(coarsening(&d2w, &coarse(2.0, DVec3::splat(0.3)).world_to_index()).is_none(), "cache points between density points");
+        assert!(coarsening(&d2w, &coarse(1.5, DVec3::ZERO).world_to_index()).is_none(), "not a whole factor");
+        assert!(coarsening(&d2w, &coarse(0.5, DVec3::ZERO).world_to_index()).is_none(), "finer");
+        for (s, shift) in [(1.0, DVec3::ZERO), (2.0, DVec3::ZERO), (4.0, DVec3::new(-0.25, 0.5, 0.75)), (3.0, DVec3::ZERO)] {
+            let ct = coarse(s, shift);
+            let cache = ramp(ct);
+            let (scale, offset) = coarsening(&d2w, &ct.world_to_index()).unwrap();
+            for origin in [IVec3::new(-16, 0, -8), IVec3::new(8, -8, 0), IVec3::new(0, 16, -24)] {
+                let mut out = [Vec3::ZERO; BRICK_VALUES];
+                resample(&cache, scale, offset, origin, &mut out);
+                for (i, got) in out.iter().enumerate() {
+                    let j = IVec3::new((i / X) as i32, (i / Y % EDGE) as i32, (i % EDGE) as i32);
+                    let want = cache.sample_world(density.to_world((origin + j).as_dvec3()));
+                    assert!((*got - want).abs().max_element() <= 1e-5 * want.abs().max_element().max(1.0), "scale {s}, {j}: {got} vs {want}");
+                }
+            }
+        }
+    }
+}
