@@ -9,9 +9,10 @@ use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
+use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
 #[cfg(target_arch = "x86_64")]
-use crate::layout::Fused;
-use crate::layout::{Arith, DensityPoint, Lattice, Layer, MarchVolume, Unfused, LANES, OUTSIDE};
+use crate::simd::Fused;
+use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
 use crate::{assemble, Image, MarchError, MarchParams};
 
 /// Random-number domain of camera samples.
@@ -248,81 +249,62 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
     }
 }
 
-/// `e^-x` for `x >= 0` in f32 (Cephes' expf: a degree-7 polynomial on [-ln2/2, ln2/2]
-/// after a two-part ln 2 reduction, within 2 ulp); about 1e-38 past e^-87, the least
-/// normal, instead of 0. Branch-free, so a batch of them vectorises. libm's f64 exp took
-/// a tenth of the march.
-#[inline(always)]
-fn exp_neg<A: Arith>(a: A, x: f32) -> f32 {
-    let x = x.min(87.0);
-    // Round to nearest without a libm call or a float-to-int conversion: adding 1.5 * 2^23
-    // pushes the fraction out, leaving n in the low bits of the sum.
-    const SHIFTER: f32 = 12_582_912.0;
-    let shifted = a.fma(-x, std::f32::consts::LOG2_E, SHIFTER);
-    let n = shifted - SHIFTER;
-    let r = a.fma(n, 2.121_944_4e-4, a.fma(n, -0.693_359_4, -x));
-    let mut p = a.fma(1.987_569_1e-4, r, 1.398_199_9e-3);
-    for c in [8.333_452e-3, 4.166_579_6e-2, 1.666_666_5e-1, 5.000_000_1e-1] {
-        p = a.fma(p, r, c);
-    }
-    let e = a.fma(p, r * r, r + 1.0);
-    // 2^n from its bits (n is whole, in [-126, 0]).
-    let n = shifted.to_bits().wrapping_sub(SHIFTER.to_bits());
-    e * f32::from_bits(n.wrapping_add(127) << 23)
-}
-
-/// `1 - e^-x` for `x >= 0`, given `e = e^-x`, without the cancellation that costs thin
-/// media their precision in f32 (the same series as `shaders/march.wgsl`).
-#[inline(always)]
-fn one_minus_exp_neg(x: f32, e: f32) -> f32 {
-    let series = x * (1.0 - 0.5 * x * (1.0 - x / 3.0 * (1.0 - 0.25 * x)));
-    if x < 0.03 {
-        series
-    } else {
-        1.0 - e
-    }
-}
-
 /// A ray's sums so far and its pending samples, up to [`LANES`]: their exponentials are
 /// computed together (vectorised), then the serial part, transmittance and sums, runs.
-struct Composite {
+struct Composite<T> {
     r: RayResult,
     single: Vec4,
     multiple: Vec4,
     tr: f32,
-    split: bool,
     min_transmittance: f32,
     n: usize,
-    t: [f64; LANES],
+    /// The step lattice (t = (k + xi) dt) and each pending sample's k.
+    xi: f64,
+    dt: f64,
+    k: [f64; LANES],
     tau: [f32; LANES],
     /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
     li_single: [Vec4; LANES],
     li_multiple: [Vec4; LANES],
+    /// The layout, whose [`DensityPoint::SPLIT`] says whether multiple is kept apart.
+    layout: std::marker::PhantomData<T>,
 }
 
-impl Composite {
-    fn new(split: bool, min_transmittance: f32) -> Self {
+impl<T: DensityPoint> Composite<T> {
+    fn new(min_transmittance: f32, xi: f64, dt: f64) -> Self {
         Composite {
             r: RayResult { depth: f32::INFINITY, ..RayResult::default() },
             single: Vec4::ZERO,
             multiple: Vec4::ZERO,
             tr: 1.0,
-            split,
             min_transmittance,
             n: 0,
-            t: [0.0; LANES],
+            xi,
+            dt,
+            k: [0.0; LANES],
             tau: [0.0; LANES],
             li_single: [Vec4::ZERO; LANES],
             li_multiple: [Vec4::ZERO; LANES],
+            layout: std::marker::PhantomData,
         }
     }
 
-    /// Queues the sample at `t` of optical depth `tau` over its step (the batch must have
+    /// The distance of lattice sample k.
+    #[inline(always)]
+    fn t(&self, k: f64) -> f64 {
+        (k + self.xi) * self.dt
+    }
+
+    /// Queues lattice sample k, of optical depth `tau` over its step (the batch must have
     /// room).
     #[inline(always)]
-    fn push(&mut self, t: f64, tau: f32, single: Vec4, multiple: Vec4) {
-        let i = self.n;
-        (self.t[i], self.tau[i], self.li_single[i], self.li_multiple[i]) = (t, tau, single, multiple);
+    fn push(&mut self, k: f64, tau: f32, single: Vec4, multiple: Vec4) {
+        // In range (the caller flushes when full); the mask spares the bounds checks.
+        let i = self.n % LANES;
+        (self.k[i], self.tau[i], self.li_single[i]) = (k, tau, single);
+        if T::SPLIT {
+            self.li_multiple[i] = multiple;
+        }
         self.n += 1;
     }
 
@@ -332,32 +314,25 @@ impl Composite {
     }
 
     /// Composites the pending samples in order; false once the transmittance fell below
-    /// the threshold.
+    /// the threshold (the samples after the one that took it there add nothing).
     #[inline(always)]
     fn flush<A: Arith>(&mut self, arith: A) -> bool {
-        let mut e = [0.0f32; LANES];
-        let mut absorbed = [0.0f32; LANES];
-        // All LANES lanes, so the loop vectorises; entries past n are stale and unread.
-        for i in 0..LANES {
-            e[i] = exp_neg(arith, self.tau[i]);
-            absorbed[i] = one_minus_exp_neg(self.tau[i], e[i]);
-        }
         let n = std::mem::take(&mut self.n);
-        for i in 0..n {
-            let weight = Vec4::splat(self.tr * absorbed[i]);
-            self.single = arith.fma4(weight, self.li_single[i], self.single);
-            if self.split {
-                self.multiple = arith.fma4(weight, self.li_multiple[i], self.multiple);
-            }
-            self.tr *= e[i];
-            if self.r.depth.is_infinite() && self.tr < 0.99 {
-                self.r.depth = self.t[i] as f32;
-            }
-            if self.tr < self.min_transmittance {
-                return false;
+        let c = arith.composite(self.tr, &self.tau, n, self.min_transmittance);
+        let end = if c.below != 0 { c.below.trailing_zeros() as usize + 1 } else { n };
+        let deep = c.deep & ((1 << end) - 1);
+        if self.r.depth.is_infinite() && deep != 0 {
+            self.r.depth = self.t(self.k[deep.trailing_zeros() as usize % LANES]) as f32;
+        }
+        for i in 0..end.min(LANES) {
+            let w = Vec4::splat(c.weight[i]);
+            self.single = arith.fma4(w, self.li_single[i], self.single);
+            if T::SPLIT {
+                self.multiple = arith.fma4(w, self.li_multiple[i], self.multiple);
             }
         }
-        true
+        self.tr = c.tr;
+        c.below == 0
     }
 
     /// The result, `done` when the ray stopped early (its transmittance is then 0).
@@ -389,11 +364,12 @@ impl<T: DensityPoint> MarchVolume<T> {
     /// is (its cache values, never read by [`march_ray`], are not read here either).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn queue<A: Arith>(&self, arith: A, c: &mut Composite, dtau: f32, t: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
+    fn queue<A: Arith>(&self, arith: A, c: &mut Composite<T>, dtau: f32, k: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
         let tau = dtau * v.density().max(0.0);
         let lit = tau > 0.0;
         let (mut single, mut multiple) = if lit { (v.single(), v.multiple()) } else { (Vec4::ZERO, Vec4::ZERO) };
-        if lit {
+        if lit && !self.others.is_empty() {
+            let t = c.t(k);
             for ((lattice, layer), &(o, d)) in self.others.iter().zip(rays) {
                 let m = lattice.world_to_index();
                 let li = lattice.sample(arith, o + d * t + shift.map_or(DVec3::ZERO, |s| m.transform_vector3(s)));
@@ -403,7 +379,7 @@ impl<T: DensityPoint> MarchVolume<T> {
                 }
             }
         }
-        c.push(t, tau, single, multiple);
+        c.push(k, tau, single, multiple);
     }
 
     /// [`march_ray`] over this layout without offset noise: the same samples, in f32 from
@@ -421,39 +397,38 @@ impl<T: DensityPoint> MarchVolume<T> {
         let dt = params.step;
         let dtau = dt as f32 * params.medium.extinction;
         let step = (d * dt).as_vec3a();
-        let mut c = Composite::new(T::SPLIT, params.min_transmittance as f32);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
         let (mut k_next, mut prev_end) = (f64::NEG_INFINITY, f64::NAN);
+        let inv_dt = 1.0 / dt;
         for (t_start, t_end, brick, brick_origin) in self.density.bricks_along(o, d, 0.0) {
-            let k0 = if t_start == prev_end { k_next } else { (t_start / dt - xi).ceil() };
-            // The brick's samples are those k >= k0 with (k + xi) dt < t_end: counted once,
-            // by the same test, from the estimate.
+            // Lattice index k >= k0 with (k + xi) dt < t_end: the count is estimated, then
+            // settled by that very test.
+            let k0 = if t_start == prev_end { k_next } else { (t_start * inv_dt - xi).ceil() };
             let taken = |n: f64| (k0 + n + xi) * dt < t_end;
-            let mut n = ((t_end / dt - xi).ceil() - k0).max(0.0);
+            let mut n = ((t_end * inv_dt - xi).ceil() - k0).max(0.0);
             while taken(n) {
                 n += 1.0;
             }
             while n > 0.0 && !taken(n - 1.0) {
                 n -= 1.0;
             }
+            (k_next, prev_end) = (k0 + n, t_end);
             let first = (o - brick_origin + d * ((k0 + xi) * dt)).as_vec3a();
-            let n = n as usize;
-            let mut k = k0;
+            let (mut k, n) = (k0, n as usize);
             for from in (0..n).step_by(LANES) {
                 let cells = arith.cells(first, step, from as f32);
                 for j in 0..LANES.min(n - from) {
-                    let t = (k + xi) * dt;
-                    k += 1.0;
                     let v = match cells.index[j] {
-                        OUTSIDE => self.density.sample(arith, o + d * t),
+                        OUTSIDE => self.density.sample(arith, o + d * ((k + xi) * dt)),
                         i => Lattice::interpolate_at(arith, brick, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
                     };
-                    self.queue(arith, &mut c, dtau, t, v, &rays, None);
-                }
-                if !c.flush(arith) {
-                    return c.finish(arith, true);
+                    self.queue(arith, &mut c, dtau, k, v, &rays, None);
+                    k += 1.0;
+                    if c.full() && !c.flush(arith) {
+                        return c.finish(arith, true);
+                    }
                 }
             }
-            (k_next, prev_end) = (k0 + n as f64, t_end);
         }
         c.finish(arith, false)
     }
@@ -466,7 +441,7 @@ impl<T: DensityPoint> MarchVolume<T> {
         let rays = self.other_rays(origin, dir);
         let dt = params.step;
         let dtau = dt as f32 * params.medium.extinction;
-        let mut c = Composite::new(T::SPLIT, params.min_transmittance as f32);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
         for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
             if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
                 continue;
@@ -477,11 +452,11 @@ impl<T: DensityPoint> MarchVolume<T> {
                 if t >= seg.t_end {
                     break;
                 }
-                k += 1.0;
                 let x = origin + dir * t;
                 let shift = fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
                 let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
-                self.queue(arith, &mut c, dtau, t, v, &rays, Some(shift));
+                self.queue(arith, &mut c, dtau, k, v, &rays, Some(shift));
+                k += 1.0;
                 if c.full() && !c.flush(arith) {
                     return c.finish(arith, true);
                 }

@@ -30,8 +30,10 @@ use nimbus_cache::IlluminationCache;
 use nimbus_volume::{Voxel, Volume, BRICK_DIM, BRICK_LOG2};
 use rayon::prelude::*;
 
+use crate::simd::Arith;
+
 /// Lattice points a brick stores per axis: its 8 cells' lower corners and the apron.
-const EDGE: usize = BRICK_DIM as usize + 1;
+pub(crate) const EDGE: usize = BRICK_DIM as usize + 1;
 const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
 const EMPTY: u32 = u32::MAX;
 /// Offsets of a cell's +x, +y neighbours in a brick's points (z fastest).
@@ -58,114 +60,6 @@ impl Point for [Vec4; 2] {
     }
 }
 
-/// Multiply-adds, fused where the CPU has FMA ([`Fused`]), else a multiply and an add
-/// ([`Unfused`]): the march's lerps and exponentials are chains of them.
-pub(crate) trait Arith: Copy + Send + Sync {
-    /// `a * b + c`.
-    fn fma(self, a: f32, b: f32, c: f32) -> f32;
-    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4;
-
-    /// The cells of the samples `first + step * (from + j)`, j < [`LANES`], positions
-    /// relative to a brick's origin that lie in its cells but for rounding.
-    #[inline(always)]
-    fn cells(self, first: Vec3A, step: Vec3A, from: f32) -> Cells {
-        let mut c = Cells { index: [0; LANES], w: [[0.0; LANES]; 3] };
-        for j in 0..LANES {
-            let q = (first + step * (from + j as f32)).clamp(Vec3A::splat(-1.0), Vec3A::splat(9.0));
-            let f = q.floor();
-            let l = f.as_ivec3();
-            for a in 0..3 {
-                c.w[a][j] = q[a] - f[a];
-            }
-            c.index[j] = cell_index(l);
-        }
-        c
-    }
-}
-
-/// The offset of cell `l`'s first corner in a brick's points, or [`OUTSIDE`] for a cell
-/// outside the brick.
-#[inline(always)]
-fn cell_index(l: IVec3) -> u32 {
-    // Negative cells wrap to large unsigned ones.
-    if ((l.x | l.y | l.z) as u32) < BRICK_DIM as u32 {
-        ((l.x * EDGE as i32 + l.y) * EDGE as i32 + l.z) as u32
-    } else {
-        OUTSIDE
-    }
-}
-
-#[derive(Clone, Copy)]
-pub(crate) struct Unfused;
-
-impl Arith for Unfused {
-    #[inline(always)]
-    fn fma(self, a: f32, b: f32, c: f32) -> f32 {
-        a * b + c
-    }
-    #[inline(always)]
-    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4 {
-        a * b + c
-    }
-}
-
-/// FMA instructions; a value exists only where the CPU has them ([`Fused::detect`]). Its
-/// code is meant to be inlined into functions compiled with `target_feature(enable = "fma")`.
-#[cfg(target_arch = "x86_64")]
-#[derive(Clone, Copy)]
-pub(crate) struct Fused(());
-
-#[cfg(target_arch = "x86_64")]
-impl Fused {
-    pub fn detect() -> Option<Fused> {
-        (std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")).then_some(Fused(()))
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-impl Arith for Fused {
-    #[inline(always)]
-    fn fma(self, a: f32, b: f32, c: f32) -> f32 {
-        a.mul_add(b, c)
-    }
-    #[inline(always)]
-    fn fma4(self, a: Vec4, b: Vec4, c: Vec4) -> Vec4 {
-        use std::arch::x86_64::_mm_fmadd_ps;
-        // SAFETY: a `Fused` exists only where the CPU has FMA.
-        unsafe { Vec4::from(_mm_fmadd_ps(a.into(), b.into(), c.into())) }
-    }
-
-    /// Eight lanes of AVX2 (LLVM left the portable loop scalar).
-    #[inline(always)]
-    fn cells(self, first: Vec3A, step: Vec3A, from: f32) -> Cells {
-        use std::arch::x86_64::*;
-        const _: () = assert!(LANES == 8);
-        let mut c = Cells { index: [0; LANES], w: [[0.0; LANES]; 3] };
-        // SAFETY: a `Fused` exists only where the CPU has AVX2 and FMA; the stores write
-        // 8 lanes into arrays of 8.
-        unsafe {
-            let j = _mm256_add_ps(_mm256_set1_ps(from), _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0));
-            let mut l = [_mm256_setzero_si256(); 3];
-            for a in 0..3 {
-                let q = _mm256_fmadd_ps(_mm256_set1_ps(step[a]), j, _mm256_set1_ps(first[a]));
-                // Clamped so that the conversion is in range (NaN goes to -1).
-                let q = _mm256_min_ps(_mm256_max_ps(q, _mm256_set1_ps(-1.0)), _mm256_set1_ps(9.0));
-                let f = _mm256_floor_ps(q);
-                _mm256_storeu_ps(c.w[a].as_mut_ptr(), _mm256_sub_ps(q, f));
-                l[a] = _mm256_cvttps_epi32(f);
-            }
-            let nine = |v| _mm256_add_epi32(_mm256_slli_epi32::<3>(v), v);
-            let index = _mm256_add_epi32(nine(_mm256_add_epi32(nine(l[0]), l[1])), l[2]);
-            // Inside when no bit above the low three is set in any axis (negatives have).
-            let any = _mm256_or_si256(_mm256_or_si256(l[0], l[1]), l[2]);
-            let inside = _mm256_cmpeq_epi32(_mm256_and_si256(any, _mm256_set1_epi32(!(BRICK_DIM - 1))), _mm256_setzero_si256());
-            let index = _mm256_blendv_epi8(_mm256_set1_epi32(OUTSIDE as i32), index, inside);
-            _mm256_storeu_si256(c.index.as_mut_ptr().cast(), index);
-        }
-        c
-    }
-}
-
 /// Values of type `T` on a lattice (see the module doc).
 pub(crate) struct Lattice<T: Point> {
     world_to_index: DAffine3,
@@ -177,13 +71,59 @@ pub(crate) struct Lattice<T: Point> {
     cell_hi: DVec3,
     table: Vec<u32>,
     values: Vec<T>,
+    /// Per slot, the cells of the brick a march has to visit (see [`CellBox`]).
+    boxes: Vec<CellBox>,
     background: T,
+}
+
+/// The cells of a brick a march has to visit, `lo..hi` per axis (0..8 for all of them):
+/// for the density lattice, those with a corner of positive density; elsewhere every
+/// sample interpolates to at most zero and adds nothing. A fifth of the Cloud1-class
+/// scene's samples fall in brick cells outside these boxes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct CellBox {
+    pub lo: [u8; 3],
+    pub hi: [u8; 3],
+}
+
+impl CellBox {
+    pub const ALL: CellBox = CellBox { lo: [0; 3], hi: [BRICK_DIM as u8; 3] };
+    const NONE: CellBox = CellBox { lo: [BRICK_DIM as u8; 3], hi: [0; 3] };
+
+    /// The cells with a corner among the brick's points (x-major, z fastest) where `keep`
+    /// holds.
+    fn of<V: Copy>(points: &[V], keep: impl Fn(V) -> bool) -> CellBox {
+        // Per axis, a bit per plane of points holding a kept value.
+        let mut planes = [0u16; 3];
+        for x in 0..EDGE {
+            for y in 0..EDGE {
+                let row = &points[(x * EDGE + y) * EDGE..][..EDGE];
+                let mut zs = 0u16;
+                for (z, &v) in row.iter().enumerate() {
+                    zs |= (keep(v) as u16) << z;
+                }
+                planes[2] |= zs;
+                planes[1] |= ((zs != 0) as u16) << y;
+                planes[0] |= ((zs != 0) as u16) << x;
+            }
+        }
+        let mut b = CellBox::NONE;
+        for a in 0..3 {
+            if planes[a] != 0 {
+                // Point p is a corner of cells p - 1 and p (those inside the brick).
+                let (first, last) = (planes[a].trailing_zeros() as u8, 15 - planes[a].leading_zeros() as u8);
+                b.lo[a] = first.saturating_sub(1);
+                b.hi[a] = (last + 1).min(BRICK_DIM as u8);
+            }
+        }
+        b
+    }
 }
 
 impl<T: Point> Lattice<T> {
     /// A lattice of the bricks at brick coordinates `bricks` (repeats allowed), each filled
     /// by `fill(voxel origin, its 9^3 points)`, in parallel; `background` everywhere else.
-    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) + Sync) -> Self {
+    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> CellBox + Sync) -> Self {
         let (lo, hi) = bricks.iter().fold((IVec3::MAX, IVec3::MIN), |(l, h), &b| (l.min(b), h.max(b)));
         let dims = if bricks.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
         let index = |b: IVec3| (((b.x - lo.x) * dims.y + (b.y - lo.y)) * dims.z + (b.z - lo.z)) as usize;
@@ -204,9 +144,9 @@ impl<T: Point> Lattice<T> {
         // Zeroed by the allocator (fresh pages come zeroed; the fill then touches them in
         // parallel): writing T::ZERO first cost a single-threaded pass over all of it.
         let mut values: Vec<T> = bytemuck::zeroed_vec(origins.len() * BRICK_VALUES);
-        values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).for_each(|(v, &o)| fill(o, v));
+        let boxes = values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).map(|(v, &o)| fill(o, v)).collect();
         let cell_lo = (lo << BRICK_LOG2).as_dvec3();
-        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, background }
+        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, boxes, background }
     }
 
     pub fn world_to_index(&self) -> &DAffine3 {
@@ -245,7 +185,7 @@ impl<T: Point> Lattice<T> {
     }
 
     /// Trilinear interpolation in the cell whose first corner is point `base` of `brick`
-    /// (as [`Cells::index`] gives it), at fractions `wx, wy, wz`.
+    /// (as [`crate::simd::Cells::index`] gives it), at fractions `wx, wy, wz`.
     #[inline(always)]
     pub fn interpolate_at<A: Arith>(arith: A, brick: &[T], base: usize, wx: f32, wy: f32, wz: f32) -> T {
         let v = &brick[base..base + X + Y + 2];
@@ -281,18 +221,32 @@ impl<T: Point> Lattice<T> {
                 tb = tb.min(t0.max(t1));
             }
         }
-        let mut walk = BrickWalk { lattice: self, t: ta, t_end: tb, cell: IVec3::ZERO, step: IVec3::ZERO, plane: DVec3::ZERO, q0, inv, next: DVec3::INFINITY };
+        let mut walk = BrickWalk {
+            lattice: self,
+            t: ta,
+            t_end: tb,
+            cell: [0; 3],
+            index: 0,
+            step: [0; 3],
+            stride: [(self.dims.y * self.dims.z) as isize, self.dims.z as isize, 1],
+            plane: [0.0; 3],
+            q0: q0.to_array(),
+            inv: inv.to_array(),
+            next: [f64::INFINITY; 3],
+        };
         if !(ta < tb) {
             walk.t_end = f64::NEG_INFINITY;
             return walk;
         }
         // At the entry point the ray sits on the table's boundary: clamping puts it in the
         // first brick inside whichever face it came through.
-        walk.cell = (q0 + dq * ta).floor().clamp(DVec3::ZERO, dims - 1.0).as_ivec3();
+        let cell = (q0 + dq * ta).floor().clamp(DVec3::ZERO, dims - 1.0).as_ivec3();
+        walk.cell = cell.to_array();
+        walk.index = ((cell.x * self.dims.y + cell.y) * self.dims.z + cell.z) as isize;
         for a in 0..3 {
             if dq[a] != 0.0 {
                 walk.step[a] = if dq[a] > 0.0 { 1 } else { -1 };
-                walk.plane[a] = (walk.cell[a] + (dq[a] > 0.0) as i32) as f64;
+                walk.plane[a] = (cell[a] + (dq[a] > 0.0) as i32) as f64;
                 walk.next[a] = (walk.plane[a] - q0[a]) * inv[a];
             }
         }
@@ -300,19 +254,22 @@ impl<T: Point> Lattice<T> {
     }
 }
 
-/// [`Lattice::bricks_along`]'s iterator.
+/// [`Lattice::bricks_along`]'s iterator (state in arrays: glam's vectors index their
+/// lanes through a match).
 pub(crate) struct BrickWalk<'a, T: Point> {
     lattice: &'a Lattice<T>,
     t: f64,
     t_end: f64,
-    /// Table coordinates of the current brick.
-    cell: IVec3,
-    step: IVec3,
+    /// Table coordinates of the current brick, and its index in the table.
+    cell: [i32; 3],
+    index: isize,
+    step: [i32; 3],
+    stride: [isize; 3],
     /// Per axis, the brick plane (table coordinates) the ray crosses next, and when.
-    plane: DVec3,
-    q0: DVec3,
-    inv: DVec3,
-    next: DVec3,
+    plane: [f64; 3],
+    q0: [f64; 3],
+    inv: [f64; 3],
+    next: [f64; 3],
 }
 
 impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
@@ -322,13 +279,14 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
     fn next(&mut self) -> Option<Self::Item> {
         let l = self.lattice;
         while self.t < self.t_end {
-            let axis = if self.next.x <= self.next.y && self.next.x <= self.next.z { 0 } else if self.next.y <= self.next.z { 1 } else { 2 };
-            let exit = self.next[axis].min(self.t_end);
-            let c = self.cell;
-            let slot = l.table[((c.x * l.dims.y + c.y) * l.dims.z + c.z) as usize];
+            let n = &self.next;
+            let axis = if n[0] <= n[1] && n[0] <= n[2] { 0 } else if n[1] <= n[2] { 1 } else { 2 };
+            let exit = n[axis].min(self.t_end);
+            let (c, slot) = (self.cell, l.table[self.index as usize]);
             let start = self.t;
             self.t = exit;
             self.cell[axis] += self.step[axis];
+            self.index += self.stride[axis] * self.step[axis] as isize;
             if self.cell[axis] < 0 || self.cell[axis] >= l.dims[axis] {
                 self.t_end = exit;
             }
@@ -336,29 +294,31 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
             // brick boundaries carry one rounding, not one per brick crossed.
             self.plane[axis] += self.step[axis] as f64;
             self.next[axis] = (self.plane[axis] - self.q0[axis]) * self.inv[axis];
-            if slot != EMPTY && exit > start {
-                let origin = ((c + l.lo) << BRICK_LOG2 as i32).as_dvec3();
+            if slot == EMPTY {
+                continue;
+            }
+            // The part of the ray in the brick's box of cells to visit.
+            let (mut start, mut exit) = (start, exit);
+            let b = l.boxes[slot as usize];
+            if b != CellBox::ALL {
+                for a in 0..3 {
+                    if self.inv[a] == 0.0 {
+                        continue;
+                    }
+                    let plane = |cell: u8| (c[a] as f64 + cell as f64 / BRICK_DIM as f64 - self.q0[a]) * self.inv[a];
+                    let (t0, t1) = (plane(b.lo[a]), plane(b.hi[a]));
+                    start = start.max(t0.min(t1));
+                    exit = exit.min(t0.max(t1));
+                }
+            }
+            if exit > start {
+                let origin = ((IVec3::from(c) + l.lo) << BRICK_LOG2 as i32).as_dvec3();
                 return Some((start, exit, l.brick(slot), origin));
             }
         }
         None
     }
 }
-
-/// Samples a march handles together: their cells are found together (vectorised), and
-/// their exponentials computed together.
-pub(crate) const LANES: usize = 8;
-
-/// Where `LANES` samples fall in a brick's cells ([`cells`]).
-pub(crate) struct Cells {
-    /// The offset of each sample's cell's first corner in the brick's points, or
-    /// [`OUTSIDE`] where rounding put it in a neighbour's cell.
-    pub index: [u32; LANES],
-    /// The fractions across the cell, per axis.
-    pub w: [[f32; LANES]; 3],
-}
-
-pub(crate) const OUTSIDE: u32 = u32::MAX;
 
 /// The values of `volume` over the index box `[lo, lo + n)` into `out` (x-major, z fastest),
 /// the background where no brick is stored: one brick lookup per brick the box touches.
@@ -413,49 +373,61 @@ fn coarsening(density: &DAffine3, cache_world_to_index: &DAffine3) -> Option<(DV
     Some((scale, m.translation))
 }
 
-/// `volume` trilinearly interpolated at the 9^3 density points from `origin` (density
-/// index), where density index `p` is cache index `scale * p + offset` per axis
-/// ([`coarsening`]): separably, z then y then x, which are exactly the nested lerps of
-/// [`Volume::sample_index`] at each point, shared between points.
-fn resample(volume: &Volume<Vec3>, scale: DVec3, offset: DVec3, origin: IVec3, out: &mut [Vec3; BRICK_VALUES]) {
-    let mut cells = [[0i32; EDGE]; 3];
-    let mut weights = [[0f64; EDGE]; 3];
+/// The sum of `grids` (all on one lattice, scaled by `albedo`) trilinearly interpolated at
+/// the 9^3 density points from `origin` (density index), added to `out`, where density index
+/// `p` is cache index `scale * p + offset` per axis ([`coarsening`]): separably, z then y
+/// then x, which are the nested lerps of [`Volume::sample_index`] at each point, shared
+/// between points. Interpolating the sum is the sum of the interpolations: trilinear
+/// interpolation is linear in the values.
+fn resample(grids: &[&Volume<Vec3>], albedo: Vec3, scale: DVec3, offset: DVec3, origin: IVec3, out: &mut [Vec3A; BRICK_VALUES]) {
+    let mut cells = [[0usize; EDGE]; 3];
+    let mut weights = [[0f32; EDGE]; 3];
+    let mut k0 = IVec3::ZERO;
+    let mut n = IVec3::ZERO;
     for a in 0..3 {
+        let q = |j: usize| scale[a] * (origin[a] + j as i32) as f64 + offset[a];
+        k0[a] = q(0).floor() as i32;
+        n[a] = q(EDGE - 1).floor() as i32 + 2 - k0[a];
         for j in 0..EDGE {
-            let q = scale[a] * (origin[a] + j as i32) as f64 + offset[a];
-            let k = q.floor();
-            cells[a][j] = k as i32;
-            weights[a][j] = q - k;
+            let k = q(j).floor();
+            cells[a][j] = (k as i32 - k0[a]) as usize;
+            weights[a][j] = (q(j) - k) as f32;
         }
     }
-    let k0 = IVec3::new(cells[0][0], cells[1][0], cells[2][0]);
-    let n = IVec3::new(cells[0][EDGE - 1], cells[1][EDGE - 1], cells[2][EDGE - 1]) + 2 - k0;
     let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
-    let mut corners = vec![Vec3::ZERO; nx * ny * nz];
-    gather(volume, k0, n, &mut corners);
-    let rel = |a: usize, j: usize| (cells[a][j] - k0[a]) as usize;
+    // At most EDGE + 1 cache points per axis (a cache cell is at least a density cell).
+    const MOST: usize = EDGE + 1;
+    let mut block = [Vec3::ZERO; MOST * MOST * MOST];
+    let mut corners = [Vec3A::ZERO; MOST * MOST * MOST];
+    for (i, grid) in grids.iter().enumerate() {
+        gather(grid, k0, n, &mut block[..nx * ny * nz]);
+        for (c, &v) in corners.iter_mut().zip(&block[..nx * ny * nz]) {
+            *c = if i == 0 { Vec3A::from(albedo * v) } else { *c + Vec3A::from(albedo * v) };
+        }
+    }
+    let lerp = |a: Vec3A, b: Vec3A, w: f32| a + (b - a) * w;
     // Along z: (cache x, cache y, density z).
-    let mut zs = vec![Vec3::ZERO; nx * ny * EDGE];
+    let mut zs = [Vec3A::ZERO; MOST * MOST * EDGE];
     for xy in 0..nx * ny {
         for j in 0..EDGE {
-            let c = xy * nz + rel(2, j);
-            zs[xy * EDGE + j] = <Vec3 as Voxel>::lerp(corners[c], corners[c + 1], weights[2][j]);
+            let c = xy * nz + cells[2][j];
+            zs[xy * EDGE + j] = lerp(corners[c], corners[c + 1], weights[2][j]);
         }
     }
     // Along y: (cache x, density y, density z).
-    let mut ys = vec![Vec3::ZERO; nx * EDGE * EDGE];
+    let mut ys = [Vec3A::ZERO; MOST * EDGE * EDGE];
     for x in 0..nx {
         for j in 0..EDGE {
-            let c = (x * ny + rel(1, j)) * EDGE;
+            let c = (x * ny + cells[1][j]) * EDGE;
             for z in 0..EDGE {
-                ys[(x * EDGE + j) * EDGE + z] = <Vec3 as Voxel>::lerp(zs[c + z], zs[c + EDGE + z], weights[1][j]);
+                ys[(x * EDGE + j) * EDGE + z] = lerp(zs[c + z], zs[c + EDGE + z], weights[1][j]);
             }
         }
     }
     for j in 0..EDGE {
-        let c = rel(0, j) * EDGE * EDGE;
+        let c = cells[0][j] * EDGE * EDGE;
         for yz in 0..EDGE * EDGE {
-            out[j * EDGE * EDGE + yz] = <Vec3 as Voxel>::lerp(ys[c + yz], ys[c + EDGE * EDGE + yz], weights[0][j]);
+            out[j * EDGE * EDGE + yz] += lerp(ys[c + yz], ys[c + EDGE * EDGE + yz], weights[0][j]);
         }
     }
 }
@@ -594,22 +566,40 @@ impl<T: DensityPoint> MarchVolume<T> {
             let (s, m) = split(albedo * grid.background(), layer);
             T::new(acc.density(), acc.single().truncate() + s, acc.multiple().truncate() + m)
         });
+        // The fused grids grouped by lattice and by the sum they add to: a group is
+        // resampled once, as the sum of its grids.
+        let mut groups: Vec<(Vec<&Volume<Vec3>>, Layer, DVec3, DVec3)> = Vec::new();
+        for &(grid, layer, scale, offset) in &fused {
+            let layer = if T::SPLIT { layer } else { Layer::Single };
+            match groups.iter_mut().find(|g| (g.1, g.2, g.3) == (layer, scale, offset)) {
+                Some(g) => g.0.push(grid),
+                None => groups.push((vec![grid], layer, scale, offset)),
+            }
+        }
         let bricks = bricks_reading(density, |v| v > 0.0);
         let lattice = Lattice::build(density.transform().world_to_index(), &bricks, background, |origin, out| {
             let mut d = [0.0f32; BRICK_VALUES];
             gather(density, origin, IVec3::splat(EDGE as i32), &mut d);
-            let mut sums = [(Vec3::ZERO, Vec3::ZERO); BRICK_VALUES];
-            let mut li = [Vec3::ZERO; BRICK_VALUES];
-            for &(grid, layer, scale, offset) in &fused {
-                resample(grid, scale, offset, origin, &mut li);
-                for (sum, &v) in sums.iter_mut().zip(&li) {
-                    let (s, m) = split(albedo * v, layer);
-                    *sum = (sum.0 + s, sum.1 + m);
+            let mut li = [[Vec3A::ZERO; BRICK_VALUES]; 2];
+            for (grids, layer, scale, offset) in &groups {
+                let sum = &mut li[(*layer == Layer::Multiple) as usize];
+                if *scale == DVec3::ONE && *offset == offset.round() {
+                    // The density's own lattice (shifted by whole points): copies.
+                    let mut block = [Vec3::ZERO; BRICK_VALUES];
+                    for grid in grids {
+                        gather(grid, origin + offset.as_ivec3(), IVec3::splat(EDGE as i32), &mut block);
+                        for (s, &v) in sum.iter_mut().zip(&block) {
+                            *s += Vec3A::from(albedo * v);
+                        }
+                    }
+                } else {
+                    resample(grids, albedo, *scale, *offset, origin, sum);
                 }
             }
-            for ((o, &d), &(s, m)) in out.iter_mut().zip(&d).zip(&sums) {
-                *o = T::new(d, s, m);
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = T::new(d[i], li[0][i].into(), li[1][i].into());
             }
+            CellBox::of(&d, |v| v > 0.0)
         });
         Some(MarchVolume { density: lattice, others })
     }
@@ -626,6 +616,7 @@ fn own_lattice(grid: &Volume<Vec3>, albedo: Vec3) -> Lattice<Vec4> {
         for (o, v) in out.iter_mut().zip(li) {
             *o = (albedo * v).extend(0.0);
         }
+        CellBox::ALL
     })
 }
 

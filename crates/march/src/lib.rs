@@ -48,6 +48,7 @@ mod gpu;
 mod image;
 mod layout;
 mod reference;
+mod simd;
 
 pub use cpu::{march_ray, render_cpu, RayResult};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
