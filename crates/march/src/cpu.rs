@@ -466,9 +466,78 @@ impl<T: DensityPoint> MarchVolume<T> {
     }
 }
 
+/// The test scenes of `tests/` (clouds, caches, cameras).
+#[cfg(test)]
+#[path = "../tests/common/mod.rs"]
+mod scenes;
+
 #[cfg(test)]
 mod tests {
-    use super::pixel_jitter;
+    use super::scenes::{cache_for, cache_on_density_lattice, camera, cloud, params};
+    use super::*;
+    use nimbus_optics::Medium;
+
+    /// The march over the layout against `march_ray` on the same rays and lattices: the
+    /// worst relative difference of the colour, single and multiple over lit pixels (as
+    /// the GPU agreement tests measure it) and of alpha.
+    fn layout_against_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> (f32, f32) {
+        let fast = render_cpu(density, cache, params).unwrap();
+        if params.min_transmittance > 0.0 {
+            let stopped = fast.rgba.iter().filter(|p| p.w == 1.0).count();
+            assert!(stopped > 10, "rays stop early: {stopped}");
+        }
+        let majorant = march_majorant(density, params);
+        let plain = assemble(params, &render_tiles(params, &Plain { density, majorant: &majorant, cache, params }));
+        let lum = |p: Vec3| p.element_sum();
+        let max = plain.rgba.iter().map(|p| lum(p.truncate())).fold(0.0, f32::max);
+        assert!(max > 0.0, "the scene is lit");
+        let floor = Vec3::splat(1e-3 * max / 3.0);
+        let rel = |a: Vec3, b: Vec3| ((a - b).abs() / b.abs().max(floor)).max_element();
+        let (mut worst, mut alpha, mut lit) = (0.0f32, 0.0f32, 0);
+        for (i, (f, p)) in fast.rgba.iter().zip(&plain.rgba).enumerate() {
+            alpha = alpha.max((f.w - p.w).abs());
+            if lum(p.truncate()) > 1e-3 * max {
+                lit += 1;
+                worst = worst.max(rel(f.truncate(), p.truncate()));
+                if let (Some(fa), Some(pa)) = (&fast.aovs, &plain.aovs) {
+                    worst = worst.max(rel(fa.single[i], pa.single[i])).max(rel(fa.multiple[i], pa.multiple[i]));
+                }
+            }
+        }
+        assert!(lit > fast.rgba.len() / 4, "{lit} lit pixels");
+        (worst, alpha)
+    }
+
+    #[test]
+    fn the_layout_marches_as_march_ray_does() {
+        let density = cloud(24, 3.0, DVec3::new(0.3, -0.2, 0.1));
+        let base = params(camera(DVec3::new(0.3, -0.2, 0.1), 40, 30));
+        // vdbcache's layouts (fused into the density lattice, also the whole-point shift of
+        // a coarser lattice) and lattices of their own.
+        let caches = [
+            ("scale 1 and 4", cache_on_density_lattice(&density, 1.0, 4.0)),
+            ("scale 2 and 2", cache_on_density_lattice(&density, 2.0, 2.0)),
+            ("offset lattices", cache_for(&density)),
+            ("single only", IlluminationCache { li_single: cache_on_density_lattice(&density, 1.0, 1.0).li_single, li_multiple: None }),
+        ];
+        for (name, cache) in &caches {
+            for aovs in [true, false] {
+                let cases = [
+                    ("1 spp", MarchParams { aovs, ..base.clone() }),
+                    ("4 spp", MarchParams { aovs, spp: 4, ..base.clone() }),
+                    ("offset noise", MarchParams { aovs, offset_noise: 0.05, noise_scale: 0.2, ..base.clone() }),
+                    ("early termination", MarchParams { aovs, min_transmittance: 1e-3, medium: Medium { extinction: 6.0, ..base.medium }, ..base.clone() }),
+                ];
+                for (case, p) in cases {
+                    let (rgb, alpha) = layout_against_plain(&density, cache, &p);
+                    eprintln!("{name}, aovs {aovs}, {case}: max rel diff {rgb:.2e}, alpha {alpha:.2e}");
+                    assert!(rgb <= 1e-4, "{name}, aovs {aovs}, {case}: rgb {rgb}");
+                    // A ray stopping a sample earlier or later leaves up to the threshold.
+                    assert!(alpha <= 1e-5f32.max(2.0 * p.min_transmittance as f32), "{name}, aovs {aovs}, {case}: alpha {alpha}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn samples_take_one_cell_each_of_the_largest_square_grid() {

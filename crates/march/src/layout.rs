@@ -623,6 +623,7 @@ fn own_lattice(grid: &Volume<Vec3>, albedo: Vec3) -> Lattice<Vec4> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::simd::Unfused;
     use nimbus_volume::Transform;
 
     fn ramp(transform: Transform) -> Volume<Vec3> {
@@ -677,12 +678,12 @@ mod tests {
             let cache = ramp(ct);
             let (scale, offset) = coarsening(&d2w, &ct.world_to_index()).unwrap();
             for origin in [IVec3::new(-16, 0, -8), IVec3::new(8, -8, 0), IVec3::new(0, 16, -24)] {
-                let mut out = [Vec3::ZERO; BRICK_VALUES];
-                resample(&cache, scale, offset, origin, &mut out);
-                for (i, got) in out.iter().enumerate() {
+                let mut out = [Vec3A::ONE; BRICK_VALUES];
+                resample(&[&cache, &cache], Vec3::splat(0.5), scale, offset, origin, &mut out);
+                for (i, got) in out.iter().map(|&v| Vec3::from(v) - 1.0).enumerate() {
                     let j = IVec3::new((i / X) as i32, (i / Y % EDGE) as i32, (i % EDGE) as i32);
                     let want = cache.sample_world(density.to_world((origin + j).as_dvec3()));
-                    assert!((*got - want).abs().max_element() <= 1e-5 * want.abs().max_element().max(1.0), "scale {s}, {j}: {got} vs {want}");
+                    assert!((got - want).abs().max_element() <= 1e-5 * want.abs().max_element().max(1.0), "scale {s}, {j}: {got} vs {want}");
                 }
             }
         }

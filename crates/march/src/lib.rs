@@ -43,6 +43,10 @@
 //!   a sample lying on a boundary within f32 rounding is taken exactly once; `1 - exp(-sigma_t dt)` is evaluated
 //!   without cancellation in thin media.
 
+// The unit tests share tests/common, which names this crate.
+#[cfg(test)]
+extern crate self as nimbus_march;
+
 mod cpu;
 mod gpu;
 mod image;

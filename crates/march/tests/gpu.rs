@@ -88,6 +88,18 @@ fn images_agree_without_noise() {
 }
 
 #[test]
+fn images_agree_on_vdbcache_lattices() {
+    // Li_single on the density's own points and Li_multiple on every fourth: the CPU
+    // resamples both onto its density lattice, the GPU looks each up on its own.
+    let Some(ctx) = gpu() else { return };
+    let (v, _, p) = scene(DVec3::ZERO);
+    let cache = common::cache_on_density_lattice(&v, 1.0, 4.0);
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    assert_close("cache scales 1 and 4, 1 spp", &diff(&cpu, &gpu), 64 * 48);
+}
+
+#[test]
 fn images_agree_with_offset_noise_and_jittered_samples() {
     let Some(ctx) = gpu() else { return };
     let (v, cache, mut p) = scene(DVec3::ZERO);
