@@ -249,23 +249,34 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
     }
 }
 
-/// A ray's sums so far and its pending samples, up to [`LANES`]: their exponentials are
-/// computed together (vectorised), then the serial part, transmittance and sums, runs.
+/// Up to [`LANES`] samples looked up, not yet composited: their exponentials are computed
+/// together (vectorised), then the serial part, transmittance and sums, runs.
+struct Batch {
+    /// Each sample's lattice index (t = (k + xi) dt).
+    k: [f64; LANES],
+    /// Optical depth over the sample's step.
+    tau: [f32; LANES],
+    /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
+    single: [Vec4; LANES],
+    multiple: [Vec4; LANES],
+}
+
+impl Batch {
+    fn new() -> Self {
+        Batch { k: [0.0; LANES], tau: [0.0; LANES], single: [Vec4::ZERO; LANES], multiple: [Vec4::ZERO; LANES] }
+    }
+}
+
+/// A ray's sums so far.
 struct Composite<T> {
     r: RayResult,
     single: Vec4,
     multiple: Vec4,
     tr: f32,
     min_transmittance: f32,
-    n: usize,
-    /// The step lattice (t = (k + xi) dt) and each pending sample's k.
+    /// The step lattice: t = (k + xi) dt.
     xi: f64,
     dt: f64,
-    k: [f64; LANES],
-    tau: [f32; LANES],
-    /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
-    li_single: [Vec4; LANES],
-    li_multiple: [Vec4; LANES],
     /// The layout, whose [`DensityPoint::SPLIT`] says whether multiple is kept apart.
     layout: std::marker::PhantomData<T>,
 }
@@ -278,13 +289,8 @@ impl<T: DensityPoint> Composite<T> {
             multiple: Vec4::ZERO,
             tr: 1.0,
             min_transmittance,
-            n: 0,
             xi,
             dt,
-            k: [0.0; LANES],
-            tau: [0.0; LANES],
-            li_single: [Vec4::ZERO; LANES],
-            li_multiple: [Vec4::ZERO; LANES],
             layout: std::marker::PhantomData,
         }
     }
@@ -295,40 +301,21 @@ impl<T: DensityPoint> Composite<T> {
         (k + self.xi) * self.dt
     }
 
-    /// Queues lattice sample k, of optical depth `tau` over its step (the batch must have
-    /// room).
+    /// Composites the first `n` samples of `b` in order; false once the transmittance fell
+    /// below the threshold (the samples after the one that took it there add nothing).
     #[inline(always)]
-    fn push(&mut self, k: f64, tau: f32, single: Vec4, multiple: Vec4) {
-        // In range (the caller flushes when full); the mask spares the bounds checks.
-        let i = self.n % LANES;
-        (self.k[i], self.tau[i], self.li_single[i]) = (k, tau, single);
-        if T::SPLIT {
-            self.li_multiple[i] = multiple;
-        }
-        self.n += 1;
-    }
-
-    #[inline(always)]
-    fn full(&self) -> bool {
-        self.n == LANES
-    }
-
-    /// Composites the pending samples in order; false once the transmittance fell below
-    /// the threshold (the samples after the one that took it there add nothing).
-    #[inline(always)]
-    fn flush<A: Arith>(&mut self, arith: A) -> bool {
-        let n = std::mem::take(&mut self.n);
-        let c = arith.composite(self.tr, &self.tau, n, self.min_transmittance);
+    fn add<A: Arith>(&mut self, arith: A, b: &Batch, n: usize) -> bool {
+        let c = arith.composite(self.tr, &b.tau, n, self.min_transmittance);
         let end = if c.below != 0 { c.below.trailing_zeros() as usize + 1 } else { n };
         let deep = c.deep & ((1 << end) - 1);
         if self.r.depth.is_infinite() && deep != 0 {
-            self.r.depth = self.t(self.k[deep.trailing_zeros() as usize % LANES]) as f32;
+            self.r.depth = self.t(b.k[deep.trailing_zeros() as usize % LANES]) as f32;
         }
         for i in 0..end.min(LANES) {
             let w = Vec4::splat(c.weight[i]);
-            self.single = arith.fma4(w, self.li_single[i], self.single);
+            self.single = arith.fma4(w, b.single[i], self.single);
             if T::SPLIT {
-                self.multiple = arith.fma4(w, self.li_multiple[i], self.multiple);
+                self.multiple = arith.fma4(w, b.multiple[i], self.multiple);
             }
         }
         self.tr = c.tr;
@@ -337,8 +324,7 @@ impl<T: DensityPoint> Composite<T> {
 
     /// The result, `done` when the ray stopped early (its transmittance is then 0).
     #[inline(always)]
-    fn finish<A: Arith>(mut self, arith: A, done: bool) -> RayResult {
-        let done = done || !self.flush(arith);
+    fn finish(mut self, done: bool) -> RayResult {
         self.r.single = self.single.truncate();
         self.r.multiple = self.multiple.truncate();
         self.r.transmittance = if done { 0.0 } else { self.tr };
@@ -358,13 +344,13 @@ impl<T: DensityPoint> MarchVolume<T> {
         rays
     }
 
-    /// Queues the sample at `t` whose density-lattice point is `v` (the batch must have
-    /// room), reading the other lattices at `t` along their rays, displaced by `shift`
-    /// (world), where it has extinction; a sample without adds nothing and leaves T as it
-    /// is (its cache values, never read by [`march_ray`], are not read here either).
+    /// Lane `j` of `b`: lattice sample `k`, whose density-lattice point is `v`, reading the
+    /// other lattices along their rays, displaced by `shift` (world), where it has
+    /// extinction. A sample without adds nothing and leaves T as it is (its cache values,
+    /// never read by [`march_ray`], are not read here either).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn queue<A: Arith>(&self, arith: A, c: &mut Composite<T>, dtau: f32, k: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
+    fn take<A: Arith>(&self, arith: A, b: &mut Batch, j: usize, dtau: f32, k: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>, c: &Composite<T>) {
         let tau = dtau * v.density().max(0.0);
         let lit = tau > 0.0;
         let (mut single, mut multiple) = if lit { (v.single(), v.multiple()) } else { (Vec4::ZERO, Vec4::ZERO) };
@@ -379,7 +365,12 @@ impl<T: DensityPoint> MarchVolume<T> {
                 }
             }
         }
-        c.push(k, tau, single, multiple);
+        // j < LANES (callers fill at most a batch); the mask spares the bounds checks.
+        let j = j % LANES;
+        (b.k[j], b.tau[j], b.single[j]) = (k, tau, single);
+        if T::SPLIT {
+            b.multiple[j] = multiple;
+        }
     }
 
     /// [`march_ray`] over this layout without offset noise: the same samples, in f32 from
@@ -398,6 +389,7 @@ impl<T: DensityPoint> MarchVolume<T> {
         let dtau = dt as f32 * params.medium.extinction;
         let step = (d * dt).as_vec3a();
         let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
+        let mut b = Batch::new();
         let (mut k_next, mut prev_end) = (f64::NEG_INFINITY, f64::NAN);
         let inv_dt = 1.0 / dt;
         for (t_start, t_end, brick, brick_origin) in self.density.bricks_along(o, d, 0.0) {
@@ -417,20 +409,21 @@ impl<T: DensityPoint> MarchVolume<T> {
             let (mut k, n) = (k0, n as usize);
             for from in (0..n).step_by(LANES) {
                 let cells = arith.cells(first, step, from as f32);
-                for j in 0..LANES.min(n - from) {
+                let m = LANES.min(n - from);
+                for j in 0..m {
                     let v = match cells.index[j] {
-                        OUTSIDE => self.density.sample(arith, o + d * ((k + xi) * dt)),
+                        OUTSIDE => self.density.sample(arith, o + d * c.t(k + j as f64)),
                         i => Lattice::interpolate_at(arith, brick, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
                     };
-                    self.queue(arith, &mut c, dtau, k, v, &rays, None);
-                    k += 1.0;
-                    if c.full() && !c.flush(arith) {
-                        return c.finish(arith, true);
-                    }
+                    self.take(arith, &mut b, j, dtau, k + j as f64, v, &rays, None, &c);
                 }
+                if !c.add(arith, &b, m) {
+                    return c.finish(true);
+                }
+                k += m as f64;
             }
         }
-        c.finish(arith, false)
+        c.finish(false)
     }
 
     /// [`march_ray`] over this layout with offset noise, over the dilated majorant grid.
@@ -442,6 +435,7 @@ impl<T: DensityPoint> MarchVolume<T> {
         let dt = params.step;
         let dtau = dt as f32 * params.medium.extinction;
         let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
+        let (mut b, mut n) = (Batch::new(), 0);
         for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
             if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
                 continue;
@@ -455,14 +449,19 @@ impl<T: DensityPoint> MarchVolume<T> {
                 let x = origin + dir * t;
                 let shift = fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
                 let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
-                self.queue(arith, &mut c, dtau, k, v, &rays, Some(shift));
+                self.take(arith, &mut b, n, dtau, k, v, &rays, Some(shift), &c);
                 k += 1.0;
-                if c.full() && !c.flush(arith) {
-                    return c.finish(arith, true);
+                n += 1;
+                if n == LANES {
+                    if !c.add(arith, &b, n) {
+                        return c.finish(true);
+                    }
+                    n = 0;
                 }
             }
         }
-        c.finish(arith, false)
+        let done = !c.add(arith, &b, n);
+        c.finish(done)
     }
 }
 
