@@ -55,6 +55,11 @@ struct Args {
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
+    /// Most the step is lengthened where the density is optically thin (1 = a fixed step):
+    /// in each majorant cell, by the largest whole factor keeping a step's optical depth at
+    /// the cell's density bound within 1/4 (default 2).
+    #[arg(long)]
+    max_step_factor: Option<u32>,
     /// Jittered samples per pixel (default 1, or the --quality preset's; paths per pixel
     /// with --reference).
     #[arg(long)]
@@ -123,6 +128,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
     let meta = PipelineMeta::of(file);
     let march_only = [
         (args.step.is_some(), "--step"),
+        (args.max_step_factor.is_some(), "--max-step-factor"),
         (args.offset_noise != 0.0, "--offset-noise"),
         (args.noise_scale.is_some(), "--noise-scale"),
         (args.quality.is_some(), "--quality"),
@@ -174,6 +180,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
         camera: args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?,
         step: args.step.unwrap_or(voxel.length() / 3.0 * preset.map_or(1.0, |q| q.step_factor)),
+        max_step_factor: args.max_step_factor.unwrap_or(MarchParams::DEFAULT_MAX_STEP_FACTOR),
         spp: args.spp.or(preset.map(|q| q.spp)).unwrap_or(1),
         background: args.background,
         offset_noise: args.offset_noise,

@@ -49,6 +49,7 @@ fn load(name: &'static str, path: &Path) -> Scene {
         camera,
         // vdbmarch's defaults.
         step: voxel.length() / 3.0,
+        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
         spp: 1,
         background: Vec3::ZERO,
         offset_noise: 0.0,

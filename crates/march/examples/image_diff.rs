@@ -58,9 +58,10 @@ fn main() {
         }
     }
     let (pa, pb) = (blocks2(&a), blocks2(&b));
-    let (mut sq, mut level, mut n) = (0.0f64, 0.0f64, 0usize);
+    let (mut sq, mut level, mut n, mut sq_alpha) = (0.0f64, 0.0f64, 0usize, 0.0f64);
     for (p, r) in pa.iter().zip(&pb) {
         if r[3] > 0.01 {
+            sq_alpha += ((p[3] - r[3]) as f64).powi(2);
             for c in 0..3 {
                 sq += ((p[c] - r[c]) as f64).powi(2) / 3.0;
             }
@@ -68,11 +69,27 @@ fn main() {
             n += 1;
         }
     }
+    // With a third argument: a PNG of |alpha difference| (white = 0.02) and, in red, the
+    // relative colour difference (red = 0.05).
+    if let Some(out) = args.get(3) {
+        let mut data = Vec::with_capacity(a.pixels.len() * 3);
+        for (p, q) in a.pixels.iter().zip(&b.pixels) {
+            let da = ((p[3] - q[3]).abs() / 0.02).min(1.0);
+            let dc = ((lum(p) - lum(q)).abs() / lum(q).abs().max(floor) / 0.05).min(1.0);
+            data.extend([(255.0 * da.max(dc)) as u8, (255.0 * da) as u8, (255.0 * da) as u8]);
+        }
+        let file = std::fs::File::create(out).unwrap();
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), a.width as u32, a.height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&data).unwrap();
+    }
     let mean = |img: &Rgba| img.pixels.iter().map(|p| lum(p) as f64).sum::<f64>();
     println!(
-        "lit pixels {lit}: max rel diff {worst:.3e}, mean rel diff {:.3e}; max |alpha diff| {alpha:.3e}; rel RMSE (2x2 blocks, covered) {:.5}; mean ratio {:.5}",
+        "lit pixels {lit}: max rel diff {worst:.3e}, mean rel diff {:.3e}; max |alpha diff| {alpha:.3e}; rel RMSE (2x2 blocks, covered) {:.5}; alpha RMSE {:.5}; mean ratio {:.5}",
         sum_rel / lit.max(1) as f64,
         (sq / n as f64).sqrt() / (level / n as f64),
+        (sq_alpha / n as f64).sqrt(),
         mean(&a) / mean(&b)
     );
 }

@@ -13,7 +13,7 @@ use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
-use crate::{assemble, Image, MarchError, MarchParams};
+use crate::{assemble, Groups, Image, MarchError, MarchParams, GROUP_DOMAIN};
 
 /// Random-number domain of camera samples.
 pub(crate) const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
@@ -28,7 +28,9 @@ pub struct RayResult {
     pub depth: f32,
 }
 
-/// Marches one camera ray. `xi` in [0,1) places the step lattice.
+/// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
+/// in each group of lattice steps ([`Groups`]).
+#[allow(clippy::too_many_arguments)]
 pub fn march_ray(
     density: &Volume<f32>,
     majorant: &MajorantGrid,
@@ -37,26 +39,25 @@ pub fn march_ray(
     origin: DVec3,
     dir: DVec3,
     xi: f64,
+    u: f64,
 ) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
-    let dt = params.step;
     let extinction = params.medium.extinction;
     let albedo = params.medium.albedo;
     let jitter = params.offset_noise > 0.0;
     let mut r = RayResult { transmittance: 1.0, depth: f32::INFINITY, ..RayResult::default() };
     let mut tr = 1.0f64;
+    let dt = params.step;
+    let mut groups = Groups::new();
     for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
         if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
             continue;
         }
-        let mut k = (seg.t_start / dt - xi).ceil();
-        loop {
-            let t = (k + xi) * dt;
-            if t >= seg.t_end {
-                break;
-            }
-            k += 1.0;
+        let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
+        let step = cell.size as f64 * dt;
+        for j in 0..cell.count {
+            let t = (cell.first + (j as u32 * cell.size) as f64 + xi) * dt;
             let mut x = origin + dir * t;
             if jitter {
                 x += fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
@@ -65,7 +66,7 @@ pub fn march_ray(
             if sigma_t <= 0.0 {
                 continue;
             }
-            let step_transmittance = (-sigma_t * dt).exp();
+            let step_transmittance = (-sigma_t * step).exp();
             let weight = (tr * (1.0 - step_transmittance)) as f32;
             if let Some(li) = &cache.li_single {
                 r.single += weight * albedo * li.sample_world(x);
@@ -154,7 +155,7 @@ const TILE: usize = 8;
 /// [`render_tiles`] runs per sample (a trait rather than a closure so that the march is
 /// inlined into the FMA copy of the tile loop, and compiled for it).
 trait Marcher: Sync {
-    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult;
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult;
 }
 
 /// [`march_ray`] itself, where the layout does not apply.
@@ -166,8 +167,8 @@ struct Plain<'a> {
 }
 
 impl Marcher for Plain<'_> {
-    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
-        march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi)
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u)
     }
 }
 
@@ -180,10 +181,10 @@ struct Fast<'a, T: DensityPoint> {
 
 impl<T: DensityPoint> Marcher for Fast<'_, T> {
     #[inline(always)]
-    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
         match self.majorant {
-            Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi),
-            None => self.volume.march(arith, self.params, origin, dir, xi),
+            Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi, u),
+            None => self.volume.march(arith, self.params, origin, dir, xi, u),
         }
     }
 }
@@ -227,15 +228,16 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                 let index = (y0 + y) * w + x;
                 let (px, py) = (x as f64, (y0 + y) as f64);
                 let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
+                let mut members = Rng::with_domain(params.seed, index as u64, GROUP_DOMAIN);
                 let mut sum = RayResult::default();
                 let mut depth = f32::INFINITY;
                 for s in 0..spp {
                     // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
                     // in its edges; stratified over the pixel otherwise.
                     let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
-                    let xi = rng.next_f64();
+                    let (xi, u) = (rng.next_f64(), members.next_f64());
                     let (origin, dir) = camera.ray(px + jx, py + jy);
-                    let r = march.march(arith, origin, dir, xi);
+                    let r = march.march(arith, origin, dir, xi, u);
                     sum.single += r.single;
                     sum.multiple += r.multiple;
                     sum.transmittance += r.transmittance;
@@ -252,8 +254,8 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
 /// Up to [`LANES`] samples looked up, not yet composited: their exponentials are computed
 /// together (vectorised), then the serial part, transmittance and sums, runs.
 struct Batch {
-    /// Each sample's lattice index (t = (k + xi) dt).
-    k: [f64; LANES],
+    /// Each sample's distance along the ray.
+    t: [f64; LANES],
     /// Optical depth over the sample's step.
     tau: [f32; LANES],
     /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
@@ -263,7 +265,7 @@ struct Batch {
 
 impl Batch {
     fn new() -> Self {
-        Batch { k: [0.0; LANES], tau: [0.0; LANES], single: [Vec4::ZERO; LANES], multiple: [Vec4::ZERO; LANES] }
+        Batch { t: [0.0; LANES], tau: [0.0; LANES], single: [Vec4::ZERO; LANES], multiple: [Vec4::ZERO; LANES] }
     }
 }
 
@@ -274,31 +276,20 @@ struct Composite<T> {
     multiple: Vec4,
     tr: f32,
     min_transmittance: f32,
-    /// The step lattice: t = (k + xi) dt.
-    xi: f64,
-    dt: f64,
     /// The layout, whose [`DensityPoint::SPLIT`] says whether multiple is kept apart.
     layout: std::marker::PhantomData<T>,
 }
 
 impl<T: DensityPoint> Composite<T> {
-    fn new(min_transmittance: f32, xi: f64, dt: f64) -> Self {
+    fn new(min_transmittance: f32) -> Self {
         Composite {
             r: RayResult { depth: f32::INFINITY, ..RayResult::default() },
             single: Vec4::ZERO,
             multiple: Vec4::ZERO,
             tr: 1.0,
             min_transmittance,
-            xi,
-            dt,
             layout: std::marker::PhantomData,
         }
-    }
-
-    /// The distance of lattice sample k.
-    #[inline(always)]
-    fn t(&self, k: f64) -> f64 {
-        (k + self.xi) * self.dt
     }
 
     /// Composites the first `n` samples of `b` in order; false once the transmittance fell
@@ -309,7 +300,7 @@ impl<T: DensityPoint> Composite<T> {
         let end = if c.below != 0 { c.below.trailing_zeros() as usize + 1 } else { n };
         let deep = c.deep & ((1 << end) - 1);
         if self.r.depth.is_infinite() && deep != 0 {
-            self.r.depth = self.t(b.k[deep.trailing_zeros() as usize % LANES]) as f32;
+            self.r.depth = b.t[deep.trailing_zeros() as usize % LANES] as f32;
         }
         for i in 0..end.min(LANES) {
             let w = Vec4::splat(c.weight[i]);
@@ -344,18 +335,18 @@ impl<T: DensityPoint> MarchVolume<T> {
         rays
     }
 
-    /// Lane `j` of `b`: lattice sample `k`, whose density-lattice point is `v`, reading the
+    /// Lane `j` of `b`: the sample at `t` over a step of optical depth `dtau` per unit of
+    /// density, whose density-lattice point is `v`, reading the
     /// other lattices along their rays, displaced by `shift` (world), where it has
     /// extinction. A sample without adds nothing and leaves T as it is (its cache values,
     /// never read by [`march_ray`], are not read here either).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn take<A: Arith>(&self, arith: A, b: &mut Batch, j: usize, dtau: f32, k: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>, c: &Composite<T>) {
+    fn take<A: Arith>(&self, arith: A, b: &mut Batch, j: usize, dtau: f32, t: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
         let tau = dtau * v.density().max(0.0);
         let lit = tau > 0.0;
         let (mut single, mut multiple) = if lit { (v.single(), v.multiple()) } else { (Vec4::ZERO, Vec4::ZERO) };
         if lit && !self.others.is_empty() {
-            let t = c.t(k);
             for ((lattice, layer), &(o, d)) in self.others.iter().zip(rays) {
                 let m = lattice.world_to_index();
                 let li = lattice.sample(arith, o + d * t + shift.map_or(DVec3::ZERO, |s| m.transform_vector3(s)));
@@ -367,7 +358,7 @@ impl<T: DensityPoint> MarchVolume<T> {
         }
         // j < LANES (callers fill at most a batch); the mask spares the bounds checks.
         let j = j % LANES;
-        (b.k[j], b.tau[j], b.single[j]) = (k, tau, single);
+        (b.t[j], b.tau[j], b.single[j]) = (t, tau, single);
         if T::SPLIT {
             b.multiple[j] = multiple;
         }
@@ -381,46 +372,52 @@ impl<T: DensityPoint> MarchVolume<T> {
     /// carries over between adjacent bricks (as on the GPU), so a sample on a boundary
     /// within rounding is taken exactly once.
     #[inline(always)]
-    fn march<A: Arith>(&self, arith: A, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+    fn march<A: Arith>(&self, arith: A, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
         let to_index = self.density.world_to_index();
         let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
         let rays = self.other_rays(origin, dir);
-        let dt = params.step;
-        let dtau = dt as f32 * params.medium.extinction;
-        let step = (d * dt).as_vec3a();
-        let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32);
         let mut b = Batch::new();
-        let (mut k_next, mut prev_end) = (f64::NEG_INFINITY, f64::NAN);
-        let inv_dt = 1.0 / dt;
-        for (t_start, t_end, brick, brick_origin) in self.density.bricks_along(o, d, 0.0) {
-            // Lattice index k >= k0 with (k + xi) dt < t_end: the count is estimated, then
-            // settled by that very test.
-            let k0 = if t_start == prev_end { k_next } else { (t_start * inv_dt - xi).ceil() };
-            let taken = |n: f64| (k0 + n + xi) * dt < t_end;
-            let mut n = ((t_end * inv_dt - xi).ceil() - k0).max(0.0);
-            while taken(n) {
-                n += 1.0;
-            }
-            while n > 0.0 && !taken(n - 1.0) {
-                n -= 1.0;
-            }
-            (k_next, prev_end) = (k0 + n, t_end);
-            let first = (o - brick_origin + d * ((k0 + xi) * dt)).as_vec3a();
-            let (mut k, n) = (k0, n as usize);
-            for from in (0..n).step_by(LANES) {
-                let cells = arith.cells(first, step, from as f32);
-                let m = LANES.min(n - from);
+        let dt = params.step;
+        let mut groups = Groups::new();
+        for span in self.density.bricks_along(o, d, 0.0) {
+            // Groups over the whole brick, as every march takes them; only the samples in the
+            // box of cells to visit, and the last group's when it reaches past the brick,
+            // can read density.
+            let cell = groups.cell(span.start, span.end, dt, xi, u, params.step_factor(span.majorant));
+            let step = cell.size as f64 * dt;
+            let dtau = step as f32 * params.medium.extinction;
+            let t0 = (cell.first + xi) * dt;
+            // (u32 converts to f64 in one instruction, usize does not.)
+            let at = |j: usize| t0 + (j as u32) as f64 * step;
+            let (count, per_step) = ((cell.count as u32) as f64, 1.0 / step);
+            let within = |t: f64| ((t - t0) * per_step).ceil().clamp(0.0, count) as usize;
+            let (lo, hi) = (within(span.visit_start), within(span.visit_end).max(within(span.visit_start)));
+            // Samples `step` apart from the first, relative to the brick.
+            let (first, advance) = ((o - span.origin + d * t0).as_vec3a(), (d * step).as_vec3a());
+            for from in (lo..hi).step_by(LANES) {
+                let cells = arith.cells(first, advance, (from as u32) as f32);
+                let m = LANES.min(hi - from);
                 for j in 0..m {
+                    let t = at(from + j);
                     let v = match cells.index[j] {
-                        OUTSIDE => self.density.sample(arith, o + d * c.t(k + j as f64)),
-                        i => Lattice::interpolate_at(arith, brick, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
+                        OUTSIDE => self.density.sample(arith, o + d * t),
+                        i => Lattice::interpolate_at(arith, span.points, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
                     };
-                    self.take(arith, &mut b, j, dtau, k + j as f64, v, &rays, None, &c);
+                    self.take(arith, &mut b, j, dtau, t, v, &rays, None);
                 }
                 if !c.add(arith, &b, m) {
                     return c.finish(true);
                 }
-                k += m as f64;
+            }
+            // The last group's sample past the brick: in the next brick, or empty space.
+            if cell.count > 0 && at(cell.count - 1) >= span.end {
+                let t = at(cell.count - 1);
+                let v = self.density.sample(arith, o + d * t);
+                self.take(arith, &mut b, 0, dtau, t, v, &rays, None);
+                if !c.add(arith, &b, 1) {
+                    return c.finish(true);
+                }
             }
         }
         c.finish(false)
@@ -428,29 +425,28 @@ impl<T: DensityPoint> MarchVolume<T> {
 
     /// [`march_ray`] over this layout with offset noise, over the dilated majorant grid.
     #[inline(always)]
-    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64) -> RayResult {
+    #[allow(clippy::too_many_arguments)]
+    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
         let to_index = self.density.world_to_index();
         let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
         let rays = self.other_rays(origin, dir);
-        let dt = params.step;
-        let dtau = dt as f32 * params.medium.extinction;
-        let mut c = Composite::<T>::new(params.min_transmittance as f32, xi, dt);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32);
         let (mut b, mut n) = (Batch::new(), 0);
+        let dt = params.step;
+        let mut groups = Groups::new();
         for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
             if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
                 continue;
             }
-            let mut k = (seg.t_start / dt - xi).ceil();
-            loop {
-                let t = (k + xi) * dt;
-                if t >= seg.t_end {
-                    break;
-                }
+            let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
+            let step = cell.size as f64 * dt;
+            let dtau = step as f32 * params.medium.extinction;
+            for j in 0..cell.count {
+                let t = (cell.first + (j as u32 * cell.size) as f64 + xi) * dt;
                 let x = origin + dir * t;
                 let shift = fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
                 let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
-                self.take(arith, &mut b, n, dtau, k, v, &rays, Some(shift), &c);
-                k += 1.0;
+                self.take(arith, &mut b, n, dtau, t, v, &rays, Some(shift));
                 n += 1;
                 if n == LANES {
                     if !c.add(arith, &b, n) {
@@ -510,7 +506,12 @@ mod tests {
     #[test]
     fn the_layout_marches_as_march_ray_does() {
         let density = cloud(24, 3.0, DVec3::new(0.3, -0.2, 0.1));
-        let base = params(camera(DVec3::new(0.3, -0.2, 0.1), 40, 30));
+        let base = MarchParams { max_step_factor: 3, ..params(camera(DVec3::new(0.3, -0.2, 0.1), 40, 30)) };
+        // Step control is at work: thin cells take longer steps, which change the image.
+        let factors: Vec<u32> = MajorantGrid::build(&density).values().iter().filter(|&&m| m > 0.0).map(|&m| base.step_factor(m)).collect();
+        assert!(factors.contains(&1) && factors.contains(&3), "{factors:?}");
+        let plain_lattice = render_cpu(&density, &cache_for(&density), &MarchParams { max_step_factor: 1, ..base.clone() }).unwrap();
+        assert_ne!(plain_lattice, render_cpu(&density, &cache_for(&density), &base).unwrap());
         // vdbcache's layouts (fused into the density lattice, also the whole-point shift of
         // a coarser lattice) and lattices of their own.
         let caches = [
@@ -536,6 +537,47 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn groups_tile_the_lattice_and_restart_after_gaps() {
+        use crate::Groups;
+        let (dt, xi) = (0.3, 0.37);
+        for u in [0.0, 0.4, 0.99] {
+            // Adjacent cells of assorted factors and lengths (some shorter than a group),
+            // then a gap.
+            let cells = [(1.0, 2.9, 1), (2.9, 3.0, 4), (3.0, 5.2, 3), (5.2, 7.7, 2), (7.7, 8.0, 4), (9.5, 11.0, 2)];
+            let mut groups = Groups::new();
+            let mut covered = vec![];
+            for &(a, b, f) in &cells {
+                let c = groups.cell(a, b, dt, xi, u, f);
+                for j in 0..c.count {
+                    let sample = c.first + (j as u32 * f) as f64;
+                    let start = sample - (u * f as f64).floor();
+                    // Each group starts in its cell and its sample is one of its members.
+                    assert!((start + xi) * dt >= a - 1e-12 && (start + xi) * dt < b, "cell {a}..{b}: group at {start}");
+                    covered.extend((0..f).map(|m| (start + m as f64) as i64));
+                }
+            }
+            // Lattice points from the first cell's first to where the groups end before the
+            // gap, each once; after the gap, afresh from the first point in the cell.
+            let first = (1.0f64 / dt - xi).ceil() as i64;
+            let after_gap = (9.5f64 / dt - xi).ceil() as i64;
+            let before: Vec<i64> = covered.iter().copied().filter(|&k| k < after_gap).collect();
+            assert_eq!(before, (first..first + before.len() as i64).collect::<Vec<_>>(), "u {u}");
+            assert!(((before.len() as i64 + first) as f64 + xi) * dt >= 8.0, "the groups reach the gap");
+            assert_eq!(covered.iter().copied().find(|&k| k >= after_gap), Some(after_gap));
+        }
+    }
+
+    #[test]
+    fn step_factors_keep_a_step_thin() {
+        let p = MarchParams { max_step_factor: 4, step: 0.5, medium: Medium { extinction: 2.0, ..params(camera(DVec3::ZERO, 4, 4)).medium }, ..params(camera(DVec3::ZERO, 4, 4)) };
+        // One lattice step at bound m spans 2 * 0.5 * m = m optical depths.
+        for (m, f) in [(0.3, 1), (0.25, 1), (0.125, 2), (0.1, 2), (0.08, 3), (0.0625, 4), (1e-6, 4), (0.0, 4), (f32::NAN, 1)] {
+            assert_eq!(p.step_factor(m), f, "bound {m}");
+        }
+        assert_eq!(MarchParams { max_step_factor: 1, ..p }.step_factor(1e-6), 1);
     }
 
     #[test]

@@ -71,9 +71,32 @@ pub(crate) struct Lattice<T: Point> {
     cell_hi: DVec3,
     table: Vec<u32>,
     values: Vec<T>,
-    /// Per slot, the cells of the brick a march has to visit (see [`CellBox`]).
-    boxes: Vec<CellBox>,
+    /// Per slot, what a march needs to know of the brick before sampling it.
+    visits: Vec<Visit>,
     background: T,
+}
+
+/// What a march needs to know of a brick before sampling it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Visit {
+    /// The cells to sample.
+    pub cells: CellBox,
+    /// For the density lattice, the bound [`MajorantGrid::build`] gives the brick's cell
+    /// (the largest density among its 9^3 points, with the same rounding headroom): what
+    /// the step is chosen from ([`crate::MarchParams::cell_step`]).
+    ///
+    /// [`MajorantGrid::build`]: nimbus_volume::MajorantGrid::build
+    pub majorant: f32,
+}
+
+impl Visit {
+    /// The bound of a brick's points, as [`nimbus_volume::MajorantGrid`] rounds it: 8 ulps
+    /// above the largest (a lerp can round a few ulps above its larger end).
+    fn of(points: &[f32]) -> Visit {
+        let max = points.iter().copied().fold(f32::MIN, f32::max);
+        let majorant = if max > 0.0 { max + max * (8.0 * f32::EPSILON) } else { max };
+        Visit { cells: CellBox::of(points, |v| v > 0.0), majorant }
+    }
 }
 
 /// The cells of a brick a march has to visit, `lo..hi` per axis (0..8 for all of them):
@@ -123,7 +146,7 @@ impl CellBox {
 impl<T: Point> Lattice<T> {
     /// A lattice of the bricks at brick coordinates `bricks` (repeats allowed), each filled
     /// by `fill(voxel origin, its 9^3 points)`, in parallel; `background` everywhere else.
-    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> CellBox + Sync) -> Self {
+    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> Visit + Sync) -> Self {
         let (lo, hi) = bricks.iter().fold((IVec3::MAX, IVec3::MIN), |(l, h), &b| (l.min(b), h.max(b)));
         let dims = if bricks.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
         let index = |b: IVec3| (((b.x - lo.x) * dims.y + (b.y - lo.y)) * dims.z + (b.z - lo.z)) as usize;
@@ -144,9 +167,9 @@ impl<T: Point> Lattice<T> {
         // Zeroed by the allocator (fresh pages come zeroed; the fill then touches them in
         // parallel): writing T::ZERO first cost a single-threaded pass over all of it.
         let mut values: Vec<T> = bytemuck::zeroed_vec(origins.len() * BRICK_VALUES);
-        let boxes = values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).map(|(v, &o)| fill(o, v)).collect();
+        let visits = values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).map(|(v, &o)| fill(o, v)).collect();
         let cell_lo = (lo << BRICK_LOG2).as_dvec3();
-        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, boxes, background }
+        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, visits, background }
     }
 
     pub fn world_to_index(&self) -> &DAffine3 {
@@ -254,6 +277,21 @@ impl<T: Point> Lattice<T> {
     }
 }
 
+/// A brick a ray crosses ([`Lattice::bricks_along`]).
+pub(crate) struct BrickSpan<'a, T> {
+    /// The ray's parameter over the brick, and over the box of its cells to visit (empty
+    /// where `visit_start >= visit_end`): outside the box the density is at most zero.
+    pub start: f64,
+    pub end: f64,
+    pub visit_start: f64,
+    pub visit_end: f64,
+    pub points: &'a [T],
+    /// The brick's lowest corner, index space.
+    pub origin: DVec3,
+    /// Its density bound ([`Visit::majorant`]).
+    pub majorant: f32,
+}
+
 /// [`Lattice::bricks_along`]'s iterator (state in arrays: glam's vectors index their
 /// lanes through a match).
 pub(crate) struct BrickWalk<'a, T: Point> {
@@ -273,7 +311,7 @@ pub(crate) struct BrickWalk<'a, T: Point> {
 }
 
 impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
-    type Item = (f64, f64, &'a [T], DVec3);
+    type Item = BrickSpan<'a, T>;
 
     #[inline(always)]
     fn next(&mut self) -> Option<Self::Item> {
@@ -298,8 +336,9 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
                 continue;
             }
             // The part of the ray in the brick's box of cells to visit.
-            let (mut start, mut exit) = (start, exit);
-            let b = l.boxes[slot as usize];
+            let (mut visit_start, mut visit_end) = (start, exit);
+            let visit = l.visits[slot as usize];
+            let b = visit.cells;
             if b != CellBox::ALL {
                 for a in 0..3 {
                     if self.inv[a] == 0.0 {
@@ -307,13 +346,13 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
                     }
                     let plane = |cell: u8| (c[a] as f64 + cell as f64 / BRICK_DIM as f64 - self.q0[a]) * self.inv[a];
                     let (t0, t1) = (plane(b.lo[a]), plane(b.hi[a]));
-                    start = start.max(t0.min(t1));
-                    exit = exit.min(t0.max(t1));
+                    visit_start = visit_start.max(t0.min(t1));
+                    visit_end = visit_end.min(t0.max(t1));
                 }
             }
             if exit > start {
                 let origin = ((IVec3::from(c) + l.lo) << BRICK_LOG2 as i32).as_dvec3();
-                return Some((start, exit, l.brick(slot), origin));
+                return Some(BrickSpan { start, end: exit, visit_start, visit_end, points: l.brick(slot), origin, majorant: visit.majorant });
             }
         }
         None
@@ -599,7 +638,7 @@ impl<T: DensityPoint> MarchVolume<T> {
             for (i, o) in out.iter_mut().enumerate() {
                 *o = T::new(d[i], li[0][i].into(), li[1][i].into());
             }
-            CellBox::of(&d, |v| v > 0.0)
+            Visit::of(&d)
         });
         Some(MarchVolume { density: lattice, others })
     }
@@ -616,7 +655,8 @@ fn own_lattice(grid: &Volume<Vec3>, albedo: Vec3) -> Lattice<Vec4> {
         for (o, v) in out.iter_mut().zip(li) {
             *o = (albedo * v).extend(0.0);
         }
-        CellBox::ALL
+        // Never walked: a march walks the density lattice.
+        Visit { cells: CellBox::ALL, majorant: f32::INFINITY }
     })
 }
 
@@ -637,6 +677,39 @@ mod tests {
             }
         }
         v
+    }
+
+    #[test]
+    fn brick_bounds_are_the_majorant_grids() {
+        // A ball of density with a bump, on bricks both whole and cut by its edge.
+        let mut density = Volume::new(Transform::uniform(0.5, DVec3::new(0.2, 0.0, -0.3)), 0.0f32);
+        for x in -12..12 {
+            for y in -12..12 {
+                for z in -12..12 {
+                    let r = IVec3::new(x, y, z).as_vec3().length();
+                    if r < 11.0 {
+                        density.set(IVec3::new(x, y, z), (11.0 - r) * (1.0 + 0.3 * (x as f32 * 0.7).sin()));
+                    }
+                }
+            }
+        }
+        let volume = MarchVolume::<Vec4>::new(&density, &IlluminationCache::default(), Vec3::ONE).unwrap();
+        let grid = nimbus_volume::MajorantGrid::build(&density);
+        assert_eq!(grid.cell_size(), BRICK_DIM);
+        let l = &volume.density;
+        let mut seen = 0;
+        for (i, &slot) in l.table.iter().enumerate() {
+            if slot != EMPTY {
+                let (yz, z) = (i / l.dims.z as usize, i % l.dims.z as usize);
+                let b = l.lo + IVec3::new((yz / l.dims.y as usize) as i32, (yz % l.dims.y as usize) as i32, z as i32);
+                let centre = (b * BRICK_DIM).as_dvec3() + 0.5 * BRICK_DIM as f64;
+                assert_eq!(l.visits[slot as usize].majorant, grid.at(centre), "brick {b}");
+                seen += 1;
+            }
+        }
+        assert!(seen > 20);
+        // And every positive cell of the grid is a brick of the lattice.
+        assert_eq!(grid.values().iter().filter(|&&m| m > 0.0).count(), seen);
     }
 
     #[test]

@@ -100,6 +100,21 @@ fn images_agree_on_vdbcache_lattices() {
 }
 
 #[test]
+fn images_agree_with_longer_steps_in_thin_cells() {
+    // Factors 1 to 4 across the cloud: the GPU reads the CPU's per-cell factors and takes
+    // the same groups of lattice steps.
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    p.max_step_factor = 4;
+    p.spp = 2;
+    let factors: Vec<u32> = nimbus_volume::MajorantGrid::build(&v).values().iter().filter(|&&m| m > 0.0).map(|&m| p.step_factor(m)).collect();
+    assert!((1..=4).all(|f| factors.contains(&f)), "factors 1 to 4 occur");
+    let cpu = render_cpu(&v, &cache, &p).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    assert_close("step factors up to 4, 2 spp", &diff(&cpu, &gpu), 64 * 48);
+}
+
+#[test]
 fn images_agree_with_offset_noise_and_jittered_samples() {
     let Some(ctx) = gpu() else { return };
     let (v, cache, mut p) = scene(DVec3::ZERO);

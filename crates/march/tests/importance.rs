@@ -25,7 +25,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     assert_eq!(g.len() as u64, plan.stats.baked);
     // The march on importance's own terms: its step (half the cache voxel), the sample
     // lattice at xi = 0.5, the centres of each pixel's quarters.
-    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
+    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), max_step_factor: 1, offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
 
     let mut order: Vec<usize> = (0..g.len()).collect();
     order.sort_by(|&a, &b| g[b].total_cmp(&g[a]));
@@ -43,7 +43,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
                 let mut a = 0.0f64;
                 for (jx, jy) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
                     let (origin, dir) = cam.ray(px as f64 + jx, py as f64 + jy);
-                    let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5);
+                    let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5, 0.0);
                     a += r.multiple.x as f64 / medium.albedo.x as f64 / 4.0;
                 }
                 sum += a * a;

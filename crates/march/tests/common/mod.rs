@@ -133,6 +133,7 @@ pub fn params(camera: Camera) -> MarchParams {
         medium: Medium { extinction: 1.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.0 },
         camera,
         step: 0.5 * VOXEL,
+        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
         spp: 1,
         background: Vec3::new(0.05, 0.1, 0.2),
         offset_noise: 0.0,
