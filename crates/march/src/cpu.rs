@@ -392,26 +392,32 @@ impl<T: DensityPoint> MarchVolume<T> {
             let at = |j: usize| t0 + (j as u32) as f64 * step;
             let (count, per_step) = ((cell.count as u32) as f64, 1.0 / step);
             let within = |t: f64| ((t - t0) * per_step).ceil().clamp(0.0, count) as usize;
-            let (lo, hi) = (within(span.visit_start), within(span.visit_end).max(within(span.visit_start)));
+            // The last group's sample may lie past the brick: in the next brick, or empty space.
+            let past = cell.count > 0 && at(cell.count - 1) >= span.end;
+            let (lo, hi) = if (span.visit_start, span.visit_end) == (span.start, span.end) {
+                (0, cell.count - past as usize)
+            } else {
+                (within(span.visit_start), within(span.visit_end).max(within(span.visit_start)))
+            };
             // Samples `step` apart from the first, relative to the brick.
             let (first, advance) = ((o - span.origin + d * t0).as_vec3a(), (d * step).as_vec3a());
+            let mut t = at(lo);
             for from in (lo..hi).step_by(LANES) {
                 let cells = arith.cells(first, advance, (from as u32) as f32);
                 let m = LANES.min(hi - from);
                 for j in 0..m {
-                    let t = at(from + j);
                     let v = match cells.index[j] {
                         OUTSIDE => self.density.sample(arith, o + d * t),
                         i => Lattice::interpolate_at(arith, span.points, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
                     };
                     self.take(arith, &mut b, j, dtau, t, v, &rays, None);
+                    t += step;
                 }
                 if !c.add(arith, &b, m) {
                     return c.finish(true);
                 }
             }
-            // The last group's sample past the brick: in the next brick, or empty space.
-            if cell.count > 0 && at(cell.count - 1) >= span.end {
+            if past {
                 let t = at(cell.count - 1);
                 let v = self.density.sample(arith, o + d * t);
                 self.take(arith, &mut b, 0, dtau, t, v, &rays, None);
