@@ -489,6 +489,8 @@ pub(crate) trait DensityPoint: Point {
     fn single(&self) -> Vec4;
     /// albedo * Li_multiple in xyz when [`DensityPoint::SPLIT`]; w is not part of it.
     fn multiple(&self) -> Vec4;
+    /// Adds albedo * Li of one cache grid, a multiple-scattering one or not.
+    fn add_li(&mut self, li: Vec3, multiple: bool);
 }
 
 /// albedo * (Li_single + Li_multiple) and the density, one register.
@@ -510,6 +512,10 @@ impl DensityPoint for Vec4 {
     fn multiple(&self) -> Vec4 {
         Vec4::ZERO
     }
+    #[inline(always)]
+    fn add_li(&mut self, li: Vec3, _: bool) {
+        *self += li.extend(0.0);
+    }
 }
 
 /// albedo * Li_single and the density; albedo * Li_multiple.
@@ -530,6 +536,10 @@ impl DensityPoint for [Vec4; 2] {
     #[inline(always)]
     fn multiple(&self) -> Vec4 {
         self[1]
+    }
+    #[inline(always)]
+    fn add_li(&mut self, li: Vec3, multiple: bool) {
+        self[multiple as usize] += li.extend(0.0);
     }
 }
 
@@ -619,24 +629,27 @@ impl<T: DensityPoint> MarchVolume<T> {
         let lattice = Lattice::build(density.transform().world_to_index(), &bricks, background, |origin, out| {
             let mut d = [0.0f32; BRICK_VALUES];
             gather(density, origin, IVec3::splat(EDGE as i32), &mut d);
-            let mut li = [[Vec3A::ZERO; BRICK_VALUES]; 2];
+            for (o, &d) in out.iter_mut().zip(&d) {
+                *o = T::new(d, Vec3::ZERO, Vec3::ZERO);
+            }
             for (grids, layer, scale, offset) in &groups {
-                let sum = &mut li[(*layer == Layer::Multiple) as usize];
+                let multiple = *layer == Layer::Multiple;
                 if *scale == DVec3::ONE && *offset == offset.round() {
                     // The density's own lattice (shifted by whole points): copies.
                     let mut block = [Vec3::ZERO; BRICK_VALUES];
                     for grid in grids {
                         gather(grid, origin + offset.as_ivec3(), IVec3::splat(EDGE as i32), &mut block);
-                        for (s, &v) in sum.iter_mut().zip(&block) {
-                            *s += Vec3A::from(albedo * v);
+                        for (o, &v) in out.iter_mut().zip(&block) {
+                            o.add_li(albedo * v, multiple);
                         }
                     }
                 } else {
-                    resample(grids, albedo, *scale, *offset, origin, sum);
+                    let mut li = [Vec3A::ZERO; BRICK_VALUES];
+                    resample(grids, albedo, *scale, *offset, origin, &mut li);
+                    for (o, &v) in out.iter_mut().zip(&li) {
+                        o.add_li(v.into(), multiple);
+                    }
                 }
-            }
-            for (i, o) in out.iter_mut().enumerate() {
-                *o = T::new(d[i], li[0][i].into(), li[1][i].into());
             }
             Visit::of(&d)
         });
