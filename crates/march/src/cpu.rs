@@ -48,44 +48,53 @@ pub fn march_ray(
     let jitter = params.offset_noise > 0.0;
     let mut r = RayResult { transmittance: 1.0, depth: f32::INFINITY, ..RayResult::default() };
     let mut tr = 1.0f64;
-    let dt = params.step;
-    let mut groups = Groups::new();
-    for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-        if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
+    for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
+        let mut x = origin + dir * t;
+        if jitter {
+            x += offset(params, x);
+        }
+        let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
+        if sigma_t <= 0.0 {
             continue;
         }
-        let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
-        let step = cell.size as f64 * dt;
-        for j in 0..cell.count {
-            let t = (cell.first + (j as u32 * cell.size) as f64 + xi) * dt;
-            let mut x = origin + dir * t;
-            if jitter {
-                x += fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
-            }
-            let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
-            if sigma_t <= 0.0 {
-                continue;
-            }
-            let step_transmittance = (-sigma_t * step).exp();
-            let weight = (tr * (1.0 - step_transmittance)) as f32;
-            if let Some(li) = &cache.li_single {
-                r.single += weight * albedo * li.sample_world(x);
-            }
-            if let Some(li) = &cache.li_multiple {
-                r.multiple += weight * albedo * li.sample_world(x);
-            }
-            tr *= step_transmittance;
-            if r.depth.is_infinite() && tr < 0.99 {
-                r.depth = t as f32;
-            }
-            if tr < params.min_transmittance {
-                r.transmittance = 0.0;
-                return r;
-            }
+        let step_transmittance = (-sigma_t * step).exp();
+        let weight = (tr * (1.0 - step_transmittance)) as f32;
+        if let Some(li) = &cache.li_single {
+            r.single += weight * albedo * li.sample_world(x);
+        }
+        if let Some(li) = &cache.li_multiple {
+            r.multiple += weight * albedo * li.sample_world(x);
+        }
+        tr *= step_transmittance;
+        if r.depth.is_infinite() && tr < 0.99 {
+            r.depth = t as f32;
+        }
+        if tr < params.min_transmittance {
+            r.transmittance = 0.0;
+            return r;
         }
     }
     r.transmittance = tr as f32;
     r
+}
+
+/// The samples of the ray `o + t d` (index space) over the non-empty cells of `majorant`,
+/// as `(t, the ray length each stands for)`, grouped by step factor ([`Groups`]).
+fn lattice_samples<'a>(majorant: &'a MajorantGrid, params: &'a MarchParams, o: DVec3, d: DVec3, xi: f64, u: f64) -> impl Iterator<Item = (f64, f64)> + 'a {
+    let dt = params.step;
+    let mut groups = Groups::new();
+    majorant
+        .walk(o, d, 0.0, f64::INFINITY)
+        .filter(|seg| seg.majorant > 0.0 && seg.t_end.is_finite())
+        .flat_map(move |seg| {
+            let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
+            (0..cell.count as u32).map(move |j| ((cell.first + (j * cell.size) as f64 + xi) * dt, cell.size as f64 * dt))
+        })
+}
+
+/// The offset noise's displacement of a sample at world position `x`.
+fn offset(params: &MarchParams, x: DVec3) -> DVec3 {
+    fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise
 }
 
 /// The majorant grid both backends march. Offset noise samples the density up to its
@@ -438,28 +447,16 @@ impl<T: DensityPoint> MarchVolume<T> {
         let rays = self.other_rays(origin, dir);
         let mut c = Composite::<T>::new(params.min_transmittance as f32);
         let (mut b, mut n) = (Batch::new(), 0);
-        let dt = params.step;
-        let mut groups = Groups::new();
-        for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-            if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
-                continue;
-            }
-            let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
-            let step = cell.size as f64 * dt;
-            let dtau = step as f32 * params.medium.extinction;
-            for j in 0..cell.count {
-                let t = (cell.first + (j as u32 * cell.size) as f64 + xi) * dt;
-                let x = origin + dir * t;
-                let shift = fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
-                let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
-                self.take(arith, &mut b, n, dtau, t, v, &rays, Some(shift));
-                n += 1;
-                if n == LANES {
-                    if !c.add(arith, &b, n) {
-                        return c.finish(true);
-                    }
-                    n = 0;
+        for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
+            let shift = offset(params, origin + dir * t);
+            let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
+            self.take(arith, &mut b, n, step as f32 * params.medium.extinction, t, v, &rays, Some(shift));
+            n += 1;
+            if n == LANES {
+                if !c.add(arith, &b, n) {
+                    return c.finish(true);
                 }
+                n = 0;
             }
         }
         let done = !c.add(arith, &b, n);
