@@ -29,7 +29,7 @@ pub struct RayResult {
 }
 
 /// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
-/// in each group of lattice steps ([`Groups`]).
+/// in each group of lattice steps (see the crate doc).
 #[allow(clippy::too_many_arguments)]
 pub fn march_ray(
     density: &Volume<f32>,
@@ -128,7 +128,7 @@ pub(crate) fn pixel_jitter(s: u32, spp: u32, u: f64, v: f64) -> (f64, f64) {
 }
 
 /// Renders the image on the CPU: [`march_ray`]'s estimator over the march's own layout
-/// of the volume ([`MarchVolume`], built once), in f32 where f64 buys nothing (positions
+/// of the volume (`layout.rs`, built once), in f32 where f64 buys nothing (positions
 /// and the step lattice stay f64), pixels in 8 x 8 tiles so that neighbouring rays, which
 /// read the same bricks, run back to back on one core.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {

@@ -1,16 +1,18 @@
 //! The march's own layout of the density and the illumination cache, built once per render
 //! in O(voxels): what a march step reads, in the fewest loads.
 //!
-//! A [`Lattice`] stores `C` f32 channels per lattice point in bricks of 8^3 cells, each
-//! holding the 9^3 points its cells read (a one-point apron on the upper faces), found
-//! through a dense table of brick slots over the bricks' bounding box. A cell therefore
-//! never straddles bricks: a sample costs one table load and eight `[f32; C]` loads, where
+//! A [`Lattice`] stores a [`Point`] (a few f32 channels in SIMD registers) per lattice point
+//! in bricks of 8^3 cells, each holding the 9^3 points its cells read (a one-point apron on
+//! the upper faces), found through a dense table of brick slots over the bricks' bounding
+//! box. A cell therefore never straddles bricks: a sample costs eight 16-byte loads (the
+//! brick is found once per brick the ray crosses, by the layout's own DDA), where
 //! [`Volume::sample_index`] costs a hash probe per grid (eight at brick borders, a third of
 //! the cells).
 //!
-//! The density lattice also carries the cache, premultiplied by the albedo: `C = 4`
-//! (density, albedo * (Li_single + Li_multiple)) or, when the single and multiple layers
-//! are kept apart, `C = 8` (density, albedo * Li_single, albedo * Li_multiple, unused). A
+//! The density lattice also carries the cache, premultiplied by the albedo
+//! ([`DensityPoint`]): one `Vec4` (albedo * (Li_single + Li_multiple), density) or, when
+//! the single and multiple layers are kept apart, two (albedo * Li_single, density;
+//! albedo * Li_multiple). A
 //! cache grid whose lattice is the density's coarsened by a whole factor per axis on the
 //! same lattice points (vdbcache's `--cache-scale`/`--multiple-scale` N: its points are every
 //! N-th density point) is resampled onto the density lattice, and that is exact, not an
@@ -83,7 +85,7 @@ pub(crate) struct Visit {
     pub cells: CellBox,
     /// For the density lattice, the bound [`MajorantGrid::build`] gives the brick's cell
     /// (the largest density among its 9^3 points, with the same rounding headroom): what
-    /// the step is chosen from ([`crate::MarchParams::cell_step`]).
+    /// the step is chosen from ([`crate::MarchParams::step_factor`]).
     ///
     /// [`MajorantGrid::build`]: nimbus_volume::MajorantGrid::build
     pub majorant: f32,

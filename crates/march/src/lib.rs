@@ -34,21 +34,28 @@
 //! Both read the same [`MarchParams`], compute one [`RayResult`] per pixel and hand them to
 //! the same image assembly ([`Image::from_rays`], through one function).
 //!
-//! - [`render_cpu`]: pixels in parallel with rayon, in f64.
+//! - [`render_cpu`]: bands of 8 x 8 pixel tiles in parallel with rayon, over the march's
+//!   own layout of the volume (`layout.rs`: density and cache fused into one lattice of
+//!   apron bricks, a dense brick table, each brick's box of cells to visit), built once per
+//!   render; f32 from each lookup on, eight samples' cells and exponentials at a time, with
+//!   an AVX2+FMA copy of the loop picked at run time (`simd.rs`). [`march_ray`] is the same
+//!   estimator in its plainest form (f64, the sparse volumes' own lookups), which the
+//!   tests hold the layout's march to (1e-4 on lit pixels; 3.5e-6 measured).
 //! - [`render_gpu`] / [`render_gpu_with`]: one wgpu invocation per pixel
 //!   (`shaders/march.wgsl`, over `shaders/tracking.wgsl` for the majorant DDA and
 //!   `shaders/noise.wgsl`, the bit-exact-hash WGSL twin of `nimbus_optics::noise`, for the
 //!   offset noise). Pixel i draws from the same Philox stream as on the CPU, in the same
-//!   order (jitter, then the lattice offset xi, per sample), so the two images agree to f32
+//!   order (jitter, then the lattice offset xi, per sample; u from its own stream), and
+//!   reads the CPU's step factor per majorant cell, so the two images agree to f32
 //!   rounding (the tests hold lit pixels to 1e-4 relative). The density is the default
 //!   volume of the brick atlas, sampled exactly; `Li_single` and `Li_multiple` are two more
 //!   atlas volumes, read by hardware-filtered lookups where the device filters float
 //!   textures ([`CacheLookup::Filtered`], the default: within ~1/256 of Li's local range
 //!   of the exact value) or exactly ([`CacheLookup::Exact`]). Positions are f32 relative to
 //!   the eye, noise positions split into a lattice point and a remainder, so far-from-origin
-//!   scenes keep their precision. Across adjacent non-empty majorant segments the GPU
-//!   carries the lattice index over instead of recomputing it from the segment start, so
-//!   a sample lying on a boundary within f32 rounding is taken exactly once; `1 - exp(-sigma_t dt)` is evaluated
+//!   scenes keep their precision. Across adjacent non-empty majorant segments both carry
+//!   the group start over instead of recomputing it from the segment start, so a lattice
+//!   point lying on a boundary within f32 rounding is taken exactly once; `1 - exp(-sigma_t dt)` is evaluated
 //!   without cancellation in thin media.
 
 // The unit tests share tests/common, which names this crate.
@@ -82,7 +89,7 @@ pub struct MarchParams {
     pub medium: Medium,
     pub camera: Camera,
     /// Step along camera rays, world units: where the density is thin, lengthened up to
-    /// `max_step_factor` times ([`MarchParams::step_factor`], [`Groups`]).
+    /// `max_step_factor` times ([`MarchParams::step_factor`]; see the crate doc).
     pub step: f64,
     /// Most a step may be lengthened in optically thin majorant cells (1: a fixed step).
     pub max_step_factor: u32,
