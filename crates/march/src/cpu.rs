@@ -543,6 +543,28 @@ mod tests {
     }
 
     #[test]
+    fn the_portable_march_agrees_with_the_avx2_one() {
+        // render_cpu takes the AVX2+FMA copy where the CPU has it; the portable one runs
+        // everywhere else.
+        let density = cloud(24, 3.0, DVec3::ZERO);
+        for (cache, aovs) in [(cache_on_density_lattice(&density, 1.0, 4.0), false), (cache_for(&density), true)] {
+            let p = MarchParams { max_step_factor: 3, spp: 2, aovs, ..params(camera(DVec3::ZERO, 32, 24)) };
+            let fast = render_cpu(&density, &cache, &p).unwrap();
+            fn portable<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCache, p: &MarchParams) -> Image {
+                let volume = MarchVolume::<T>::new(density, cache, p.medium.albedo).unwrap();
+                let mut pixels = vec![RayResult::default(); (p.camera.width() * p.camera.height()) as usize];
+                render_band(Unfused, p, &Fast { volume: &volume, majorant: None, params: p }, 0, &mut pixels);
+                assemble(p, &pixels)
+            }
+            let portable = if aovs { portable::<[Vec4; 2]>(&density, &cache, &p) } else { portable::<Vec4>(&density, &cache, &p) };
+            let max = fast.rgba.iter().map(|c| c.truncate().element_sum()).fold(0.0, f32::max);
+            for (a, b) in fast.rgba.iter().zip(&portable.rgba) {
+                assert!((*a - *b).abs().max_element() <= 1e-5 * max, "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
     fn groups_tile_the_lattice_and_restart_after_gaps() {
         use crate::Groups;
         let (dt, xi) = (0.3, 0.37);
