@@ -4,7 +4,9 @@
 // sampled exactly) + optics.wgsl + tracking.wgsl (majorant DDA) + noise.wgsl + this file.
 // Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
 // draws in the same order (jitter x, y when spp > 1, stratified as pixel_jitter, then the
-// lattice offset xi, per sample); steps at t_k = (k + xi) dt inside non-empty majorant segments; offset noise;
+// lattice offset xi, per sample; the group member offset u from its own stream
+// (seed, i, GROUP_DOMAIN)); samples on the lattice t_k = (k + xi) dt in groups by each
+// non-empty majorant segment's step factor (lib.rs Groups); offset noise;
 // early termination; the same per-pixel averages. Positions are f32 relative to the
 // camera's eye (every volume's world_to_index is set to that origin by the host).
 // Li_single and Li_multiple are two more volumes at group 1, looked up with the hardware
@@ -47,6 +49,7 @@ struct PixelOut {
 }
 
 const MARCH_DOMAIN: u32 = 0x4d415243u;
+const GROUP_DOMAIN: u32 = 0x53544550u;
 const FLAG_SINGLE: u32 = 1u;
 const FLAG_MULTIPLE: u32 = 2u;
 
@@ -59,6 +62,7 @@ const FLAG_MULTIPLE: u32 = 2u;
 @group(1) @binding(6) var multiple_sampler: sampler;
 @group(1) @binding(7) var<uniform> multiple_info: VolumeInfo;
 @group(1) @binding(8) var<uniform> params: MarchUniforms;
+// Per majorant cell its step factor (MarchParams::step_factor), 0 where empty.
 @group(1) @binding(9) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(10) var<storage, read_write> pixels: array<PixelOut>;
 
@@ -90,8 +94,11 @@ fn one_minus_exp_neg(x: f32) -> f32 {
     return 1.0 - exp(-x);
 }
 
-// march_ray: the ray eye + t dir (dir unit, world) with lattice offset xi.
-fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
+// march_ray: the ray eye + t dir (dir unit, world) with lattice offset xi and group member
+// offset u (lib.rs Groups): the lattice t_k = (k + xi) dt in groups as long as the step
+// factor of the cell their first point lies in, group g's sample its member floor(u g),
+// standing for its g steps.
+fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
     let eye = params.camera.eye;
     let o = volume_world_to_index(eye);
     let d = (volume_info.world_to_index * vec4<f32>(dir, 0.0)).xyz;
@@ -100,11 +107,11 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
     let jitter = params.offset_noise > 0.0;
     var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0);
     var tr = 1.0;
-    // The lattice continues across adjacent non-empty segments: the next segment starts
-    // with the first index the previous one did not take (k_next) rather than recomputing
-    // it from t_start, which in f32 can skip or repeat a sample lying on the boundary
-    // within rounding. After a gap (skipped empty segments) it is recomputed.
-    var k_next = -3.0e38;
+    // Groups tile the lattice across adjacent non-empty segments: the next segment starts
+    // with the first point no group took (next) rather than recomputing it from t_start,
+    // which in f32 can skip or repeat a point lying on the boundary within rounding. After
+    // a gap (skipped empty segments) it is recomputed.
+    var next = -3.0e38;
     var prev_end = -1.0;
     var walk = majorant_walk_new(params.grid, o, d, 0.0, TRACK_FAR);
     loop {
@@ -115,17 +122,20 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
         if (!track_segment_has_medium(seg, m.extinction)) {
             continue;
         }
-        var k = k_next;
+        // The walk reads step factors (march_pixels' host side).
+        let g = seg.majorant;
+        let step = g * dt;
+        var start = next;
         if (seg.t_start != prev_end) {
-            k = max(ceil(seg.t_start / dt - xi), k_next);
+            start = max(ceil(seg.t_start / dt - xi), next);
         }
+        let member = min(floor(u * g), g - 1.0);
         loop {
-            let t = (k + xi) * dt;
-            if (t >= seg.t_end) {
+            if ((start + xi) * dt >= seg.t_end) {
                 break;
             }
-            k = k + 1.0;
-            k_next = k;
+            let t = (start + member + xi) * dt;
+            start = start + g;
             var x = eye + dir * t;
             if (jitter) {
                 let q = params.noise_offset + x * params.noise_inv_scale;
@@ -135,7 +145,7 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
             if (sigma_t <= 0.0) {
                 continue;
             }
-            let absorbed = one_minus_exp_neg(sigma_t * dt);
+            let absorbed = one_minus_exp_neg(sigma_t * step);
             let weight = tr * absorbed;
             if ((params.flags & FLAG_SINGLE) != 0u) {
                 r.single = r.single + weight * m.albedo * li_single(x);
@@ -143,7 +153,7 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
             if ((params.flags & FLAG_MULTIPLE) != 0u) {
                 r.multiple = r.multiple + weight * m.albedo * li_multiple(x);
             }
-            tr = tr * exp(-sigma_t * dt);
+            tr = tr * exp(-sigma_t * step);
             if (r.depth < 0.0 && tr < 0.99) {
                 r.depth = t;
             }
@@ -152,7 +162,7 @@ fn march_ray(dir: vec3<f32>, xi: f32) -> PixelOut {
                 return r;
             }
         }
-        k_next = k;
+        next = start;
         prev_end = seg.t_end;
     }
     r.transmittance = tr;
@@ -188,6 +198,7 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let px = f32(index % params.width);
     let py = f32(index / params.width);
     var rng = rng_new(params.seed, vec2<u32>(index, 0u), MARCH_DOMAIN);
+    var members = rng_new(params.seed, vec2<u32>(index, 0u), GROUP_DOMAIN);
     var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0);
     for (var s = 0u; s < params.spp; s = s + 1u) {
         var j = vec2<f32>(0.5);
@@ -197,8 +208,9 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
             j = pixel_jitter(s, params.spp, j);
         }
         let xi = rng_next_f64_as_f32(&rng);
+        let u = rng_next_f64_as_f32(&members);
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
-        let r = march_ray(dir, xi);
+        let r = march_ray(dir, xi, u);
         sum.single = sum.single + r.single;
         sum.multiple = sum.multiple + r.multiple;
         sum.transmittance = sum.transmittance + r.transmittance;

@@ -55,6 +55,11 @@ struct Args {
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
+    /// Most the step is lengthened where the density is optically thin (1 = a fixed step):
+    /// in each majorant cell, by the largest whole factor keeping a step's optical depth at
+    /// the cell's density bound within 1/4 (default 2).
+    #[arg(long)]
+    max_step_factor: Option<u32>,
     /// Samples per pixel, stratified (default: enough for a pixel's samples to lie half a
     /// density voxel apart at the volume, 1 to 16; or the --quality preset's). Paths per
     /// pixel with --reference (default 1).
@@ -124,6 +129,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
     let meta = PipelineMeta::of(file);
     let march_only = [
         (args.step.is_some(), "--step"),
+        (args.max_step_factor.is_some(), "--max-step-factor"),
         (args.offset_noise != 0.0, "--offset-noise"),
         (args.noise_scale.is_some(), "--noise-scale"),
         (args.quality.is_some(), "--quality"),
@@ -177,6 +183,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         spp: args.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
         camera,
         step: args.step.unwrap_or(voxel.length() / 3.0 * preset.step_factor),
+        max_step_factor: args.max_step_factor.unwrap_or(MarchParams::DEFAULT_MAX_STEP_FACTOR),
         background: args.background,
         offset_noise: args.offset_noise,
         noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),

@@ -4,6 +4,19 @@
 //! tools, plus a 4096 x 2304 row as a size stress.
 //!
 //!     scripts/bench-scenes.sh && cargo bench -p nimbus-march --bench scenes [-- quick] [-- stress] [-- only=smoke]
+//!     cargo bench -p nimbus-march --bench scenes -- speed
+//!
+//! `speed` times the CPU march alone on the Cloud1-class caches at 1024 x 576, 1 spp: the
+//! plain march (`march_ray` per pixel over the sparse volumes, the engine before the
+//! march's own layout), the layout's march with a fixed step (`--max-step-factor 1`, the
+//! same images) and with the default step control; medians of 5 alternating runs and
+//! their ratios to the plain march. Besides `cloud1.vdb` it takes `cloud1-new.vdb` when
+//! present: vdbcache's newer layout (Li_single at the density's resolution, Li_multiple 4x
+//! coarser), made by
+//!
+//!     particles2vdb data/cloud.ply --voxel-size 1 | vdbcache --extinction 30 --albedo 0.95 --g 0.6 \
+//!         --sun dir=0.5,0.3,-0.8,irradiance=4 --eye 170,-300,160 --look-at 170,180,10 --width 1024 \
+//!         --height 576 --cache-scale 1 --multiple-scale 4 --paths 1 -o out/bench/cloud1-new.vdb
 //!
 //! Times are the march alone (the cache is loaded once; GPU times include uploads and
 //! read-back), median of 3 runs (1 run where one takes over 10 s). Error: each image is
@@ -50,6 +63,7 @@ fn load(name: &'static str, path: &Path) -> Scene {
         camera,
         // vdbmarch's defaults.
         step: voxel.length() / 3.0,
+        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
         spp: 1,
         background: Vec3::ZERO,
         offset_noise: 0.0,
@@ -115,9 +129,68 @@ fn timed(mut f: impl FnMut() -> Image) -> (Duration, Image) {
     (times[times.len() / 2], image)
 }
 
+/// The plain march over the image, 1 spp at pixel centres (its own lattice offsets: only
+/// its time is compared).
+fn plain_march(scene: &Scene, params: &MarchParams) -> Duration {
+    use rayon::prelude::*;
+    let majorant = nimbus_volume::MajorantGrid::build(&scene.density);
+    let c = &params.camera;
+    let (w, h) = (c.width() as usize, c.height() as usize);
+    let start = Instant::now();
+    let pixels: Vec<nimbus_march::RayResult> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (origin, dir) = c.ray((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            let xi = ((i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 11) as f64 / (1u64 << 53) as f64;
+            nimbus_march::march_ray(&scene.density, &majorant, &scene.cache, params, origin, dir, xi, 0.5)
+        })
+        .collect();
+    std::hint::black_box(pixels);
+    start.elapsed()
+}
+
+fn speed(scenes: &[Scene]) {
+    println!("| scene | march | median s | runs | vs plain |");
+    println!("|---|---|---|---|---|");
+    let median = |mut v: Vec<Duration>| {
+        v.sort();
+        v[v.len() / 2]
+    };
+    for scene in scenes {
+        let params = sized(&scene.base, 1024, 576);
+        let fixed = MarchParams { max_step_factor: 1, ..params.clone() };
+        let layout = |p: &MarchParams| {
+            let start = Instant::now();
+            std::hint::black_box(render_cpu(&scene.density, &scene.cache, p).unwrap());
+            start.elapsed()
+        };
+        let (mut plain, mut exact, mut controlled) = (vec![], vec![], vec![]);
+        // Alternating, so a busy machine slows all three alike.
+        for _ in 0..5 {
+            plain.push(plain_march(scene, &fixed));
+            exact.push(layout(&fixed));
+            controlled.push(layout(&params));
+        }
+        let base = median(plain.clone()).as_secs_f64();
+        for (name, times) in [("plain (march_ray)", plain), ("layout, fixed step", exact), ("layout, step control (default)", controlled)] {
+            let m = median(times.clone()).as_secs_f64();
+            let runs = times.iter().map(|t| format!("{:.2}", t.as_secs_f64())).collect::<Vec<_>>().join(" ");
+            println!("| {} | {name} | {m:.3} | {runs} | {:.2}x |", scene.name, base / m);
+        }
+    }
+    println!("\nCPU: {} rayon threads", rayon::current_num_threads());
+}
+
 fn main() {
     let quick = std::env::args().any(|a| a == "quick");
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../out/bench");
+    if std::env::args().any(|a| a == "speed") {
+        let mut scenes = vec![load("cloud1", &root.join("cloud1.vdb"))];
+        if root.join("cloud1-new.vdb").exists() {
+            scenes.push(load("cloud1-new", &root.join("cloud1-new.vdb")));
+        }
+        return speed(&scenes);
+    }
     // `-- only=smoke` (or cloud1) runs one scene.
     let only = std::env::args().find_map(|a| a.strip_prefix("only=").map(str::to_owned));
     let wanted = |name: &str| only.as_deref().is_none_or(|o| o == name);

@@ -1,13 +1,19 @@
-//! The CPU backend: pixels in parallel with rayon.
+//! The CPU backend: pixels in parallel with rayon; [`march_ray`] is the estimator in its
+//! plainest form (f64, the sparse volumes' own lookups), [`render_cpu`] the same over the
+//! march's layout of the volume (`layout.rs`).
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
 use nimbus_optics::noise::fbm3_vec;
 use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::{assemble, Image, MarchError, MarchParams};
+use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
+#[cfg(target_arch = "x86_64")]
+use crate::simd::Fused;
+use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
+use crate::{assemble, Groups, Image, MarchError, MarchParams, GROUP_DOMAIN};
 
 /// Random-number domain of camera samples.
 pub(crate) const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
@@ -22,7 +28,9 @@ pub struct RayResult {
     pub depth: f32,
 }
 
-/// Marches one camera ray. `xi` in [0,1) places the step lattice.
+/// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
+/// in each group of lattice steps (see the crate doc).
+#[allow(clippy::too_many_arguments)]
 pub fn march_ray(
     density: &Volume<f32>,
     majorant: &MajorantGrid,
@@ -31,54 +39,62 @@ pub fn march_ray(
     origin: DVec3,
     dir: DVec3,
     xi: f64,
+    u: f64,
 ) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
-    let dt = params.step;
     let extinction = params.medium.extinction;
     let albedo = params.medium.albedo;
     let jitter = params.offset_noise > 0.0;
     let mut r = RayResult { transmittance: 1.0, depth: f32::INFINITY, ..RayResult::default() };
     let mut tr = 1.0f64;
-    for seg in majorant.walk(o, d, 0.0, f64::INFINITY) {
-        if seg.majorant.is_nan() || seg.majorant <= 0.0 || seg.t_end.is_infinite() {
+    for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
+        let mut x = origin + dir * t;
+        if jitter {
+            x += offset(params, x);
+        }
+        let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
+        if sigma_t <= 0.0 {
             continue;
         }
-        let mut k = (seg.t_start / dt - xi).ceil();
-        loop {
-            let t = (k + xi) * dt;
-            if t >= seg.t_end {
-                break;
-            }
-            k += 1.0;
-            let mut x = origin + dir * t;
-            if jitter {
-                x += fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise;
-            }
-            let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
-            if sigma_t <= 0.0 {
-                continue;
-            }
-            let step_transmittance = (-sigma_t * dt).exp();
-            let weight = (tr * (1.0 - step_transmittance)) as f32;
-            if let Some(li) = &cache.li_single {
-                r.single += weight * albedo * li.sample_world(x);
-            }
-            if let Some(li) = &cache.li_multiple {
-                r.multiple += weight * albedo * li.sample_world(x);
-            }
-            tr *= step_transmittance;
-            if r.depth.is_infinite() && tr < 0.99 {
-                r.depth = t as f32;
-            }
-            if tr < params.min_transmittance {
-                r.transmittance = 0.0;
-                return r;
-            }
+        let step_transmittance = (-sigma_t * step).exp();
+        let weight = (tr * (1.0 - step_transmittance)) as f32;
+        if let Some(li) = &cache.li_single {
+            r.single += weight * albedo * li.sample_world(x);
+        }
+        if let Some(li) = &cache.li_multiple {
+            r.multiple += weight * albedo * li.sample_world(x);
+        }
+        tr *= step_transmittance;
+        if r.depth.is_infinite() && tr < 0.99 {
+            r.depth = t as f32;
+        }
+        if tr < params.min_transmittance {
+            r.transmittance = 0.0;
+            return r;
         }
     }
     r.transmittance = tr as f32;
     r
+}
+
+/// The samples of the ray `o + t d` (index space) over the non-empty cells of `majorant`,
+/// as `(t, the ray length each stands for)`, grouped by step factor ([`Groups`]).
+fn lattice_samples<'a>(majorant: &'a MajorantGrid, params: &'a MarchParams, o: DVec3, d: DVec3, xi: f64, u: f64) -> impl Iterator<Item = (f64, f64)> + 'a {
+    let dt = params.step;
+    let mut groups = Groups::new();
+    majorant
+        .walk(o, d, 0.0, f64::INFINITY)
+        .filter(|seg| seg.majorant > 0.0 && seg.t_end.is_finite())
+        .flat_map(move |seg| {
+            let cell = groups.cell(seg.t_start, seg.t_end, dt, xi, u, params.step_factor(seg.majorant));
+            (0..cell.count as u32).map(move |j| ((cell.first + (j * cell.size) as f64 + xi) * dt, cell.size as f64 * dt))
+        })
+}
+
+/// The offset noise's displacement of a sample at world position `x`.
+fn offset(params: &MarchParams, x: DVec3) -> DVec3 {
+    fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise
 }
 
 /// The majorant grid both backends march. Offset noise samples the density up to its
@@ -111,42 +127,483 @@ pub(crate) fn pixel_jitter(s: u32, spp: u32, u: f64, v: f64) -> (f64, f64) {
     }
 }
 
-/// Renders the image on the CPU.
+/// Renders the image on the CPU: [`march_ray`]'s estimator over the march's own layout
+/// of the volume (`layout.rs`, built once), in f32 where f64 buys nothing (positions
+/// and the step lattice stay f64), pixels in 8 x 8 tiles so that neighbouring rays, which
+/// read the same bricks, run back to back on one core.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = march_majorant(density, params);
-    let camera = &params.camera;
-    let (w, h) = (camera.width() as usize, camera.height() as usize);
-    let spp = params.spp;
-    let pixels: Vec<RayResult> = (0..w * h)
-        .into_par_iter()
-        .map(|index| {
-            let (px, py) = ((index % w) as f64, (index / w) as f64);
-            let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
-            let mut sum = RayResult::default();
-            let mut depth = f32::INFINITY;
-            for s in 0..spp {
-                // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
-                // in its edges; stratified over the pixel otherwise.
-                let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
-                let xi = rng.next_f64();
-                let (origin, dir) = camera.ray(px + jx, py + jy);
-                let r = march_ray(density, &majorant, cache, params, origin, dir, xi);
-                sum.single += r.single;
-                sum.multiple += r.multiple;
-                sum.transmittance += r.transmittance;
-                depth = depth.min(r.depth);
-            }
-            let inv = 1.0 / spp as f32;
-            RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth }
-        })
-        .collect();
+    // The layout's own brick table skips empty space unless offset noise moves samples
+    // off the ray, which needs the dilated majorant grid.
+    let majorant = (params.offset_noise > 0.0).then(|| march_majorant(density, params));
+    let albedo = params.medium.albedo;
+    let pixels = if params.aovs {
+        match MarchVolume::<[Vec4; 2]>::new(density, cache, albedo) {
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
+            None => render_plain(density, cache, params, majorant),
+        }
+    } else {
+        match MarchVolume::<Vec4>::new(density, cache, albedo) {
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
+            None => render_plain(density, cache, params, majorant),
+        }
+    };
     Ok(assemble(params, &pixels))
 }
 
+/// [`march_ray`] itself over the image, where the layout does not apply.
+fn render_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, majorant: Option<MajorantGrid>) -> Vec<RayResult> {
+    let majorant = majorant.unwrap_or_else(|| march_majorant(density, params));
+    render_tiles(params, &Plain { density, majorant: &majorant, cache, params })
+}
+
+/// Pixel edge of the square tiles the CPU marches one after another.
+const TILE: usize = 8;
+
+/// One camera ray's march from `origin` along `dir` with lattice offset `xi`: what
+/// [`render_tiles`] runs per sample (a trait rather than a closure so that the march is
+/// inlined into the FMA copy of the tile loop, and compiled for it).
+trait Marcher: Sync {
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult;
+}
+
+/// [`march_ray`] itself, where the layout does not apply.
+struct Plain<'a> {
+    density: &'a Volume<f32>,
+    majorant: &'a MajorantGrid,
+    cache: &'a IlluminationCache,
+    params: &'a MarchParams,
+}
+
+impl Marcher for Plain<'_> {
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u)
+    }
+}
+
+struct Fast<'a, T: DensityPoint> {
+    volume: &'a MarchVolume<T>,
+    /// The dilated majorant grid, with offset noise.
+    majorant: Option<&'a MajorantGrid>,
+    params: &'a MarchParams,
+}
+
+impl<T: DensityPoint> Marcher for Fast<'_, T> {
+    #[inline(always)]
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        match self.majorant {
+            Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi, u),
+            None => self.volume.march(arith, self.params, origin, dir, xi, u),
+        }
+    }
+}
+
+/// Every pixel's average over its `spp` samples of `march`, in bands of [`TILE`] rows in
+/// parallel, each band tile by tile.
+fn render_tiles<M: Marcher>(params: &MarchParams, march: &M) -> Vec<RayResult> {
+    let camera = &params.camera;
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let mut pixels = vec![RayResult::default(); w * h];
+    #[cfg(target_arch = "x86_64")]
+    let fused = Fused::detect();
+    pixels.par_chunks_mut(w * TILE).enumerate().for_each(|(band, rows)| {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(fused) = fused {
+            // SAFETY: `Fused` exists only where the CPU has AVX2 and FMA.
+            return unsafe { band_fma(fused, params, march, band * TILE, rows) };
+        }
+        render_band(Unfused, params, march, band * TILE, rows)
+    });
+    pixels
+}
+
+/// [`render_band`] compiled for AVX2 and FMA: floor is an instruction, and the lerps and
+/// the exponential's polynomial are chains of fused multiply-adds.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn band_fma<M: Marcher>(fused: Fused, params: &MarchParams, march: &M, y0: usize, rows: &mut [RayResult]) {
+    render_band(fused, params, march, y0, rows)
+}
+
+/// The rows from `y0` that `rows` holds, tile by tile.
+#[inline(always)]
+fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, y0: usize, rows: &mut [RayResult]) {
+    let camera = &params.camera;
+    let w = camera.width() as usize;
+    let spp = params.spp;
+    for x0 in (0..w).step_by(TILE) {
+        for y in 0..rows.len() / w {
+            for x in x0..(x0 + TILE).min(w) {
+                let index = (y0 + y) * w + x;
+                let (px, py) = (x as f64, (y0 + y) as f64);
+                let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
+                let mut members = Rng::with_domain(params.seed, index as u64, GROUP_DOMAIN);
+                let mut sum = RayResult::default();
+                let mut depth = f32::INFINITY;
+                for s in 0..spp {
+                    // One sample at the pixel centre when spp = 1, so a 1-spp image is not noisy
+                    // in its edges; stratified over the pixel otherwise.
+                    let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
+                    let (xi, u) = (rng.next_f64(), members.next_f64());
+                    let (origin, dir) = camera.ray(px + jx, py + jy);
+                    let r = march.march(arith, origin, dir, xi, u);
+                    sum.single += r.single;
+                    sum.multiple += r.multiple;
+                    sum.transmittance += r.transmittance;
+                    depth = depth.min(r.depth);
+                }
+                let inv = 1.0 / spp as f32;
+                rows[y * w + x] =
+                    RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth };
+            }
+        }
+    }
+}
+
+/// Up to [`LANES`] samples looked up, not yet composited: their exponentials are computed
+/// together (vectorised), then the serial part, transmittance and sums, runs.
+struct Batch {
+    /// Each sample's distance along the ray.
+    t: [f64; LANES],
+    /// Optical depth over the sample's step.
+    tau: [f32; LANES],
+    /// albedo * Li (xyz) per sample, single (or the sum) and multiple.
+    single: [Vec4; LANES],
+    multiple: [Vec4; LANES],
+}
+
+impl Batch {
+    fn new() -> Self {
+        Batch { t: [0.0; LANES], tau: [0.0; LANES], single: [Vec4::ZERO; LANES], multiple: [Vec4::ZERO; LANES] }
+    }
+}
+
+/// A ray's sums so far.
+struct Composite<T> {
+    r: RayResult,
+    single: Vec4,
+    multiple: Vec4,
+    tr: f32,
+    min_transmittance: f32,
+    /// The layout, whose [`DensityPoint::SPLIT`] says whether multiple is kept apart.
+    layout: std::marker::PhantomData<T>,
+}
+
+impl<T: DensityPoint> Composite<T> {
+    fn new(min_transmittance: f32) -> Self {
+        Composite {
+            r: RayResult { depth: f32::INFINITY, ..RayResult::default() },
+            single: Vec4::ZERO,
+            multiple: Vec4::ZERO,
+            tr: 1.0,
+            min_transmittance,
+            layout: std::marker::PhantomData,
+        }
+    }
+
+    /// Composites the first `n` samples of `b` in order; false once the transmittance fell
+    /// below the threshold (the samples after the one that took it there add nothing).
+    #[inline(always)]
+    fn add<A: Arith>(&mut self, arith: A, b: &Batch, n: usize) -> bool {
+        let c = arith.composite(self.tr, &b.tau, n, self.min_transmittance);
+        let end = if c.below != 0 { c.below.trailing_zeros() as usize + 1 } else { n };
+        let deep = c.deep & ((1 << end) - 1);
+        if self.r.depth.is_infinite() && deep != 0 {
+            self.r.depth = b.t[deep.trailing_zeros() as usize % LANES] as f32;
+        }
+        for i in 0..end.min(LANES) {
+            let w = Vec4::splat(c.weight[i]);
+            self.single = arith.fma4(w, b.single[i], self.single);
+            if T::SPLIT {
+                self.multiple = arith.fma4(w, b.multiple[i], self.multiple);
+            }
+        }
+        self.tr = c.tr;
+        c.below == 0
+    }
+
+    /// The result, `done` when the ray stopped early (its transmittance is then 0).
+    #[inline(always)]
+    fn finish(mut self, done: bool) -> RayResult {
+        self.r.single = self.single.truncate();
+        self.r.multiple = self.multiple.truncate();
+        self.r.transmittance = if done { 0.0 } else { self.tr };
+        self.r
+    }
+}
+
+impl<T: DensityPoint> MarchVolume<T> {
+    /// Each other lattice's ray, in its own index space.
+    #[inline(always)]
+    fn other_rays(&self, origin: DVec3, dir: DVec3) -> [(DVec3, DVec3); 2] {
+        let mut rays = [(DVec3::ZERO, DVec3::ZERO); 2];
+        for (ray, (lattice, _)) in rays.iter_mut().zip(&self.others) {
+            let m = lattice.world_to_index();
+            *ray = (m.transform_point3(origin), m.transform_vector3(dir));
+        }
+        rays
+    }
+
+    /// Lane `j` of `b`: the sample at `t` over a step of optical depth `dtau` per unit of
+    /// density, whose density-lattice point is `v`, reading the
+    /// other lattices along their rays, displaced by `shift` (world), where it has
+    /// extinction. A sample without adds nothing and leaves T as it is (its cache values,
+    /// never read by [`march_ray`], are not read here either).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn take<A: Arith>(&self, arith: A, b: &mut Batch, j: usize, dtau: f32, t: f64, v: T, rays: &[(DVec3, DVec3); 2], shift: Option<DVec3>) {
+        let tau = dtau * v.density().max(0.0);
+        let lit = tau > 0.0;
+        let (mut single, mut multiple) = if lit { (v.single(), v.multiple()) } else { (Vec4::ZERO, Vec4::ZERO) };
+        if lit && !self.others.is_empty() {
+            for ((lattice, layer), &(o, d)) in self.others.iter().zip(rays) {
+                let m = lattice.world_to_index();
+                let li = lattice.sample(arith, o + d * t + shift.map_or(DVec3::ZERO, |s| m.transform_vector3(s)));
+                match layer {
+                    Layer::Multiple if T::SPLIT => multiple += li,
+                    _ => single += li,
+                }
+            }
+        }
+        // j < LANES (callers fill at most a batch); the mask spares the bounds checks.
+        let j = j % LANES;
+        (b.t[j], b.tau[j], b.single[j]) = (t, tau, single);
+        if T::SPLIT {
+            b.multiple[j] = multiple;
+        }
+    }
+
+    /// [`march_ray`] over this layout without offset noise: the same samples, in f32 from
+    /// each sample's lattice lookup on, bricks found by the layout's own DDA, once per
+    /// brick rather than once per sample, and a brick's samples [`LANES`] at a time. Within
+    /// a brick the position is f32 relative to the brick's first sample (the offset from
+    /// it at most a brick's diagonal, so within about 1e-6 voxels), and the lattice index k
+    /// carries over between adjacent bricks (as on the GPU), so a sample on a boundary
+    /// within rounding is taken exactly once.
+    #[inline(always)]
+    fn march<A: Arith>(&self, arith: A, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        let to_index = self.density.world_to_index();
+        let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
+        let rays = self.other_rays(origin, dir);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32);
+        let mut b = Batch::new();
+        let dt = params.step;
+        let mut groups = Groups::new();
+        for span in self.density.bricks_along(o, d, 0.0) {
+            // Groups over the whole brick, as every march takes them; only the samples in the
+            // box of cells to visit, and the last group's when it reaches past the brick,
+            // can read density.
+            let cell = groups.cell(span.start, span.end, dt, xi, u, params.step_factor(span.majorant));
+            let step = cell.size as f64 * dt;
+            let dtau = step as f32 * params.medium.extinction;
+            let t0 = (cell.first + xi) * dt;
+            // (u32 converts to f64 in one instruction, usize does not.)
+            let at = |j: usize| t0 + (j as u32) as f64 * step;
+            let (count, per_step) = ((cell.count as u32) as f64, 1.0 / step);
+            let within = |t: f64| ((t - t0) * per_step).ceil().clamp(0.0, count) as usize;
+            // The last group's sample may lie past the brick: in the next brick, or empty space.
+            let past = cell.count > 0 && at(cell.count - 1) >= span.end;
+            let (lo, hi) = if (span.visit_start, span.visit_end) == (span.start, span.end) {
+                (0, cell.count - past as usize)
+            } else {
+                (within(span.visit_start), within(span.visit_end).max(within(span.visit_start)))
+            };
+            // Samples `step` apart from the first, relative to the brick.
+            let (first, advance) = ((o - span.origin + d * t0).as_vec3a(), (d * step).as_vec3a());
+            let mut t = at(lo);
+            for from in (lo..hi).step_by(LANES) {
+                let cells = arith.cells(first, advance, (from as u32) as f32);
+                let m = LANES.min(hi - from);
+                for j in 0..m {
+                    let v = match cells.index[j] {
+                        OUTSIDE => self.density.sample(arith, o + d * t),
+                        i => Lattice::interpolate_at(arith, span.points, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
+                    };
+                    self.take(arith, &mut b, j, dtau, t, v, &rays, None);
+                    t += step;
+                }
+                if !c.add(arith, &b, m) {
+                    return c.finish(true);
+                }
+            }
+            if past {
+                let t = at(cell.count - 1);
+                let v = self.density.sample(arith, o + d * t);
+                self.take(arith, &mut b, 0, dtau, t, v, &rays, None);
+                if !c.add(arith, &b, 1) {
+                    return c.finish(true);
+                }
+            }
+        }
+        c.finish(false)
+    }
+
+    /// [`march_ray`] over this layout with offset noise, over the dilated majorant grid.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        let to_index = self.density.world_to_index();
+        let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
+        let rays = self.other_rays(origin, dir);
+        let mut c = Composite::<T>::new(params.min_transmittance as f32);
+        let (mut b, mut n) = (Batch::new(), 0);
+        for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
+            let shift = offset(params, origin + dir * t);
+            let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
+            self.take(arith, &mut b, n, step as f32 * params.medium.extinction, t, v, &rays, Some(shift));
+            n += 1;
+            if n == LANES {
+                if !c.add(arith, &b, n) {
+                    return c.finish(true);
+                }
+                n = 0;
+            }
+        }
+        let done = !c.add(arith, &b, n);
+        c.finish(done)
+    }
+}
+
+/// The test scenes of `tests/` (clouds, caches, cameras).
+#[cfg(test)]
+#[path = "../tests/common/mod.rs"]
+mod scenes;
+
 #[cfg(test)]
 mod tests {
-    use super::pixel_jitter;
+    use super::scenes::{cache_for, cache_on_density_lattice, camera, cloud, params};
+    use super::*;
+    use nimbus_optics::Medium;
+
+    /// The march over the layout against `march_ray` on the same rays and lattices: the
+    /// worst relative difference of the colour, single and multiple over lit pixels (as
+    /// the GPU agreement tests measure it) and of alpha.
+    fn layout_against_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> (f32, f32) {
+        let fast = render_cpu(density, cache, params).unwrap();
+        if params.min_transmittance > 0.0 {
+            let stopped = fast.rgba.iter().filter(|p| p.w == 1.0).count();
+            assert!(stopped > 10, "rays stop early: {stopped}");
+        }
+        let majorant = march_majorant(density, params);
+        let plain = assemble(params, &render_tiles(params, &Plain { density, majorant: &majorant, cache, params }));
+        let lum = |p: Vec3| p.element_sum();
+        let max = plain.rgba.iter().map(|p| lum(p.truncate())).fold(0.0, f32::max);
+        assert!(max > 0.0, "the scene is lit");
+        let floor = Vec3::splat(1e-3 * max / 3.0);
+        let rel = |a: Vec3, b: Vec3| ((a - b).abs() / b.abs().max(floor)).max_element();
+        let (mut worst, mut alpha, mut lit) = (0.0f32, 0.0f32, 0);
+        for (i, (f, p)) in fast.rgba.iter().zip(&plain.rgba).enumerate() {
+            alpha = alpha.max((f.w - p.w).abs());
+            if lum(p.truncate()) > 1e-3 * max {
+                lit += 1;
+                worst = worst.max(rel(f.truncate(), p.truncate()));
+                if let (Some(fa), Some(pa)) = (&fast.aovs, &plain.aovs) {
+                    worst = worst.max(rel(fa.single[i], pa.single[i])).max(rel(fa.multiple[i], pa.multiple[i]));
+                }
+            }
+        }
+        assert!(lit > fast.rgba.len() / 4, "{lit} lit pixels");
+        (worst, alpha)
+    }
+
+    #[test]
+    fn the_layout_marches_as_march_ray_does() {
+        let density = cloud(24, 3.0, DVec3::new(0.3, -0.2, 0.1));
+        let base = MarchParams { max_step_factor: 3, ..params(camera(DVec3::new(0.3, -0.2, 0.1), 40, 30)) };
+        // Step control is at work: thin cells take longer steps, which change the image.
+        let factors: Vec<u32> = MajorantGrid::build(&density).values().iter().filter(|&&m| m > 0.0).map(|&m| base.step_factor(m)).collect();
+        assert!(factors.contains(&1) && factors.contains(&3), "{factors:?}");
+        let plain_lattice = render_cpu(&density, &cache_for(&density), &MarchParams { max_step_factor: 1, ..base.clone() }).unwrap();
+        assert_ne!(plain_lattice, render_cpu(&density, &cache_for(&density), &base).unwrap());
+        // vdbcache's layouts (fused into the density lattice, also the whole-point shift of
+        // a coarser lattice) and lattices of their own.
+        let caches = [
+            ("scale 1 and 4", cache_on_density_lattice(&density, 1.0, 4.0)),
+            ("scale 2 and 2", cache_on_density_lattice(&density, 2.0, 2.0)),
+            ("offset lattices", cache_for(&density)),
+            ("single only", IlluminationCache { li_single: cache_on_density_lattice(&density, 1.0, 1.0).li_single, li_multiple: None, ..Default::default() }),
+        ];
+        for (name, cache) in &caches {
+            for aovs in [true, false] {
+                let cases = [
+                    ("1 spp", MarchParams { aovs, ..base.clone() }),
+                    ("4 spp", MarchParams { aovs, spp: 4, ..base.clone() }),
+                    ("offset noise", MarchParams { aovs, offset_noise: 0.05, noise_scale: 0.2, ..base.clone() }),
+                    ("early termination", MarchParams { aovs, min_transmittance: 1e-3, medium: Medium { extinction: 6.0, ..base.medium }, ..base.clone() }),
+                ];
+                for (case, p) in cases {
+                    let (rgb, alpha) = layout_against_plain(&density, cache, &p);
+                    eprintln!("{name}, aovs {aovs}, {case}: max rel diff {rgb:.2e}, alpha {alpha:.2e}");
+                    assert!(rgb <= 1e-4, "{name}, aovs {aovs}, {case}: rgb {rgb}");
+                    // A ray stopping a sample earlier or later leaves up to the threshold.
+                    assert!(alpha <= 1e-5f32.max(2.0 * p.min_transmittance as f32), "{name}, aovs {aovs}, {case}: alpha {alpha}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_portable_march_agrees_with_the_avx2_one() {
+        // render_cpu takes the AVX2+FMA copy where the CPU has it; the portable one runs
+        // everywhere else.
+        let density = cloud(24, 3.0, DVec3::ZERO);
+        for (cache, aovs) in [(cache_on_density_lattice(&density, 1.0, 4.0), false), (cache_for(&density), true)] {
+            let p = MarchParams { max_step_factor: 3, spp: 2, aovs, ..params(camera(DVec3::ZERO, 32, 24)) };
+            let fast = render_cpu(&density, &cache, &p).unwrap();
+            fn portable<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCache, p: &MarchParams) -> Image {
+                let volume = MarchVolume::<T>::new(density, cache, p.medium.albedo).unwrap();
+                let mut pixels = vec![RayResult::default(); (p.camera.width() * p.camera.height()) as usize];
+                render_band(Unfused, p, &Fast { volume: &volume, majorant: None, params: p }, 0, &mut pixels);
+                assemble(p, &pixels)
+            }
+            let portable = if aovs { portable::<[Vec4; 2]>(&density, &cache, &p) } else { portable::<Vec4>(&density, &cache, &p) };
+            let max = fast.rgba.iter().map(|c| c.truncate().element_sum()).fold(0.0, f32::max);
+            for (a, b) in fast.rgba.iter().zip(&portable.rgba) {
+                assert!((*a - *b).abs().max_element() <= 1e-5 * max, "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn groups_tile_the_lattice_and_restart_after_gaps() {
+        use crate::Groups;
+        let (dt, xi) = (0.3, 0.37);
+        for u in [0.0, 0.4, 0.99] {
+            // Adjacent cells of assorted factors and lengths (some shorter than a group),
+            // then a gap.
+            let cells = [(1.0, 2.9, 1), (2.9, 3.0, 4), (3.0, 5.2, 3), (5.2, 7.7, 2), (7.7, 8.0, 4), (9.5, 11.0, 2)];
+            let mut groups = Groups::new();
+            let mut covered = vec![];
+            for &(a, b, f) in &cells {
+                let c = groups.cell(a, b, dt, xi, u, f);
+                for j in 0..c.count {
+                    let sample = c.first + (j as u32 * f) as f64;
+                    let start = sample - (u * f as f64).floor();
+                    // Each group starts in its cell and its sample is one of its members.
+                    assert!((start + xi) * dt >= a - 1e-12 && (start + xi) * dt < b, "cell {a}..{b}: group at {start}");
+                    covered.extend((0..f).map(|m| (start + m as f64) as i64));
+                }
+            }
+            // Lattice points from the first cell's first to where the groups end before the
+            // gap, each once; after the gap, afresh from the first point in the cell.
+            let first = (1.0f64 / dt - xi).ceil() as i64;
+            let after_gap = (9.5f64 / dt - xi).ceil() as i64;
+            let before: Vec<i64> = covered.iter().copied().filter(|&k| k < after_gap).collect();
+            assert_eq!(before, (first..first + before.len() as i64).collect::<Vec<_>>(), "u {u}");
+            assert!(((before.len() as i64 + first) as f64 + xi) * dt >= 8.0, "the groups reach the gap");
+            assert_eq!(covered.iter().copied().find(|&k| k >= after_gap), Some(after_gap));
+        }
+    }
+
+    #[test]
+    fn step_factors_keep_a_step_thin() {
+        let p = MarchParams { max_step_factor: 4, step: 0.5, medium: Medium { extinction: 2.0, ..params(camera(DVec3::ZERO, 4, 4)).medium }, ..params(camera(DVec3::ZERO, 4, 4)) };
+        // One lattice step at bound m spans 2 * 0.5 * m = m optical depths.
+        for (m, f) in [(0.3, 1), (0.25, 1), (0.125, 2), (0.1, 2), (0.08, 3), (0.0625, 4), (1e-6, 4), (0.0, 4), (f32::NAN, 1)] {
+            assert_eq!(p.step_factor(m), f, "bound {m}");
+        }
+        assert_eq!(MarchParams { max_step_factor: 1, ..p }.step_factor(1e-6), 1);
+    }
 
     #[test]
     fn samples_take_one_cell_each_of_the_largest_square_grid() {

@@ -5,7 +5,7 @@ use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, GpuCamera, GpuMedium, OPTICS_WGSL};
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_tracking::{GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Transform, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
@@ -104,6 +104,16 @@ fn noise_split(p: DVec3, scale: f64) -> ([u32; 3], [f32; 3]) {
     (base, (q - cell).as_vec3().to_array())
 }
 
+/// What the shader's majorant walk reads for a cell of bound `majorant`: its step factor,
+/// or the bound itself where it marks no medium (zero, negative or NaN).
+fn cell_factor(params: &MarchParams, majorant: f32) -> f32 {
+    if majorant > 0.0 {
+        params.step_factor(majorant) as f32
+    } else {
+        majorant
+    }
+}
+
 /// Renders the image on the GPU with the default [`GpuMarchOptions`] (hardware-filtered
 /// cache lookups where the device can filter).
 pub fn render_gpu(ctx: &GpuContext, density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
@@ -194,7 +204,7 @@ fn march_pixels(
     let uniforms = GpuMarchParams {
         camera: GpuCamera::new(camera, origin),
         medium: GpuMedium::from(&params.medium),
-        grid: GpuMajorantInfo::new(majorant, density.background()),
+        grid: GpuMajorantInfo::new(majorant, cell_factor(params, density.background())),
         background: params.background.to_array(),
         step: params.step as f32,
         noise_base,
@@ -218,7 +228,11 @@ fn march_pixels(
         tile_pixels: 0,
         _pad: 0,
     };
-    let majorant_buffer = majorant_buffer(ctx, majorant)?;
+    // The march reads its cells' step factors where the walk reads bounds (0: empty, as a
+    // zero bound is): `MarchParams::step_factor` once per cell, so both backends take the
+    // same groups.
+    let factors: Vec<f32> = majorant.values().iter().map(|&m| cell_factor(params, m)).collect();
+    let majorant_buffer = if factors.is_empty() { ctx.storage_buffer("step factors", &[0f32])? } else { ctx.storage_buffer("step factors", &factors)? };
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
@@ -297,8 +311,9 @@ mod tests {
     }
 
     #[test]
-    fn the_shader_uses_the_cpu_random_domain() {
+    fn the_shader_uses_the_cpu_random_domains() {
         assert!(MARCH_WGSL.contains(&format!("MARCH_DOMAIN: u32 = 0x{MARCH_DOMAIN:08x}u")));
+        assert!(MARCH_WGSL.contains(&format!("GROUP_DOMAIN: u32 = 0x{:08x}u", crate::GROUP_DOMAIN)));
     }
 
     #[test]

@@ -78,13 +78,41 @@ fn scene(centre: DVec3) -> (nimbus_volume::Volume<f32>, nimbus_cache::Illuminati
     (v, cache, params(camera(centre, 64, 48)))
 }
 
+/// Both backends' images of the 64 x 48 scene, held to agree (exact GPU cache lookups).
+fn both_agree(ctx: &GpuContext, name: &str, v: &nimbus_volume::Volume<f32>, cache: &nimbus_cache::IlluminationCache, p: &MarchParams) -> Image {
+    let cpu = render_cpu(v, cache, p).unwrap();
+    let gpu = render_gpu_with(ctx, v, cache, p, &EXACT).unwrap();
+    assert_close(name, &diff(&cpu, &gpu), 64 * 48);
+    cpu
+}
+
 #[test]
 fn images_agree_without_noise() {
     let Some(ctx) = gpu() else { return };
     let (v, cache, p) = scene(DVec3::ZERO);
-    let cpu = render_cpu(&v, &cache, &p).unwrap();
-    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
-    assert_close("no noise, 1 spp", &diff(&cpu, &gpu), 64 * 48);
+    both_agree(ctx, "no noise, 1 spp", &v, &cache, &p);
+}
+
+#[test]
+fn images_agree_on_vdbcache_lattices() {
+    // Li_single on the density's own points and Li_multiple on every fourth: the CPU
+    // resamples both onto its density lattice, the GPU looks each up on its own.
+    let Some(ctx) = gpu() else { return };
+    let (v, _, p) = scene(DVec3::ZERO);
+    both_agree(ctx, "cache scales 1 and 4, 1 spp", &v, &common::cache_on_density_lattice(&v, 1.0, 4.0), &p);
+}
+
+#[test]
+fn images_agree_with_longer_steps_in_thin_cells() {
+    // Factors 1 to 4 across the cloud: the GPU reads the CPU's per-cell factors and takes
+    // the same groups of lattice steps.
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    p.max_step_factor = 4;
+    p.spp = 2;
+    let factors: Vec<u32> = nimbus_volume::MajorantGrid::build(&v).values().iter().filter(|&&m| m > 0.0).map(|&m| p.step_factor(m)).collect();
+    assert!((1..=4).all(|f| factors.contains(&f)), "factors 1 to 4 occur");
+    both_agree(ctx, "step factors up to 4, 2 spp", &v, &cache, &p);
 }
 
 #[test]
@@ -93,9 +121,7 @@ fn images_agree_with_offset_noise_and_jittered_samples() {
     let (v, cache, mut p) = scene(DVec3::ZERO);
     p.offset_noise = 0.15;
     p.spp = 3;
-    let cpu = render_cpu(&v, &cache, &p).unwrap();
-    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
-    assert_close("offset noise, 3 spp", &diff(&cpu, &gpu), 64 * 48);
+    let cpu = both_agree(ctx, "offset noise, 3 spp", &v, &cache, &p);
     // The noise really moved the samples.
     let plain = render_cpu(&v, &cache, &MarchParams { offset_noise: 0.0, ..p.clone() }).unwrap();
     assert!(diff(&plain, &cpu).rgb > 1e-2);

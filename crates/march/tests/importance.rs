@@ -25,7 +25,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     assert_eq!(g.len() as u64, plan.stats.baked);
     // The march on importance's own terms: its step (half the cache voxel), the sample
     // lattice at xi = 0.5, each pixel's centre.
-    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
+    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), max_step_factor: 1, offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
 
     let mut order: Vec<usize> = (0..g.len()).collect();
     order.sort_by(|&a, &b| g[b].total_cmp(&g[a]));
@@ -41,7 +41,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
         for py in 0..h {
             for px in 0..w {
                 let (origin, dir) = cam.ray(px as f64 + 0.5, py as f64 + 0.5);
-                let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5);
+                let r = march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5, 0.0);
                 let a = r.multiple.x as f64 / medium.albedo.x as f64;
                 sum += a * a;
             }
@@ -109,14 +109,14 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
         })
         .collect();
     let centred: Vec<Vec3> = positions.iter().map(|&c| Vec3::splat(f(c) as f32)).collect();
-    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
+    let march = MarchParams { medium, step: 0.5 * plan.transform.voxel_size().min_element(), max_step_factor: 1, offset_noise: 0.0, min_transmittance: 0.0, ..params(cam.clone()) };
     let total = |values: &[Vec3]| {
         let cache = IlluminationCache { li_single: None, li_multiple: Some(plan.volume_of(values).0), ..Default::default() };
         let mut sum = 0.0f64;
         for py in 0..h {
             for px in 0..w {
                 let (origin, dir) = cam.ray(px as f64 + 0.5, py as f64 + 0.5);
-                sum += march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5).multiple.x as f64;
+                sum += march_ray(&density, &majorant, &cache, &march, origin, dir, 0.5, 0.0).multiple.x as f64;
             }
         }
         sum

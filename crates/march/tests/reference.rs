@@ -77,6 +77,7 @@ fn single_scattering_matches_the_cached_chain() {
         medium,
         camera,
         step: VOXEL / 4.0,
+        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
         spp: 4,
         background: Vec3::ZERO,
         offset_noise: 0.0,

@@ -31,6 +31,8 @@ fn params(camera: Camera, step: f64) -> MarchParams {
         medium: Medium { extinction: 4.0, albedo: Vec3::new(0.9, 0.5, 0.2), g: 0.0 },
         camera,
         step,
+        // The closed forms and convergence in the step are for the plain lattice.
+        max_step_factor: 1,
         spp: 1,
         background: Vec3::ZERO,
         offset_noise: 0.0,

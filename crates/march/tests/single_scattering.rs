@@ -44,6 +44,7 @@ fn single_scattering_chain_matches_a_brute_force_render() {
         medium,
         camera: camera.clone(),
         step: VOXEL / 4.0,
+        max_step_factor: 1,
         spp: 1,
         background: Vec3::ZERO,
         offset_noise: 0.0,

@@ -76,33 +76,52 @@ pub fn soft_ball(voxel: f64) -> Volume<f32> {
     v
 }
 
-/// A smoothly varying cache: Li_single on the density's lattice, Li_multiple on a lattice
-/// twice as coarse and offset, both covering the density and a margin.
+/// A smoothly varying cache: Li_single on a lattice of the density's voxel size offset
+/// by half a voxel, Li_multiple on a lattice twice as coarse and offset again, both
+/// covering the density and a margin: lattices that do not share the density's points.
 pub fn cache_for(density: &Volume<f32>) -> IlluminationCache {
+    let (lo, _) = density.world_bounds().unwrap();
+    let single = Transform::uniform(VOXEL, lo);
+    let multiple = Transform::uniform(2.0 * VOXEL, lo + DVec3::splat(0.037));
+    IlluminationCache { li_single: Some(cache_grid(density, single, &li_single)), li_multiple: Some(cache_grid(density, multiple, &li_multiple)), ..Default::default() }
+}
+
+/// The same fields on vdbcache's lattices: the density's, coarsened by whole factors on its
+/// own points (`--cache-scale`, `--multiple-scale`).
+pub fn cache_on_density_lattice(density: &Volume<f32>, single_scale: f64, multiple_scale: f64) -> IlluminationCache {
+    let on = |scale: f64| Transform::new(density.transform().index_to_world() * glam::DAffine3::from_scale(DVec3::splat(scale))).unwrap();
+    IlluminationCache {
+        li_single: Some(cache_grid(density, on(single_scale), &li_single)),
+        li_multiple: Some(cache_grid(density, on(multiple_scale), &li_multiple)),
+        ..Default::default()
+    }
+}
+
+fn li_single(p: DVec3) -> Vec3 {
+    let s = (1.5 + (p.z * 2.0).sin() + 0.5 * (p.x * 3.0).cos()) as f32;
+    Vec3::new(2.0 * s, 1.6 * s, 1.2 * s)
+}
+
+fn li_multiple(p: DVec3) -> Vec3 {
+    let s = (0.6 + 0.3 * (p.y * 2.5).sin() * (p.z * 1.5).cos()) as f32;
+    Vec3::new(0.3 * s, 0.35 * s, 0.5 * s)
+}
+
+/// `f` (of the position relative to the density's lower world corner) at every point of the
+/// lattice `t` over the density's world bounds and two points beyond.
+fn cache_grid(density: &Volume<f32>, t: Transform, f: &dyn Fn(DVec3) -> Vec3) -> Volume<Vec3> {
     let (lo, hi) = density.world_bounds().unwrap();
-    let fill = |voxel: f64, shift: DVec3, f: &dyn Fn(DVec3) -> Vec3| {
-        let t = Transform::uniform(voxel, lo + shift);
-        let mut v = Volume::new(t, Vec3::ZERO);
-        let n = ((hi - lo) / voxel).ceil().as_ivec3() + 2;
-        for x in -2..=n.x {
-            for y in -2..=n.y {
-                for z in -2..=n.z {
-                    let c = IVec3::new(x, y, z);
-                    v.set(c, f(t.to_world(c.as_dvec3()) - lo));
-                }
+    let (a, b) = (t.to_index(lo).floor().as_ivec3() - 2, t.to_index(hi).ceil().as_ivec3() + 2);
+    let mut v = Volume::new(t, Vec3::ZERO);
+    for x in a.x..=b.x {
+        for y in a.y..=b.y {
+            for z in a.z..=b.z {
+                let c = IVec3::new(x, y, z);
+                v.set(c, f(t.to_world(c.as_dvec3()) - lo));
             }
         }
-        v
-    };
-    let single = fill(VOXEL, DVec3::ZERO, &|p| {
-        let s = (1.5 + (p.z * 2.0).sin() + 0.5 * (p.x * 3.0).cos()) as f32;
-        Vec3::new(2.0 * s, 1.6 * s, 1.2 * s)
-    });
-    let multiple = fill(2.0 * VOXEL, DVec3::splat(0.037), &|p| {
-        let s = (0.6 + 0.3 * (p.y * 2.5).sin() * (p.z * 1.5).cos()) as f32;
-        Vec3::new(0.3 * s, 0.35 * s, 0.5 * s)
-    });
-    IlluminationCache { li_single: Some(single), li_multiple: Some(multiple), ..Default::default() }
+    }
+    v
 }
 
 /// Looks at `centre` from -Y and a little above, the cloud filling most of the frame.
@@ -115,6 +134,7 @@ pub fn params(camera: Camera) -> MarchParams {
         medium: Medium { extinction: 1.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.0 },
         camera,
         step: 0.5 * VOXEL,
+        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
         spp: 1,
         background: Vec3::new(0.05, 0.1, 0.2),
         offset_noise: 0.0,
