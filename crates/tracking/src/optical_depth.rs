@@ -44,7 +44,7 @@
 
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
 use nimbus_optics::Light;
-use nimbus_volume::{lattice_cell, brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
+use nimbus_volume::{lattice_cell, trilinear, brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
 use crate::DensityMedium;
@@ -150,12 +150,12 @@ impl OpticalDepthVolume {
         let p = self.transmittance.transform().to_index(x);
         let Some((cell, uvw)) = lattice_cell(p) else { return TabledTransmittance { table: 1.0, ray_weight: 1.0 } };
         let c = self.transmittance.corners(cell);
+        let table = trilinear(&c, uvw);
         let uvw = uvw.as_vec3();
         let weight = |n: usize| {
             let f = |bit: usize, u: f32| if n >> bit & 1 == 1 { u } else { 1.0 - u };
             f(2, uvw.x) * f(1, uvw.y) * f(0, uvw.z)
         };
-        let table = self.transmittance.sample_index(p);
         let deviation: f32 = (0..8).map(|n| weight(n) * (c[n] - table).abs()).sum();
         let [from, to] = TABLED_SPREAD;
         let ray_weight = ((deviation - from) / (to - from)).clamp(0.0, 1.0) as f64;

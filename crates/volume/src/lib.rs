@@ -18,7 +18,7 @@ mod volume;
 
 pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk, MAX_CELL_OPTICAL_DEPTH};
 pub use transform::Transform;
-pub use volume::{brick_local, brick_offset, brick_origin, lattice_cell, BrickMask, BrickRef, Volume, BRICK_DIM, BRICK_LOG2, BRICK_VOXELS};
+pub use volume::{brick_local, brick_offset, brick_origin, lattice_cell, trilinear, BrickMask, BrickRef, Volume, BRICK_DIM, BRICK_LOG2, BRICK_VOXELS};
 
 use glam::Vec3;
 

@@ -51,6 +51,18 @@ pub fn lattice_cell(p: DVec3) -> Option<(IVec3, DVec3)> {
     Some((base.as_ivec3(), p - base))
 }
 
+/// The trilinear interpolation of a cell's corners (in [`Volume::corners`]' order) at the
+/// fractions `uvw` across it, in nested lerps as OpenVDB's BoxSampler takes them.
+#[inline]
+pub fn trilinear<T: Voxel>(c: &[T; 8], uvw: DVec3) -> T {
+    let lerp = T::lerp;
+    lerp(
+        lerp(lerp(c[0], c[1], uvw.z), lerp(c[2], c[3], uvw.z), uvw.y),
+        lerp(lerp(c[4], c[5], uvw.z), lerp(c[6], c[7], uvw.z), uvw.y),
+        uvw.x,
+    )
+}
+
 /// A 512-bit activity mask, bit n of word n/64 for offset n (openvdb::util::NodeMask<3>).
 pub type BrickMask = [u64; 8];
 
@@ -291,13 +303,7 @@ impl<T: Voxel> Volume<T> {
     #[inline]
     pub fn sample_index(&self, p: DVec3) -> T {
         let Some((ijk, uvw)) = lattice_cell(p) else { return self.background };
-        let c = self.corners(ijk);
-        let lerp = T::lerp;
-        lerp(
-            lerp(lerp(c[0], c[1], uvw.z), lerp(c[2], c[3], uvw.z), uvw.y),
-            lerp(lerp(c[4], c[5], uvw.z), lerp(c[6], c[7], uvw.z), uvw.y),
-            uvw.x,
-        )
+        trilinear(&self.corners(ijk), uvw)
     }
 
     /// The eight lattice values around the cell whose lowest corner is `ijk`, in the order
