@@ -512,3 +512,72 @@ fn the_default_chain_matches_the_path_traced_reference() {
     assert!(values.iter().any(|&v| v < 0.5) && values.iter().any(|&v| v > 0.9), "lit and shadowed voxels");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// An 8-bit RGB PNG's pixels, read with the png crate.
+fn read_png_rgb(path: &Path) -> Vec<[u8; 3]> {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.color_type, info.bit_depth), (png::ColorType::Rgb, png::BitDepth::Eight));
+    buf[..info.buffer_size()].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// `--view` changes the PNG preview only: the EXR is the same linear image under every view;
+/// Standard is the sRGB OETF of the EXR's values times 2^EV, clipped, where AgX and Filmic roll
+/// bright pixels off below white; no `--view` is AgX.
+#[test]
+fn the_view_transform_changes_only_the_preview() {
+    let dir = scratch("view");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 3000);
+    let (d, c) = (dir.join("d.vdb"), dir.join("c.vdb"));
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
+    run(Command::new(bin("vdbcache")).arg(&d).args(["--extinction", "6", "--sun", "dir=0.3,0.4,-0.8,irradiance=2"]).args(["--width", "24", "--height", "16", "--paths", "4", "-o"]).arg(&c));
+    let march = |name: &str, extra: &[&str]| {
+        let (e, p) = (dir.join(format!("{name}.exr")), dir.join(format!("{name}.png")));
+        run(Command::new(bin("vdbmarch")).arg(&c).args(extra).arg("--preview").arg(&p).arg("-o").arg(&e));
+        (std::fs::read(&e).unwrap(), read_png_rgb(&p))
+    };
+    // An exposure that puts the brightest pixel at linear 4: Standard clips it, AgX does not.
+    let (exr0, _) = march("probe", &[]);
+    std::fs::write(dir.join("probe.exr"), &exr0).unwrap();
+    let rgba = read_rgba(&dir.join("probe.exr"));
+    let brightest = rgba.iter().map(|p| p[0].min(p[1]).min(p[2])).fold(0.0f32, f32::max);
+    assert!(brightest > 0.0, "the ball is lit");
+    let ev = (4.0 / brightest).log2();
+    let ev_arg = format!("--exposure={ev}");
+    let views: Vec<_> = ["agx", "filmic", "standard"].iter().map(|v| march(v, &["--view", v, &ev_arg])).collect();
+    let (default_exr, default_png) = march("default", &[&ev_arg]);
+    for (exr, _) in &views {
+        assert!(exr == &exr0, "the EXR does not depend on --view or --exposure");
+    }
+    assert!(default_exr == exr0);
+    let [(_, agx), (_, filmic), (_, standard)] = &views[..] else { unreachable!() };
+    assert_eq!(&default_png, agx, "no --view is AgX");
+    assert_ne!(agx, filmic);
+    let scale = ev.exp2();
+    let srgb = |v: f32| {
+        let v = (v * scale).clamp(0.0, 1.0);
+        let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+        s * 255.0
+    };
+    let (mut clipped, mut rolled_off) = (0, 0);
+    for (i, p) in rgba.iter().enumerate() {
+        for ch in 0..3 {
+            assert!((standard[i][ch] as f32 - srgb(p[ch])).abs() <= 0.51, "pixel {i}: Standard {} vs sRGB {}", standard[i][ch], srgb(p[ch]));
+        }
+        if p.iter().take(3).all(|&v| v == 0.0) {
+            assert_eq!((agx[i], filmic[i], standard[i]), ([0; 3], [0; 3], [0; 3]), "black stays black");
+        }
+        let lo = p[0].min(p[1]).min(p[2]) * scale;
+        if lo >= 1.5 {
+            assert_eq!(standard[i], [255; 3]);
+            clipped += 1;
+            if agx[i].iter().all(|&c| c < 255) && filmic[i].iter().all(|&c| c < 255) {
+                rolled_off += 1;
+            }
+        }
+    }
+    assert!(clipped > 0 && rolled_off == clipped, "{rolled_off} of {clipped} pixels Standard clips stay below white in AgX and Filmic");
+}

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::Parser;
+use clap::{Parser, ValueEnum};
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
 use nimbus_cli::Log;
@@ -15,7 +15,30 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
     PipelineMeta,
 };
-use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams};
+use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
+
+/// `--view`: Blender's view transforms.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum View {
+    /// Blender 4's default, AgX (base contrast): highlights roll off to white, saturated
+    /// colours desaturate as they brighten; white at 6.5 stops above 0.18 grey.
+    Agx,
+    /// Blender 2.8-3.x's default, Filmic (base contrast): log encoding over 16.5 stops and
+    /// a film-like curve; 0.18 grey shows as 0.5.
+    Filmic,
+    /// Blender's Standard: the sRGB transfer function, clipped at 1.0.
+    Standard,
+}
+
+impl From<View> for ViewTransform {
+    fn from(v: View) -> ViewTransform {
+        match v {
+            View::Agx => ViewTransform::Agx,
+            View::Filmic => ViewTransform::Filmic,
+            View::Standard => ViewTransform::Standard,
+        }
+    }
+}
 
 #[derive(Parser, Debug)]
 #[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
@@ -25,12 +48,17 @@ struct Args {
     /// Output EXR file, or - for stdout.
     #[arg(short, long, value_name = "FILE.exr")]
     output: Option<PathBuf>,
-    /// Also write a tone-mapped sRGB PNG here.
+    /// Also write an 8-bit sRGB PNG preview here (RGB, over the background; no alpha).
     #[arg(long, value_name = "FILE.png")]
     preview: Option<PathBuf>,
-    /// Preview exposure in stops.
+    /// Preview exposure in stops: the scene values are multiplied by 2^EV before the view
+    /// transform, as Blender's Exposure (the EXR is not changed).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f32,
+    /// The preview's view transform, as Blender's colour management shows an image on an
+    /// sRGB display (the EXR stays linear, scene-referred, and does not record it).
+    #[arg(long, value_enum, default_value_t = View::Agx)]
+    view: View,
     /// Add the layers single, multiple, transmittance and depth to the EXR.
     #[arg(long)]
     aovs: bool,
@@ -110,7 +138,7 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     let exr = image.to_exr().map_err(|e| Failure::runtime(e, output.name()))?;
     log.stage("write", || output.write(&exr), |_| String::new())?;
     if let Some(png_path) = &args.preview {
-        let png = image.to_png(args.exposure).map_err(|e| Failure::runtime(e, png_path.display()))?;
+        let png = image.to_png(args.exposure, args.view.into()).map_err(|e| Failure::runtime(e, png_path.display()))?;
         Output::Path(png_path.clone()).write(&png)?;
     }
     log.finish();

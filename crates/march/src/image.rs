@@ -1,12 +1,12 @@
-//! The rendered image and its files: RGBA float32 EXR with optional diagnostic layers, and a
-//! tone-mapped sRGB PNG preview.
+//! The rendered image and its files: RGBA float32 EXR with optional diagnostic layers, and an
+//! 8-bit PNG preview through a view transform (AgX, Filmic or Standard; `view.rs`).
 
 use std::io::Cursor;
 
 use exr::prelude::{AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes, Vec2, WritableImage};
 use glam::{Vec3, Vec4};
 
-use crate::RayResult;
+use crate::{RayResult, ViewTransform};
 
 /// A rendered image: premultiplied RGBA per pixel (A = 1 - transmittance), top row first,
 /// plus the diagnostic layers when asked for.
@@ -100,17 +100,12 @@ impl Image {
         Ok(bytes.into_inner())
     }
 
-    /// An 8-bit sRGB PNG of the image over black, scaled by 2^exposure and tone-mapped by a
-    /// simple Reinhard curve so highlights roll off instead of clipping.
-    pub fn to_png(&self, exposure: f32) -> Result<Vec<u8>, ImageError> {
-        let scale = exposure.exp2();
-        let encode = |c: f32| {
-            let v = c * scale;
-            let v = if v.is_finite() { (v / (1.0 + v)).clamp(0.0, 1.0) } else { 0.0 };
-            let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
-            (s * 255.0 + 0.5) as u8
-        };
-        let data: Vec<u8> = self.rgba.iter().flat_map(|p| [encode(p.x), encode(p.y), encode(p.z)]).collect();
+    /// An 8-bit RGB PNG preview: the image's colour (already composited over the background,
+    /// so over black by default; no alpha channel) scaled by 2^exposure and shown through
+    /// `view` (Blender's view transforms, `view.rs`). The EXR stays scene-linear.
+    pub fn to_png(&self, exposure: f32, view: ViewTransform) -> Result<Vec<u8>, ImageError> {
+        let rgb: Vec<[f32; 3]> = self.rgba.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let data = view.encode_8bit(&rgb, exposure);
         let mut out = Vec::new();
         {
             let mut encoder = png::Encoder::new(&mut out, self.width, self.height);

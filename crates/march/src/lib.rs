@@ -69,10 +69,12 @@ mod layout;
 mod reference;
 mod samples;
 mod simd;
+mod view;
 
 pub use cpu::{march_ray, render_cpu, RayResult};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
+pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};
 pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_gpu, ReferenceParams, REFERENCE_WGSL};
 

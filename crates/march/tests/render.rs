@@ -137,7 +137,7 @@ fn exr_and_png_encode() {
     let image = render_cpu(&v, &cache, &params(camera, VOXEL)).unwrap();
     let exr = image.to_exr().unwrap();
     assert_eq!(&exr[..4], &[0x76, 0x2f, 0x31, 0x01], "EXR magic number");
-    let png = image.to_png(0.0).unwrap();
+    let png = image.to_png(0.0, nimbus_march::ViewTransform::Agx).unwrap();
     assert_eq!(&png[1..4], b"PNG");
 }
 
