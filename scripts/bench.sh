@@ -21,6 +21,8 @@ run scripts/bench_cloud1.sh out/bench/cloud1
 # out/bench/pareto.csv and out/bench/pareto.png.
 rel=${CARGO_TARGET_DIR:-target}/release
 run "$rel/nimbus-bench" --bin "$rel"
+# Single scattering at the defaults against a brute-force single-scatter march.
+run scripts/bench_single.sh
 # Peers side by side (issue #7), where Mitsuba 3 is installed (scripts/peers/README.md):
 # Mitsuba and `vdbmarch --reference` over an spp ladder, scored against the cached reference,
 # to out/bench/SCENE/peers.csv. The plume only by default: Mitsuba's scalar variant (the only

@@ -172,7 +172,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     }
     if params.multiple && args.paths.is_none() && params.estimator != MultipleEstimator::Photons && !photons.is_empty() {
         log.note(format!(
-            "the input's {} photons are not used: paths from the cache voxels reach the same error in a fraction of the photon gather's time (README, make bench); --gather-neighbours gathers them",
+            "the input's {} photons are not used: paths from the cache voxels reach 2% in less time than a photon gather (bundled plume 5 against 17 CPU s; the cloud's photons stay at 3.3% at 12.8M; docs/benchmarks.md); --gather-neighbours K gathers them",
             photons.len()
         ));
     }

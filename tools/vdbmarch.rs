@@ -85,7 +85,8 @@ struct Args {
     step: Option<f64>,
     /// Most the step is lengthened where the density is optically thin (1 = a fixed step):
     /// in each majorant cell, by the largest whole factor keeping a step's optical depth at
-    /// the cell's density bound within 1/4 (default 2).
+    /// the cell's density bound within 1/4 (default 1: longer steps sample the cache's
+    /// shadow edges too sparsely; 2 saves 15% of the march).
     #[arg(long)]
     max_step_factor: Option<u32>,
     /// Samples per pixel, stratified (default: enough for a pixel's samples to lie half a

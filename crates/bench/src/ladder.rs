@@ -155,8 +155,9 @@ fn children_cpu_s() -> f64 {
     let rest = stat.rsplit_once(')').map_or("", |r| r.1);
     let fields: Vec<&str> = rest.split_whitespace().collect();
     let tick = |i: usize| fields.get(i).and_then(|f| f.parse::<f64>().ok()).unwrap_or(0.0);
-    // cutime and cstime are fields 16 and 17 of stat(5), 14 and 15 after the name.
-    (tick(14) + tick(15)) / 100.0
+    // cutime and cstime are fields 16 and 17 of stat(5); the first field after the name is
+    // the state, field 3, so they are the 14th and 15th after it (indices 13 and 14).
+    (tick(13) + tick(14)) / 100.0
 }
 
 /// Runs a tool, returning its wall-clock and CPU seconds; its stderr goes to `log`.
