@@ -7,6 +7,7 @@
 #   2. the photon chain:   vdbphoton smoke.vdb | vdbcache --gather-neighbours 64 | vdbmarch
 #   3. each tool once more with -v: the per-stage times, and vdbphoton's photons emitted
 #      against stored.
+# "others s": CPU seconds other processes took during a row's runs (from /proc/stat).
 # The file is Blender 3.4's Mantaflow bake of a Quick Smoke-like plume
 # (scripts/blender/make_smoke.py): made into WORKDIR when it is missing and blender is on
 # PATH; without blender the script says so and exits 0 (nothing in the tests needs Blender).
@@ -49,10 +50,15 @@ cd "$work"
 
 median() { sort -g | awk '{a[NR]=$1} END {print (NR % 2) ? a[(NR + 1) / 2] : (a[NR / 2] + a[NR / 2 + 1]) / 2}'; }
 load() { cut -d' ' -f1 /proc/loadavg; }
+# Busy CPU seconds of the whole machine so far (/proc/stat, USER_HZ 100): a row's delta less
+# its own CPU seconds is what other work took meanwhile (0 on a quiet machine; the load
+# average lags by a minute, this does not).
+busy() { awk '/^cpu / {printf "%.2f\n", ($2 + $3 + $4 + $7 + $8 + $9) / 100}' /proc/stat; }
 # One row: label, then a shell command line run RUNS times (stdout and stderr to run.log;
 # a failing run prints its last lines and stops the script).
 row() {
-    local label=$1 cmd=$2 walls=() cpus=() loads=() i
+    local label=$1 cmd=$2 walls=() cpus=() loads=() i b0 ours=0
+    b0=$(busy)
     for ((i = 0; i < runs; i++)); do
         loads+=("$(load)")
         if ! /usr/bin/time -f "%e %U %S" -o time.txt bash -c "set -o pipefail; $cmd" >run.log 2>&1; then
@@ -63,15 +69,17 @@ row() {
         read -r w u s <time.txt
         walls+=("$w")
         cpus+=("$(awk -v u="$u" -v s="$s" 'BEGIN {print u + s}')")
+        ours=$(awk -v a="$ours" -v b="${cpus[-1]}" 'BEGIN {print a + b}')
     done
-    printf "%-44s %8s %8s   %s\n" "$label" \
+    printf "%-44s %8s %8s %8s   %s\n" "$label" \
         "$(printf '%s\n' "${walls[@]}" | median)" "$(printf '%s\n' "${cpus[@]}" | median)" \
+        "$(awk -v b="$(busy)" -v b0="$b0" -v o="$ours" 'BEGIN {d = b - b0 - o; printf "%.1f", d < 0 ? 0 : d}')" \
         "${loads[*]}"
 }
 
 export PATH="$bin:$PATH"
 echo "== $work/smoke.vdb: median of $runs, $(nproc) cores; tools $bin ($(date -r "$bin/vdbcache" '+%F %T'))"
-printf "%-44s %8s %8s   %s\n" "command" "wall s" "cpu s" "load (1 min) at each run"
+printf "%-44s %8s %8s %8s   %s\n" "command" "wall s" "cpu s" "others s" "load (1 min) at each run"
 row "vdbcache smoke.vdb -o c.vdb" "vdbcache smoke.vdb -o c.vdb"
 row "vdbmarch c.vdb -o s.exr --preview s.png" "vdbmarch c.vdb -o s.exr --preview s.png"
 row "default chain, piped" "vdbcache smoke.vdb | vdbmarch -o s.exr --preview s.png"
