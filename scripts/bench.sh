@@ -17,6 +17,8 @@ run scripts/bench-scenes.sh
 run cargo bench --locked -p nimbus-march --bench scenes
 # The Cloud1-class chain at its defaults, stage by stage, beside the paper's Table 4.
 run scripts/bench_cloud1.sh out/bench/cloud1
+# A Blender Mantaflow smoke file through the chain (where Blender is installed).
+run scripts/bench_blender_smoke.sh out/bench/blender
 # Run time against error for the whole chain, against the path-traced reference:
 # out/bench/pareto.csv and out/bench/pareto.png.
 rel=${CARGO_TARGET_DIR:-target}/release
