@@ -16,7 +16,7 @@ mod majorant;
 mod transform;
 mod volume;
 
-pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk, MAX_CELL_OPTICAL_DEPTH};
+pub use majorant::{MajorantGrid, MajorantSegment, MajorantWalk, MAX_CELL_OPTICAL_DEPTH, TRACKING_CELL_LOG2};
 pub use transform::Transform;
 pub use volume::{brick_local, brick_offset, brick_origin, lattice_cell, trilinear, BrickMask, BrickRef, Volume, BRICK_DIM, BRICK_LOG2, BRICK_VOXELS};
 

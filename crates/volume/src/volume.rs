@@ -44,11 +44,22 @@ pub fn brick_origin(ijk: IVec3) -> IVec3 {
 /// the i32 lattice.
 #[inline]
 pub fn lattice_cell(p: DVec3) -> Option<(IVec3, DVec3)> {
-    let base = p.floor();
-    if !base.is_finite() || base.abs().max_element() > (i32::MAX - 1) as f64 {
-        return None;
+    // Truncation and a correction rather than f64::floor, which on baseline x86-64 (no
+    // SSE4.1) is a libm call: 4% of a path's time in vdbcache, three per density lookup.
+    let limit = (i32::MAX - 1) as f64;
+    if !(p.x.abs() < limit && p.y.abs() < limit && p.z.abs() < limit) {
+        return None; // NaN fails the comparisons too
     }
-    Some((base.as_ivec3(), p - base))
+    let floor = |x: f64| {
+        let i = x as i32;
+        if (i as f64) > x {
+            i - 1
+        } else {
+            i
+        }
+    };
+    let base = IVec3::new(floor(p.x), floor(p.y), floor(p.z));
+    Some((base, p - base.as_dvec3()))
 }
 
 /// The trilinear interpolation of a cell's corners (in [`Volume::corners`]' order) at the

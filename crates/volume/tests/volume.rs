@@ -448,8 +448,8 @@ fn dilated_grid_bounds_displaced_samples() {
     }
 }
 
-/// Tracking keeps brick cells on ordinary media and refines them, down to one voxel, where a
-/// brick at the peak would span more than MAX_CELL_OPTICAL_DEPTH mean free paths.
+/// Tracking keeps four-voxel cells on ordinary media and refines them, down to one voxel,
+/// where a cell at the peak would span more than MAX_CELL_OPTICAL_DEPTH mean free paths.
 #[test]
 fn tracking_cells_follow_the_optical_depth() {
     let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
@@ -460,11 +460,11 @@ fn tracking_cells_follow_the_optical_depth() {
             }
         }
     }
-    // 8 voxels of 0.1 at sigma_t 1: 0.8 mean free paths per brick.
-    assert_eq!(MajorantGrid::for_tracking(&v, 1.0).cell_size(), 8);
-    assert_eq!(MajorantGrid::for_tracking(&v, 0.0).cell_size(), 8);
-    // 8 voxels at sigma_t 160: 128 mean free paths; 4 voxels: 64, within the limit.
-    assert_eq!(MajorantGrid::for_tracking(&v, 160.0).cell_size(), 4);
+    // 4 voxels of 0.1 at sigma_t 1: 0.4 mean free paths per cell.
+    assert_eq!(MajorantGrid::for_tracking(&v, 1.0).cell_size(), 4);
+    assert_eq!(MajorantGrid::for_tracking(&v, 0.0).cell_size(), 4);
+    // 4 voxels at sigma_t 320: 128 mean free paths; 2 voxels: 64, within the limit.
+    assert_eq!(MajorantGrid::for_tracking(&v, 320.0).cell_size(), 2);
     // Density 1e9: one-voxel cells, and the brick's empty corner is empty space.
     let m = MajorantGrid::for_tracking(&v, 1e9);
     assert_eq!(m.cell_size(), 1);
