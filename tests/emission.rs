@@ -76,6 +76,16 @@ fn rgba(exr: &[u8]) -> Vec<[f32; 4]> {
     image.layer_data.channel_data.pixels.1
 }
 
+/// A text attribute of an EXR's header.
+fn exr_attribute(exr: &[u8], key: &str) -> Option<String> {
+    use exr::meta::attribute::{AttributeValue, Text};
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(exr), false).expect("an EXR header");
+    match meta.headers[0].own_attributes.other.get(&Text::from(key))? {
+        AttributeValue::Text(t) => Some(t.to_string()),
+        _ => None,
+    }
+}
+
 /// The worst relative error of the pixels' RGB against `expect`.
 fn worst(pixels: &[[f32; 4]], expect: [f64; 3]) -> f64 {
     pixels.iter().flat_map(|p| (0..3).map(move |k| ((p[k] as f64 - expect[k]) / expect[k]).abs())).fold(0.0, f64::max)
@@ -103,6 +113,8 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
     assert!(err < 5e-3, "march: {err}");
     let log = String::from_utf8_lossy(&march.stderr);
     assert!(log.contains("emission: grid=glow,strength=2,color=1,0.5,0.25"), "{log}");
+    // The EXR records it, as the chain records its parameters.
+    assert_eq!(exr_attribute(&march.stdout, "nimbus:emission").as_deref(), Some("grid=glow,strength=2,color=1,0.5,0.25"));
 
     // The reference path tracer: 36 pixels x 1024 paths, each first collision adding
     // S c / sigma with probability 0.909: the mean's relative standard deviation 0.16%.
@@ -154,7 +166,9 @@ fn fire_grids_are_recognised_and_no_emission_turns_them_off() {
     assert!((lum / expect - 1.0).abs() < 0.01, "{lum} vs {expect}");
     assert!(p[0] > p[1] && p[1] > p[2], "a 2000 K blackbody is orange: {p:?}");
 
+    assert_eq!(exr_attribute(&fire.stdout, "nimbus:emission").as_deref(), Some("temperature=temperature,scale=1000,blackbody=1"));
     let off = ok("vdbmarch", &["--no-emission", "--device", "cpu"], &cache);
+    assert_eq!(exr_attribute(&off.stdout, "nimbus:emission").as_deref(), Some("none"));
     assert!(rgba(&off.stdout).iter().all(|p| p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0));
 
     // Houdini's or Blender's flame without a temperature grid: the emission grid term.

@@ -282,7 +282,10 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     }
     let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
     let (_, density) = read_density(&file, args.grid.as_deref())?;
-    let image = if args.reference { reference(&args, &file, &density, &log)? } else { march(&args, &file, &density, &log)? };
+    let (mut image, emission) = if args.reference { reference(&args, &file, &density, &log)? } else { march(&args, &file, &density, &log)? };
+    // What emission the image holds, as the pipeline records its parameters (design.md
+    // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
+    image.metadata.push(("nimbus:emission".into(), emission.as_ref().map_or("none".into(), |e| e.params.describe())));
     if image.nonfinite > 0 {
         log.warn(format!("{} pixels came out non-finite and were set to zero", image.nonfinite));
     }
@@ -304,7 +307,7 @@ fn march_failure(e: MarchError, what: &str) -> Failure {
 }
 
 /// The path-traced ground truth: medium, lights and camera from flags, else the file.
-fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<Image, Failure> {
+fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
     let meta = PipelineMeta::of(file);
     let march_only = [
         (args.step.is_some(), "--step"),
@@ -345,11 +348,11 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     );
     bar.finish();
-    image.map_err(|e| march_failure(e, "reference path tracer"))
+    Ok((image.map_err(|e| march_failure(e, "reference path tracer"))?, emission))
 }
 
 /// The marched image from the illumination cache.
-fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<Image, Failure> {
+fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
     if args.lights.given().is_some() {
         log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
     }
@@ -380,7 +383,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     let cpu_only = emission_device(args, &emission, log)?;
     let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
     let field = emission.as_ref().map(EmissionGrids::field);
-    log.stage(
+    let image = log.stage(
         "march",
         || match device.as_ref().and_then(|d| d.gpu()) {
             Some(ctx) => render_gpu(ctx, density, &cache, &params),
@@ -389,5 +392,6 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     )
-    .map_err(|e| march_failure(e, "GPU ray marcher"))
+    .map_err(|e| march_failure(e, "GPU ray marcher"));
+    Ok((image?, emission))
 }

@@ -19,6 +19,8 @@ pub struct Image {
     pub aovs: Option<Aovs>,
     /// Pixels that came out non-finite and were written as zero.
     pub nonfinite: u64,
+    /// Text attributes for the EXR header (`nimbus:` keys, e.g. `nimbus:emission`).
+    pub metadata: Vec<(String, String)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -68,7 +70,7 @@ impl Image {
             depth: rays.iter().map(|r| if r.depth.is_finite() { r.depth } else { 0.0 }).collect(),
             emission: rays.iter().map(|r| finite3(r.emission)).collect(),
         });
-        Image { width, height, rgba, aovs, nonfinite }
+        Image { width, height, rgba, aovs, nonfinite, metadata: Vec::new() }
     }
 
     /// The EXR file: one part, float32 channels R, G, B, A, and with the diagnostic layers
@@ -94,9 +96,13 @@ impl Image {
             channels.push(channel("transmittance.Y", a.transmittance.clone()));
             channels.push(channel("depth.Z", a.depth.clone()));
         }
+        let mut attributes = LayerAttributes::named("");
+        for (key, value) in &self.metadata {
+            attributes.other.insert(exr::meta::attribute::Text::from(key.as_str()), exr::meta::attribute::AttributeValue::Text(exr::meta::attribute::Text::from(value.as_str())));
+        }
         let layer = Layer::new(
             size,
-            LayerAttributes::named(""),
+            attributes,
             Encoding::SMALL_LOSSLESS,
             AnyChannels::sort(channels.into()),
         );
