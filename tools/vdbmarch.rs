@@ -381,6 +381,9 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     };
     params.validate().map_err(Failure::usage)?;
     let cpu_only = emission_device(args, &emission, log)?;
+    if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
+        log.verbose("emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (vdbcache does not trace emission yet; --reference includes it)");
+    }
     let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
