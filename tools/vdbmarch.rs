@@ -208,13 +208,6 @@ fn resolve_emission(args: &EmissionArgs, file: &VdbFile, log: &Log) -> Result<Op
             params.blackbody_intensity = args.blackbody_intensity.unwrap_or(1.0);
         }
     } else {
-        for given in [(args.emission_strength.is_some(), "--emission-strength"), (args.emission_color.is_some(), "--emission-color"),
-            (args.temperature_scale.is_some(), "--temperature-scale"), (args.blackbody_intensity.is_some(), "--blackbody-intensity")]
-        {
-            if given.0 {
-                log.warn(format!("{} applies to the recognised fire grids only, or with --emission-grid/--temperature-grid", given.1));
-            }
-        }
         if let Some((v, max)) = grid_max(file, "temperature")? {
             let kelvin = max >= KELVIN_LIKE_MIN;
             params.temperature_grid = Some("temperature".into());
@@ -246,6 +239,15 @@ fn resolve_emission(args: &EmissionArgs, file: &VdbFile, log: &Log) -> Result<Op
     }
     params.validate().map_err(Failure::usage)?;
     if !params.is_active() {
+        let given = [
+            (args.emission_strength.is_some(), "--emission-strength"),
+            (args.emission_color.is_some(), "--emission-color"),
+            (args.temperature_scale.is_some(), "--temperature-scale"),
+            (args.blackbody_intensity.is_some(), "--blackbody-intensity"),
+        ];
+        for (_, flag) in given.iter().filter(|(g, _)| *g) {
+            log.warn(format!("{flag} changes nothing: no emission (no fire grid recognised; name one with --emission-grid or --temperature-grid)"));
+        }
         return Ok(None);
     }
     if explicit {
