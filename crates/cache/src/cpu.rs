@@ -170,7 +170,7 @@ pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light
         // At the eye itself there is no camera ray; any axis serves.
         let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
         let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
-        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng).total();
+        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng, None).total();
     }
     sum / paths.max(1) as f32
 }

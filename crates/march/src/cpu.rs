@@ -14,6 +14,7 @@ use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
 use crate::{assemble, Groups, Image, MarchError, MarchParams, GROUP_DOMAIN};
+use nimbus_tracking::EmissionField;
 
 /// Random-number domain of camera samples.
 pub(crate) const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
@@ -26,6 +27,8 @@ pub struct RayResult {
     pub transmittance: f32,
     /// Distance to the first sample where opacity passed 1%, or infinity.
     pub depth: f32,
+    /// The medium's own emission, attenuated (issue #19).
+    pub emission: Vec3,
 }
 
 /// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
@@ -40,6 +43,26 @@ pub fn march_ray(
     dir: DVec3,
     xi: f64,
     u: f64,
+) -> RayResult {
+    march_ray_emitting(density, majorant, cache, params, origin, dir, xi, u, None)
+}
+
+/// [`march_ray`] with the medium's emission: each sample adds `T e(x) (1 - exp(-sigma_t dt))
+/// / sigma_t`, the exact integral of `T(t) e` over its step for e and sigma_t constant over
+/// it (`T e dt` where sigma_t is 0 would be the limit, but nothing emits there: the medium
+/// carries the emission, [`EmissionField`]). Emitted radiance is per unit length: no albedo,
+/// no sigma_s.
+#[allow(clippy::too_many_arguments)]
+pub fn march_ray_emitting(
+    density: &Volume<f32>,
+    majorant: &MajorantGrid,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    origin: DVec3,
+    dir: DVec3,
+    xi: f64,
+    u: f64,
+    emission: Option<&EmissionField>,
 ) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
@@ -58,7 +81,12 @@ pub fn march_ray(
             continue;
         }
         let step_transmittance = (-sigma_t * step).exp();
-        let weight = (tr * (1.0 - step_transmittance)) as f32;
+        // 1 - exp(-tau) without cancellation in thin media.
+        let absorbed = -(-sigma_t * step).exp_m1();
+        let weight = (tr * absorbed) as f32;
+        if let Some(e) = emission {
+            r.emission += e.at(x) * (tr * absorbed / sigma_t) as f32;
+        }
         if let Some(li) = &cache.li_single {
             r.single += weight * albedo * li.sample_world(x);
         }
@@ -149,6 +177,34 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
         }
     };
     Ok(assemble(params, &pixels))
+}
+
+/// [`render_cpu`] with the medium's emission: [`march_ray_emitting`] per sample over the
+/// sparse volumes (the plain march; the layout's fused march does not carry emission yet).
+/// Without emission it is [`render_cpu`].
+pub fn render_cpu_emitting(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, emission: Option<&EmissionField>) -> Result<Image, MarchError> {
+    let Some(emission) = emission.filter(|e| e.params.is_active()) else {
+        return render_cpu(density, cache, params);
+    };
+    params.validate()?;
+    let majorant = march_majorant(density, params);
+    let pixels = render_tiles(params, &Emitting { density, majorant: &majorant, cache, params, emission });
+    Ok(assemble(params, &pixels))
+}
+
+/// [`march_ray_emitting`] per sample.
+struct Emitting<'a> {
+    density: &'a Volume<f32>,
+    majorant: &'a MajorantGrid,
+    cache: &'a IlluminationCache,
+    params: &'a MarchParams,
+    emission: &'a EmissionField<'a>,
+}
+
+impl Marcher for Emitting<'_> {
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+        march_ray_emitting(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, Some(self.emission))
+    }
 }
 
 /// [`march_ray`] itself over the image, where the layout does not apply.
@@ -249,12 +305,18 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                     let r = march.march(arith, origin, dir, xi, u);
                     sum.single += r.single;
                     sum.multiple += r.multiple;
+                    sum.emission += r.emission;
                     sum.transmittance += r.transmittance;
                     depth = depth.min(r.depth);
                 }
                 let inv = 1.0 / spp as f32;
-                rows[y * w + x] =
-                    RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth };
+                rows[y * w + x] = RayResult {
+                    single: sum.single * inv,
+                    multiple: sum.multiple * inv,
+                    transmittance: sum.transmittance * inv,
+                    depth,
+                    emission: sum.emission * inv,
+                };
             }
         }
     }
@@ -470,10 +532,10 @@ impl<T: DensityPoint> MarchVolume<T> {
 mod scenes;
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::scenes::{cache_for, cache_on_density_lattice, camera, cloud, params};
     use super::*;
-    use nimbus_optics::Medium;
+    use nimbus_optics::{Emission, Medium};
 
     /// The march over the layout against `march_ray` on the same rays and lattices: the
     /// worst relative difference of the colour, single and multiple over lit pixels (as
@@ -540,6 +602,54 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A uniform slab of unit density, 8 voxels of 0.1 thick along z (voxels z = 0..=7; the
+    /// trilinear ramps at its faces make its density integral exactly 8 voxels), wide in x
+    /// and y, with an emission grid of the same shape, seen face-on from above through a
+    /// narrow lens; and the closed form `S c / sigma_a (1 - exp(-sigma_a d))`, d = 0.8.
+    pub(crate) fn emitting_slab() -> (Volume<f32>, Emission, Vec3) {
+        let slab = super::scenes::filled(0.1, glam::IVec3::new(-24, -24, 0), glam::IVec3::new(24, 24, 7), |_| true);
+        let emission = Emission { grid: Some("flame".into()), strength: 2.0, color: Vec3::new(1.0, 0.5, 0.25), ..Emission::default() };
+        let sigma = 3.0f64;
+        let expect = Vec3::new(1.0, 0.5, 0.25) * (2.0 / sigma * (1.0 - (-sigma * 0.8).exp())) as f32;
+        (slab, emission, expect)
+    }
+
+    pub(crate) fn slab_camera() -> nimbus_optics::Camera {
+        nimbus_optics::Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::new(0.0, 0.0, 0.35), DVec3::Y, 2.0, 6, 6).unwrap()
+    }
+
+    #[test]
+    fn an_emitting_absorbing_slab_marches_to_its_closed_form() {
+        let (slab, emission, expect) = emitting_slab();
+        let field = EmissionField { grid: Some(&slab), temperature: None, params: &emission };
+        let medium = Medium { extinction: 3.0, albedo: Vec3::ZERO, g: 0.0 };
+        let cache = IlluminationCache::default();
+        for (step, spp) in [(0.5, 1), (1.0 / 3.0, 4), (1.0, 4)] {
+            let p = MarchParams { medium, step: step * 0.1, spp, background: Vec3::ZERO, ..params(slab_camera()) };
+            let image = render_cpu_emitting(&slab, &cache, &p, Some(&field)).unwrap();
+            let worst = image.rgba.iter().map(|c| ((c.truncate() - expect) / expect).abs().max_element()).fold(0.0, f32::max);
+            let alpha = 1.0 - (-3.0f32 * 0.8).exp();
+            let alpha_err = image.rgba.iter().map(|c| (c.w - alpha).abs()).fold(0.0, f32::max);
+            eprintln!("slab, step {step:.3} voxel, {spp} spp: worst relative error {worst:.2e}, alpha {alpha_err:.2e}");
+            // The march's emission telescopes to (S c / sigma)(1 - T_march) here (e / sigma_t
+            // is constant where the slab is), so its error is the march's transmittance
+            // error, from sampling the faces' one-voxel ramps on the step lattice.
+            // Measured 5e-5 at every step: the oblique rays of the 2-degree lens (up to 0.8
+            // degrees off the axis cross 1e-4 more slab) dominate what the ramps leave.
+            assert!(worst < 5e-4, "step {step}: {worst}");
+            // The colour sums to the emission layer, nothing scattered.
+            let aovs = image.aovs.as_ref().unwrap();
+            assert!(aovs.single.iter().chain(&aovs.multiple).all(|v| *v == Vec3::ZERO));
+        }
+        // One ray through march_ray_emitting itself, and without emission nothing.
+        let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
+        let majorant = march_majorant(&slab, &p);
+        let r = march_ray_emitting(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field));
+        assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
+        let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);
+        assert_eq!(r.emission, Vec3::ZERO);
     }
 
     #[test]

@@ -291,6 +291,7 @@ impl PixelTiles<'_> {
                 multiple: Vec3::from(p.multiple),
                 transmittance: p.transmittance,
                 depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
+                emission: Vec3::ZERO,
             }));
             progress(count);
             first += count;

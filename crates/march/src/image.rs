@@ -19,6 +19,8 @@ pub struct Image {
     pub aovs: Option<Aovs>,
     /// Pixels that came out non-finite and were written as zero.
     pub nonfinite: u64,
+    /// Text attributes for the EXR header (`nimbus:` keys, e.g. `nimbus:emission`).
+    pub metadata: Vec<(String, String)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -27,6 +29,9 @@ pub struct Aovs {
     pub multiple: Vec<Vec3>,
     pub transmittance: Vec<f32>,
     pub depth: Vec<f32>,
+    /// The medium's own emission (RGB), written as the `emission` layer where any pixel
+    /// has some.
+    pub emission: Vec<Vec3>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -45,7 +50,7 @@ impl Image {
         let rgba = rays
             .iter()
             .map(|r| {
-                let c = r.single + r.multiple + background * r.transmittance;
+                let c = r.single + r.multiple + r.emission + background * r.transmittance;
                 let p = Vec4::new(c.x, c.y, c.z, 1.0 - r.transmittance);
                 if p.is_finite() {
                     p
@@ -63,8 +68,9 @@ impl Image {
             // No opaque sample: the depth layer holds +inf would be "non-finite"; 0 is what
             // compositors treat as "nothing here" for Z.
             depth: rays.iter().map(|r| if r.depth.is_finite() { r.depth } else { 0.0 }).collect(),
+            emission: rays.iter().map(|r| finite3(r.emission)).collect(),
         });
-        Image { width, height, rgba, aovs, nonfinite }
+        Image { width, height, rgba, aovs, nonfinite, metadata: Vec::new() }
     }
 
     /// The EXR file: one part, float32 channels R, G, B, A, and with the diagnostic layers
@@ -80,7 +86,9 @@ impl Image {
             channel("A", self.rgba.iter().map(|p| p.w).collect()),
         ];
         if let Some(a) = &self.aovs {
-            for (layer, values) in [("single", &a.single), ("multiple", &a.multiple)] {
+            let emits = a.emission.iter().any(|e| *e != Vec3::ZERO);
+            let layers = [("single", &a.single), ("multiple", &a.multiple), ("emission", &a.emission)];
+            for (layer, values) in layers.into_iter().filter(|(name, _)| emits || *name != "emission") {
                 channels.push(channel(&format!("{layer}.R"), values.iter().map(|v| v.x).collect()));
                 channels.push(channel(&format!("{layer}.G"), values.iter().map(|v| v.y).collect()));
                 channels.push(channel(&format!("{layer}.B"), values.iter().map(|v| v.z).collect()));
@@ -88,9 +96,13 @@ impl Image {
             channels.push(channel("transmittance.Y", a.transmittance.clone()));
             channels.push(channel("depth.Z", a.depth.clone()));
         }
+        let mut attributes = LayerAttributes::named("");
+        for (key, value) in &self.metadata {
+            attributes.other.insert(exr::meta::attribute::Text::from(key.as_str()), exr::meta::attribute::AttributeValue::Text(exr::meta::attribute::Text::from(value.as_str())));
+        }
         let layer = Layer::new(
             size,
-            LayerAttributes::named(""),
+            attributes,
             Encoding::SMALL_LOSSLESS,
             AnyChannels::sort(channels.into()),
         );

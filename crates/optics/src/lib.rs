@@ -24,6 +24,9 @@
 //!   sequence depends on nothing else, so results do not depend on threads or device.
 //!   [`Rng::next_f32`] is in [0,1), never 1.0.
 //!
+//! - **Emission** ([`Emission`], [`emission`]): radiance per unit length from an emission
+//!   grid and/or a blackbody temperature grid, with Cycles' Principled Volume meaning.
+//!
 //! - **Noise** ([`noise`]): seeded Perlin gradient noise and fBm, a pure function of
 //!   position and seed (density perturbation in particles2vdb, offset jitter in vdbmarch).
 //!
@@ -43,6 +46,7 @@
 //! f32 rounding (transcendentals differ by a few ulps between devices).
 
 mod camera;
+pub mod emission;
 mod gpu;
 mod light;
 mod medium;
@@ -52,6 +56,7 @@ mod phase;
 mod rng;
 mod sampling;
 
+pub use emission::{blackbody_rgb, Emission, EmissionError};
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
 pub use light::{format_lights, parse_lights, Incident, Light, LightError};

@@ -23,7 +23,9 @@
 //!   a shadow ray per point ([`LightDepths`] per light, [`Shadowing`] for the paths).
 //!
 //! On these, [`trace_path`] traces a volumetric path with next-event estimation: the
-//! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering.
+//! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering;
+//! with an [`EmissionField`] (the reference only, so far) also the medium's emission, by the
+//! collision estimator `beta e / sigma_t` at each real collision.
 //!
 //! The WGSL twin is `shaders/tracking.wgsl` ([`TRACKING_WGSL`], with [`GpuMajorantInfo`] and
 //! [`majorant_buffer`] for the host side), and `shaders/path.wgsl` ([`PATH_WGSL`]) that of
@@ -51,6 +53,26 @@ pub struct DensityMedium<'a> {
     pub density: &'a Volume<f32>,
     pub majorant: &'a MajorantGrid,
     pub extinction: f32,
+}
+
+/// Emission over the volume (issue #19; [`nimbus_optics::Emission`]): the emission and
+/// temperature grids, looked up trilinearly in their own index spaces, and what they mean.
+/// The medium carries it: only where the density is positive does anything emit (the march
+/// and the reference both count it there alone, so they agree).
+#[derive(Clone, Copy)]
+pub struct EmissionField<'a> {
+    pub grid: Option<&'a Volume<f32>>,
+    pub temperature: Option<&'a Volume<f32>>,
+    pub params: &'a nimbus_optics::Emission,
+}
+
+impl EmissionField<'_> {
+    /// The emitted radiance per unit length at world position `x`.
+    pub fn at(&self, x: DVec3) -> glam::Vec3 {
+        let g = if self.params.has_grid_term() { self.grid.map_or(0.0, |v| v.sample_world(x)) } else { 0.0 };
+        let t = if self.params.has_blackbody_term() { self.temperature.map_or(0.0, |v| v.sample_world(x)) } else { 0.0 };
+        self.params.emitted(g, t)
+    }
 }
 
 /// Where along a ray a free path ended.

@@ -5,7 +5,7 @@
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Light, Medium, Rng};
 
-use crate::{DensityMedium, FreePath, MediumRay, Shadowing};
+use crate::{DensityMedium, EmissionField, FreePath, MediumRay, Shadowing};
 
 /// Bounce from which Russian roulette may end a path.
 pub const ROULETTE_FROM_DEPTH: u32 = 3;
@@ -13,16 +13,18 @@ pub const ROULETTE_FROM_DEPTH: u32 = 3;
 pub const RATIO_ROULETTE: f64 = 0.05;
 
 /// One path's light, split by the collision it was scattered at: the first (`single`) and
-/// every later one (`multiple`).
+/// every later one (`multiple`), and the medium's own emission (`emission`, from every
+/// collision).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PathLight {
     pub single: Vec3,
     pub multiple: Vec3,
+    pub emission: Vec3,
 }
 
 impl PathLight {
     pub fn total(self) -> Vec3 {
-        self.single + self.multiple
+        self.single + self.multiple + self.emission
     }
 }
 
@@ -36,8 +38,27 @@ impl PathLight {
 ///
 /// Lights are suns and points (delta lights), so next-event estimation is the only way light
 /// enters a path and needs no MIS; paths that escape add nothing.
+///
+/// With `emission`, every real collision at x also adds `beta e(x) / sigma_t(x)` (beta the
+/// throughput before the collision's albedo), e the emitted radiance per unit length: the
+/// collision estimator of emission. Real collisions along a flight fall with density
+/// `T(t) sigma_t(x(t))`, so its expectation is `integral T e dt` over where sigma_t > 0,
+/// the emission integral of design.md's convention (pbrt-v4's VolPathIntegrator adds
+/// `beta sigma_a Le / sigma_maj` at every tentative collision instead, which reaches
+/// emission where sigma_t = 0 too; ours emits only where the medium is, so the two agree,
+/// and ours spends no lookups at null collisions).
 #[allow(clippy::too_many_arguments)]
-pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], shadowing: Shadowing, origin: DVec3, dir: DVec3, max_depth: u32, rng: &mut Rng) -> PathLight {
+pub fn trace_path(
+    medium: DensityMedium,
+    optics: &Medium,
+    lights: &[Light],
+    shadowing: Shadowing,
+    origin: DVec3,
+    dir: DVec3,
+    max_depth: u32,
+    rng: &mut Rng,
+    emission: Option<&EmissionField>,
+) -> PathLight {
     let phase = optics.phase();
     let mut light = PathLight::default();
     let (mut x, mut w) = (origin, dir);
@@ -47,6 +68,12 @@ pub fn trace_path(medium: DensityMedium, optics: &Medium, lights: &[Light], shad
             break;
         };
         x += w * t;
+        if let Some(e) = emission {
+            let sigma_t = medium.extinction as f64 * medium.density.sample_world(x).max(0.0) as f64;
+            if sigma_t > 0.0 {
+                light.emission += beta * e.at(x) * (1.0 / sigma_t) as f32;
+            }
+        }
         beta *= optics.albedo;
         let w_out = -w.as_vec3();
         let mut direct = Vec3::ZERO;
