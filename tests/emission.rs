@@ -2,8 +2,7 @@
 //! vdbmarch, piped as a user's shell pipes them, against its closed form; the fire grids'
 //! recognition and `--no-emission`.
 
-use std::io::Write;
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 
 use glam::{DVec3, IVec3};
 use nimbus_vdb::{GridClass, VdbFile, WriteOptions};
@@ -11,7 +10,7 @@ use nimbus_volume::{Transform, Volume};
 
 mod common;
 
-use common::bin;
+use common::pipe_output;
 
 /// Unit value on voxels of 0.1 at z = 0..=7 (a density integral of exactly 8 voxels, 0.8,
 /// through the trilinear face ramps), x and y in -24..=24.
@@ -42,38 +41,19 @@ const CAMERA: &[&str] = &["--eye", "0,0,3", "--look-at", "0,0,0.35", "--up", "0,
 /// Absorption only: albedo 0, extinction 3 (so sigma_a = 3).
 const MEDIUM: &[&str] = &["--extinction", "3", "--albedo", "0"];
 
-fn pipe(tool: &str, args: &[&str], input: &[u8]) -> Output {
-    let mut child = Command::new(bin(tool)).args(args).args(["-", "-o", "-"]).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    let mut stdin = child.stdin.take().unwrap();
-    let input = input.to_vec();
-    let writer = std::thread::spawn(move || stdin.write_all(&input));
-    let out = child.wait_with_output().unwrap();
-    writer.join().unwrap().unwrap();
-    out
-}
-
 fn ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
-    let out = pipe(tool, args, input);
+    let out = pipe_output(tool, args, input);
     assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
     out
 }
 
 /// An EXR's RGBA pixels, read with the exr crate from a scratch file.
 fn rgba(exr: &[u8]) -> Vec<[f32; 4]> {
-    use exr::prelude::read_first_rgba_layer_from_file;
     use std::sync::atomic::{AtomicUsize, Ordering};
     static N: AtomicUsize = AtomicUsize::new(0);
     let path = common::scratch("emission", "exr").join(format!("{}.exr", N.fetch_add(1, Ordering::Relaxed)));
     std::fs::write(&path, exr).unwrap();
-    let image = read_first_rgba_layer_from_file(
-        &path,
-        |size, _| (size.width(), vec![[0.0f32; 4]; size.width() * size.height()]),
-        |(width, pixels): &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
-            pixels[pos.y() * *width + pos.x()] = [r, g, b, a];
-        },
-    )
-    .expect("a readable EXR");
-    image.layer_data.channel_data.pixels.1
+    common::read_rgba(&path)
 }
 
 /// A text attribute of an EXR's header.
@@ -127,7 +107,7 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
     assert!(rel < 0.01, "reference: {rel}");
 
     // The GPU backends have no emission yet: an explicit --device gpu is refused, exit 2.
-    let gpu = pipe("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
+    let gpu = pipe_output("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
     assert_eq!(gpu.status.code(), Some(2), "{}", String::from_utf8_lossy(&gpu.stderr));
     assert!(String::from_utf8_lossy(&gpu.stderr).starts_with("error: emission is not built for the GPU"));
 }

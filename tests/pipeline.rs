@@ -1,13 +1,12 @@
 //! End-to-end: the four tools chained as a user's shell chains them, through pipes and
 //! through files, with the files checked by independent readers.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Output};
 
 mod common;
 
-use common::bin;
+use common::{bin, pipe_output, read_rgba};
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("e2e", name)
@@ -40,20 +39,6 @@ const PHOTON: &[&str] = &["--photons", "4000", "--extinction", "6", "--seed", "5
 const CACHE: &[&str] = &["--width", "48", "--height", "32", "--gather-neighbours", "16"];
 const MARCH: &[&str] = &["--spp", "2"];
 
-/// An EXR's RGBA pixels, read with the exr crate (independent of how vdbmarch wrote them).
-fn read_rgba(path: &Path) -> Vec<[f32; 4]> {
-    use exr::prelude::read_first_rgba_layer_from_file;
-    let image = read_first_rgba_layer_from_file(
-        path,
-        |size, _| (size.width(), vec![[0.0f32; 4]; size.width() * size.height()]),
-        |(width, pixels): &mut (usize, Vec<[f32; 4]>), pos, (r, g, b, a): (f32, f32, f32, f32)| {
-            pixels[pos.y() * *width + pos.x()] = [r, g, b, a];
-        },
-    )
-    .expect("a readable EXR");
-    image.layer_data.channel_data.pixels.1
-}
-
 fn run(cmd: &mut Command) -> Output {
     let out = cmd.output().expect("tool runs");
     assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -61,12 +46,7 @@ fn run(cmd: &mut Command) -> Output {
 }
 
 fn pipe(tool: &str, args: &[&str], input: &[u8]) -> Vec<u8> {
-    let mut child = Command::new(bin(tool)).args(args).args(["-", "-o", "-"]).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    let mut stdin = child.stdin.take().unwrap();
-    let input = input.to_vec();
-    let writer = std::thread::spawn(move || stdin.write_all(&input));
-    let out = child.wait_with_output().unwrap();
-    writer.join().unwrap().unwrap();
+    let out = pipe_output(tool, args, input);
     assert!(out.status.success(), "{tool} failed: {}", String::from_utf8_lossy(&out.stderr));
     out.stdout
 }
