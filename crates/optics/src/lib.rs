@@ -47,6 +47,7 @@
 
 mod camera;
 pub mod emission;
+mod environment;
 mod gpu;
 mod light;
 mod medium;
@@ -57,6 +58,7 @@ mod rng;
 mod sampling;
 
 pub use emission::{blackbody_rgb, Emission, EmissionError};
+pub use environment::{power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample};
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
 pub use light::{format_lights, parse_lights, Incident, Light, LightError};
