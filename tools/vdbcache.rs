@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_cli::{
-    read_density, read_vdb, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
+    environment_needs_cpu, read_density, read_vdb, run, CameraArgs, EnvironmentArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
 };
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
@@ -26,6 +26,8 @@ struct Args {
     medium: MediumArgs,
     #[command(flatten)]
     lights: LightArgs,
+    #[command(flatten)]
+    environment: EnvironmentArgs,
     #[command(flatten)]
     camera: CameraArgs,
     /// Simpson step toward the lights, as a fraction of the smallest voxel edge (Simpson
@@ -138,9 +140,11 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let traced = (!photons.is_empty()).then_some("the photons were traced with");
     let voxel = density.transform().voxel_size().min_element();
     let preset = Quality::settings_or_default(args.quality);
+    let environment = args.environment.resolve(&meta, &log, traced)?;
     let params = CacheParams {
         medium: args.medium.resolve(&meta, &log, traced)?,
-        lights: args.lights.resolve(&meta, &log, traced)?,
+        lights: args.lights.resolve(&meta, &log, traced, environment.is_some())?,
+        environment,
         camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
         step: args.step,
         cache_scale: args.cache_scale.unwrap_or(preset.cache_scale),
@@ -176,7 +180,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             photons.len()
         ));
     }
-    let device = args.common.compute_device(&log)?;
+    let cpu_only = environment_needs_cpu(params.lit_by_environment(), args.common.device, "the environment light", &log)?;
+    let device = if cpu_only { nimbus_gpu::ComputeDevice::Cpu(nimbus_gpu::CpuReason::Requested) } else { args.common.compute_device(&log)? };
     let (cache, stats) = log
         .stage(
             "bake",
@@ -242,6 +247,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         .density_grid(&grid)?
         .medium(&params.medium)?
         .lights(&params.lights)?
+        .environment(params.environment.as_ref())?
         .camera(&params.camera)?
         .tool("vdbcache", &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;

@@ -12,7 +12,7 @@ use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
 use nimbus_cli::{
-    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
+    environment_needs_cpu, parse_rgb, EnvironmentArgs, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
     PipelineMeta,
 };
 use nimbus_gpu::DeviceChoice;
@@ -84,6 +84,10 @@ struct Args {
     /// With --reference: the lights (default: what the file records, else one sun from above).
     #[command(flatten)]
     lights: LightArgs,
+    /// The sky or environment map: lights the scene with --reference; camera rays that
+    /// leave the volume see it (default: what the file records).
+    #[command(flatten)]
+    environment: EnvironmentArgs,
     /// March step, world units (default one third of a voxel diagonal).
     #[arg(long)]
     step: Option<f64>,
@@ -101,9 +105,10 @@ struct Args {
     /// Preset: draft, preview or final (march step and spp; flags override).
     #[arg(long, value_enum)]
     quality: Option<Quality>,
-    /// Background radiance R,G,B (or one grey value) seen through the volume.
-    #[arg(long, value_parser = parse_rgb, default_value = "0")]
-    background: Vec3,
+    /// Background radiance R,G,B (or one grey value) seen through the volume (default: the
+    /// environment where there is one, as Blender shows the World, else black).
+    #[arg(long, value_parser = parse_rgb)]
+    background: Option<Vec3>,
     /// Amplitude of the Perlin offset noise on sample positions, world units (0 = off).
     #[arg(long, default_value_t = 0.0)]
     offset_noise: f64,
@@ -324,18 +329,22 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         }
     }
     let emission = resolve_emission(&args.emission, file, log)?;
+    let environment = args.environment.resolve(&meta, log, None)?;
     let params = ReferenceParams {
+        lights: args.lights.resolve(&meta, log, None, environment.is_some())?,
+        environment,
+        environment_visible: args.background.is_none(),
         medium: args.medium.resolve(&meta, log, None)?,
-        lights: args.lights.resolve(&meta, log, None)?,
         camera: args.camera.resolve(&meta, density.world_bounds(), log, None)?,
         spp: args.spp.unwrap_or(1),
         max_depth: args.max_depth,
-        background: args.background,
+        background: args.background.unwrap_or(Vec3::ZERO),
         seed: args.seed.or(meta.seed()).unwrap_or(0),
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let cpu_only = emission_device(args, &emission, log)?;
+    let lit = params.environment.as_ref().is_some_and(|e| !e.is_black());
+    let cpu_only = emission_device(args, &emission, log)? | environment_needs_cpu(lit, args.common.device, "the environment light", log)?;
     let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
@@ -368,12 +377,14 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     let preset = Quality::settings_or_default(args.quality);
     let camera = args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?;
     let params = MarchParams {
+        environment: args.environment.resolve(&meta, log, Some("the cache was baked with"))?,
+        environment_visible: args.background.is_none(),
         medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
         spp: args.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
         camera,
         step: args.step.unwrap_or(voxel.length() / 3.0 * preset.step_factor),
         max_step_factor: args.max_step_factor.unwrap_or(MarchParams::DEFAULT_MAX_STEP_FACTOR),
-        background: args.background,
+        background: args.background.unwrap_or(Vec3::ZERO),
         offset_noise: args.offset_noise,
         noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),
         noise_octaves: 3,
@@ -382,7 +393,8 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let cpu_only = emission_device(args, &emission, log)?;
+    let map_behind = matches!(params.visible_environment(), Some(nimbus_optics::Environment::Map { .. }));
+    let cpu_only = emission_device(args, &emission, log)? | environment_needs_cpu(map_behind, args.common.device, "an environment map behind the volume", log)?;
     if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
         log.verbose("emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (vdbcache does not trace emission yet; --reference includes it)");
     }

@@ -66,7 +66,7 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let preset = args.quality.map(Quality::settings);
     let params = PhotonParams {
         medium: args.medium.resolve(&meta, &log, None)?,
-        lights: args.lights.resolve(&meta, &log, None)?,
+        lights: args.lights.resolve(&meta, &log, None, false)?,
         distance: match (args.distance, preset) {
             (Some(d), _) => d,
             (None, Some(q)) => q.distance.parse().map_err(Failure::usage)?,

@@ -86,7 +86,7 @@ fn plume(dims: IVec3) -> Volume<f32> {
 
 fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
     let (lo, hi) = v.world_bounds().unwrap();
-    CacheParams {
+    CacheParams { environment: None,
         medium: Medium { extinction, albedo: Vec3::splat(0.9), g: 0.3 },
         lights: vec![Light::sun(Vec3::new(0.4, 0.3, -1.0).normalize(), Vec3::ONE).unwrap()],
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
@@ -215,7 +215,7 @@ fn paths_rows() {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
         let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
         let _ = w_out;
-        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), &[x], 256, p.camera.eye(), &mut Rng::new(99, index))
+        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), Default::default(), &[x], 256, p.camera.eye(), &mut Rng::new(99, index))
     });
 }
 

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{trace_path, DensityMedium, LightDepths, MediumRay, Shadowing};
+use nimbus_tracking::{environment_nee, trace_path, DensityMedium, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
@@ -157,20 +157,39 @@ pub fn li_multiple(
 /// scattering); the mean over the paths. `medium`'s majorant must suit delta tracking
 /// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
 /// `depths` where a light has a table.
+///
+/// With an environment, each path also estimates the environment's light scattered at x
+/// itself: a next-event estimate at x, and the path's first flight when it escapes, weighed
+/// against each other by the power heuristic ([`environment_nee`], [`PathStart::Scattered`]).
 #[allow(clippy::too_many_arguments)]
-pub fn li_multiple_paths(medium: DensityMedium, optics: &Medium, lights: &[Light], depths: &LightDepths, origins: &[DVec3], paths: u32, eye: DVec3, rng: &mut Rng) -> Vec3 {
+pub fn li_multiple_paths(
+    medium: DensityMedium,
+    optics: &Medium,
+    lights: &[Light],
+    depths: &LightDepths,
+    sources: PathSources,
+    origins: &[DVec3],
+    paths: u32,
+    eye: DVec3,
+    rng: &mut Rng,
+) -> Vec3 {
     let phase = optics.phase();
     let mut sum = Vec3::ZERO;
     if origins.is_empty() {
         return sum;
     }
+    let environment = sources.environment.filter(|e| !e.is_black());
     for j in 0..paths as usize {
         let x = origins[j % origins.len()];
         let w_out = (eye - x).normalize_or_zero().as_vec3();
         // At the eye itself there is no camera ray; any axis serves.
         let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
+        if let Some(env) = environment {
+            sum += environment_nee(medium, phase, env, x, -axis, false, rng);
+        }
         let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
-        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, PATH_MAX_DEPTH, rng, None).total();
+        let start = PathStart::Scattered { w_in: axis };
+        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
     }
     sum / paths.max(1) as f32
 }
@@ -235,7 +254,8 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
                 let paths = path_plan.counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, path_plan.origins_of(i), paths, camera.eye(), &mut rng)
+                let sources = PathSources { environment: params.environment.as_ref(), emission: None };
+                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, path_plan.origins_of(i), paths, camera.eye(), &mut rng)
             });
             stats.stages.push(("paths", started.elapsed().as_millis() as u64));
             stats.paths = traced.into_inner();

@@ -98,6 +98,9 @@ fn constants_wgsl() -> String {
 /// paths and estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
+    if params.lit_by_environment() {
+        return Err(CacheError::Param("the environment is not built for the GPU cache baker yet (use --device cpu)".into()));
+    }
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;

@@ -60,7 +60,7 @@ pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PE
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 
-use nimbus_optics::{Camera, Light, Medium};
+use nimbus_optics::{Camera, Environment, Light, Medium};
 use nimbus_tracking::{DensityMedium, LightDepths};
 use nimbus_volume::Volume;
 
@@ -129,6 +129,10 @@ pub const PATH_MAX_DEPTH: u32 = 512;
 pub struct CacheParams {
     pub medium: Medium,
     pub lights: Vec<Light>,
+    /// The sky or environment map, if any: the paths gather it (all of its orders, the
+    /// first included, by next-event estimation at the voxel and at every collision), so it
+    /// lives in Li_multiple; Li_single holds the lights' single scattering alone.
+    pub environment: Option<Environment>,
     pub camera: Camera,
     /// Simpson step toward the lights, as a fraction of the smallest density voxel edge.
     pub step: f64,
@@ -256,14 +260,19 @@ impl CacheParams {
         }
     }
 
+    /// Whether an environment sends light (then the paths gather it).
+    pub fn lit_by_environment(&self) -> bool {
+        self.environment.as_ref().is_some_and(|e| !e.is_black())
+    }
+
     /// Whether multiple scattering is asked for and has something to estimate it from:
-    /// photons to gather, or lights for the paths to reach.
+    /// photons to gather, or lights or an environment for the paths to reach.
     pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
         self.multiple
             && !self.medium.is_non_scattering()
             && match self.estimator {
                 MultipleEstimator::Photons => !photons.is_empty(),
-                MultipleEstimator::Paths { .. } => !self.lights.is_empty(),
+                MultipleEstimator::Paths { .. } => !self.lights.is_empty() || self.lit_by_environment(),
             }
     }
 

@@ -130,10 +130,13 @@ impl LightArgs {
         (!lights.is_empty()).then_some(lights)
     }
 
-    /// Flags, else what the file records, else one sun from above.
-    pub fn resolve(&self, meta: &PipelineMeta, log: &Log, consistency: Option<&str>) -> Result<Vec<Light>, Failure> {
+    /// Flags, else what the file records, else one sun from above, unless an environment
+    /// lights the scene (`lit_otherwise`): then no lights, as a Blender scene lit by its World
+    /// alone.
+    pub fn resolve(&self, meta: &PipelineMeta, log: &Log, consistency: Option<&str>, lit_otherwise: bool) -> Result<Vec<Light>, Failure> {
         let recorded = meta.lights()?;
-        let lights = self.given().or_else(|| recorded.clone()).unwrap_or_else(|| vec![Light::default_sun()]);
+        let fallback = if lit_otherwise { Vec::new() } else { vec![Light::default_sun()] };
+        let lights = self.given().or_else(|| recorded.clone()).unwrap_or(fallback);
         if let (Some(recorded), Some(what)) = (recorded, consistency) {
             if recorded != lights {
                 log.warn(format!("lights differ from the ones {what}"));

@@ -1,12 +1,12 @@
 //! The pipeline's metadata: what each tool records under `nimbus:` keys in the file so the
 //! next tool can use it as defaults (design.md section 6).
 //!
-//! Shared keys: `nimbus:medium`, `nimbus:lights`, `nimbus:camera` (each in the text form the
-//! flags take), `nimbus:seed`, `nimbus:density_grid` (the grid the chain treats as density).
+//! Shared keys: `nimbus:medium`, `nimbus:lights`, `nimbus:environment`, `nimbus:camera` (each
+//! in the text form the flags take), `nimbus:seed`, `nimbus:density_grid` (the grid the chain treats as density).
 //! Per tool: `nimbus:<tool>` holds `key=value` pairs of its parameters and counts, and
 //! `nimbus:<tool>:timings` its stage times in seconds.
 
-use nimbus_optics::{parse_lights, Camera, Light, Medium};
+use nimbus_optics::{parse_lights, Camera, Environment, EnvironmentRecord, Light, Medium};
 use nimbus_vdb::{MetaValue, Metadata, VdbFile};
 
 use crate::{Failure, StageTimes};
@@ -16,6 +16,7 @@ pub const LIGHTS: &str = "nimbus:lights";
 pub const CAMERA: &str = "nimbus:camera";
 pub const SEED: &str = "nimbus:seed";
 pub const DENSITY_GRID: &str = "nimbus:density_grid";
+pub const ENVIRONMENT: &str = "nimbus:environment";
 
 /// A file's metadata, read as the pipeline's shared parameters.
 pub struct PipelineMeta {
@@ -55,6 +56,11 @@ impl PipelineMeta {
         self.parsed(CAMERA, str::parse)
     }
 
+    /// The recorded environment (`none` or absent: none).
+    pub fn environment(&self) -> Result<Option<EnvironmentRecord>, Failure> {
+        Ok(self.parsed(ENVIRONMENT, Environment::parse_record)?.flatten())
+    }
+
     pub fn seed(&self) -> Option<u64> {
         self.meta.get(SEED).and_then(MetaValue::as_i64).map(|s| s as u64)
     }
@@ -91,6 +97,12 @@ impl<'a> MetaWriter<'a> {
 
     pub fn lights(&mut self, lights: &[Light]) -> Result<&mut Self, Failure> {
         self.set(LIGHTS, nimbus_optics::format_lights(lights))?;
+        Ok(self)
+    }
+
+    /// `nimbus:environment`: its text form, or `none`.
+    pub fn environment(&mut self, environment: Option<&Environment>) -> Result<&mut Self, Failure> {
+        self.set(ENVIRONMENT, crate::environment::describe(environment))?;
         Ok(self)
     }
 

@@ -29,6 +29,9 @@ pub struct RayResult {
     pub depth: f32,
     /// The medium's own emission, attenuated (issue #19).
     pub emission: Vec3,
+    /// The environment map seen through the volume, `T L_env(dir)` (a uniform background
+    /// is added from `transmittance` when the image is assembled).
+    pub behind: Vec3,
 }
 
 /// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
@@ -287,6 +290,7 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
     let camera = &params.camera;
     let w = camera.width() as usize;
     let spp = params.spp;
+    let map = crate::visible_map(params.visible_environment());
     for x0 in (0..w).step_by(TILE) {
         for y in 0..rows.len() / w {
             for x in x0..(x0 + TILE).min(w) {
@@ -307,6 +311,9 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                     sum.multiple += r.multiple;
                     sum.emission += r.emission;
                     sum.transmittance += r.transmittance;
+                    if let Some(env) = map {
+                        sum.behind += env.radiance(dir.as_vec3()) * r.transmittance;
+                    }
                     depth = depth.min(r.depth);
                 }
                 let inv = 1.0 / spp as f32;
@@ -316,6 +323,7 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                     transmittance: sum.transmittance * inv,
                     depth,
                     emission: sum.emission * inv,
+                    behind: sum.behind * inv,
                 };
             }
         }

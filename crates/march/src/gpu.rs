@@ -130,6 +130,9 @@ pub fn render_gpu_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
+    if crate::visible_map(params.visible_environment()).is_some() {
+        return Err(MarchError::Param("an environment map behind the volume is not built for the GPU march yet (use --device cpu, or --background)".into()));
+    }
     let majorant = crate::cpu::march_majorant(density, params);
     if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
@@ -292,6 +295,7 @@ impl PixelTiles<'_> {
                 transmittance: p.transmittance,
                 depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
                 emission: Vec3::ZERO,
+                behind: Vec3::ZERO,
             }));
             progress(count);
             first += count;

@@ -50,7 +50,7 @@ impl Image {
         let rgba = rays
             .iter()
             .map(|r| {
-                let c = r.single + r.multiple + r.emission + background * r.transmittance;
+                let c = r.single + r.multiple + r.emission + r.behind + background * r.transmittance;
                 let p = Vec4::new(c.x, c.y, c.z, 1.0 - r.transmittance);
                 if p.is_finite() {
                     p

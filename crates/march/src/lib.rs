@@ -94,11 +94,27 @@ pub use reference::{reference_tile_pixels, render_reference_cpu, render_referenc
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.
 pub(crate) fn assemble(params: &MarchParams, pixels: &[RayResult]) -> Image {
-    Image::from_rays(params.camera.width(), params.camera.height(), pixels, params.background, params.aovs)
+    Image::from_rays(params.camera.width(), params.camera.height(), pixels, constant_background(params.background, params.visible_environment()), params.aovs)
+}
+
+/// The background every escaping camera ray sees alike: `background`, or a uniform sky in
+/// its place. A map varies with the direction: [`RayResult::behind`] carries it instead.
+pub(crate) fn constant_background(background: Vec3, visible: Option<&Environment>) -> Vec3 {
+    match visible {
+        Some(Environment::Uniform(c)) => *c,
+        Some(Environment::Map { .. }) => Vec3::ZERO,
+        None => background,
+    }
+}
+
+/// The map camera rays see where they leave the volume, if they see one: what each sample
+/// adds as `T L_env(dir)` ([`RayResult::behind`]).
+pub(crate) fn visible_map(visible: Option<&Environment>) -> Option<&Environment> {
+    visible.filter(|e| matches!(e, Environment::Map { .. }))
 }
 
 use glam::Vec3;
-use nimbus_optics::{Camera, Medium};
+use nimbus_optics::{Camera, Environment, Medium};
 
 /// Everything a render depends on; the CPU and GPU backends read the same struct.
 #[derive(Clone, Debug)]
@@ -113,6 +129,10 @@ pub struct MarchParams {
     /// Samples per pixel.
     pub spp: u32,
     pub background: Vec3,
+    /// The sky or map the cache was lit by: camera rays that leave the volume see it in
+    /// place of `background` where `environment_visible` (vdbmarch without --background).
+    pub environment: Option<Environment>,
+    pub environment_visible: bool,
     /// Amplitude of the sample-position jitter field, world units (0: off).
     pub offset_noise: f64,
     /// Feature size of the jitter field, world units.
@@ -129,6 +149,11 @@ pub struct MarchParams {
 pub const STEP_OPTICAL_DEPTH: f64 = 0.25;
 
 impl MarchParams {
+    /// The environment escaping camera rays see, if any.
+    pub fn visible_environment(&self) -> Option<&Environment> {
+        self.environment.as_ref().filter(|_| self.environment_visible)
+    }
+
     /// vdbmarch's `--max-step-factor`: 1, a fixed step. The optical-depth bound keeps the
     /// transmittance right, but a lengthened step also samples the cache more sparsely, and
     /// Li_single varies at the voxel scale (shadow edges) however thin the medium: at 2, the

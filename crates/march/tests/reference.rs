@@ -19,7 +19,7 @@ fn ball() -> Volume<f32> {
 }
 
 fn params(medium: Medium, lights: Vec<Light>, camera: Camera, spp: u32) -> ReferenceParams {
-    ReferenceParams { medium, lights, camera, spp, max_depth: ReferenceParams::DEFAULT_MAX_DEPTH, background: Vec3::ZERO, seed: 7, aovs: true }
+    ReferenceParams { environment: None, environment_visible: false, medium, lights, camera, spp, max_depth: ReferenceParams::DEFAULT_MAX_DEPTH, background: Vec3::ZERO, seed: 7, aovs: true }
 }
 
 fn mean(values: impl Iterator<Item = Vec3>) -> Vec3 {
@@ -57,7 +57,7 @@ fn single_scattering_matches_the_cached_chain() {
     let medium = Medium { extinction: 2.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.4 };
     let sun = Light::sun(Vec3::new(0.4, 0.2, -0.9).normalize(), Vec3::splat(3.0)).unwrap();
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
-    let cache_params = CacheParams {
+    let cache_params = CacheParams { environment: None,
         medium,
         lights: vec![sun],
         camera,
@@ -73,7 +73,7 @@ fn single_scattering_matches_the_cached_chain() {
         shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams {
+    let march = MarchParams { environment: None, environment_visible: false,
         medium,
         camera,
         step: VOXEL / 4.0,

@@ -41,7 +41,7 @@ mod path;
 
 pub use gpu::{light_tables_wgsl, majorant_buffer, GpuLightTables, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
 pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing, TabledTransmittance, TABLED_SPREAD};
-pub use path::{trace_path, PathLight, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
+pub use path::{environment_nee, trace_path, PathLight, PathSources, PathStart, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;
 use nimbus_optics::Rng;

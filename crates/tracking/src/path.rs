@@ -3,7 +3,7 @@
 //! vdbcache's path-traced multiple scattering starts them at a cache voxel.
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{Light, Medium, Rng};
+use nimbus_optics::{power_heuristic, Environment, HenyeyGreenstein, Light, Medium, Rng};
 
 use crate::{DensityMedium, EmissionField, FreePath, MediumRay, Shadowing};
 
@@ -28,6 +28,48 @@ impl PathLight {
     }
 }
 
+/// How a path's first direction was chosen, which decides what its escape adds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PathStart {
+    /// A camera ray: if it escapes it sees the background, which the caller adds (the
+    /// reference tracer through its ratio-tracked transmittance).
+    Camera,
+    /// Drawn by the phase function at the origin for light arriving along `w_in` there
+    /// (vdbcache's paths from a cache voxel): an escape adds the environment, weighed by
+    /// multiple importance sampling against the caller's own [`environment_nee`] at the
+    /// origin.
+    Scattered { w_in: Vec3 },
+}
+
+/// What a path meets besides the lights: the environment and the medium's emission.
+#[derive(Clone, Copy, Default)]
+pub struct PathSources<'a> {
+    pub environment: Option<&'a Environment>,
+    pub emission: Option<&'a EmissionField<'a>>,
+}
+
+/// Next-event estimation of the environment at `x` toward `w_out`: one direction drawn
+/// from the environment ([`Environment::sample`]), its transmittance to infinity by ratio
+/// tracking, weighed by the power heuristic against the phase function's own sampling of
+/// that direction (which [`trace_path`] adds when a flight escapes) unless `alone`, when no
+/// phase-sampled direction follows.
+pub fn environment_nee(medium: DensityMedium, phase: HenyeyGreenstein, environment: &Environment, x: DVec3, w_out: Vec3, alone: bool, rng: &mut Rng) -> Vec3 {
+    let sample = environment.sample(rng.next_vec2());
+    if sample.pdf <= 0.0 || sample.radiance == Vec3::ZERO {
+        // Keep the stream's length independent of the draw.
+        let _ = rng.next_f32();
+        return Vec3::ZERO;
+    }
+    let p = phase.eval_dirs(-sample.toward, w_out);
+    let weight = if alone { 1.0 } else { power_heuristic(sample.pdf, p) };
+    if p * weight <= 0.0 {
+        let _ = rng.next_f32();
+        return Vec3::ZERO;
+    }
+    let tr = MediumRay::new(medium, x, sample.toward.as_dvec3(), 0.0, f64::INFINITY).transmittance_ratio(rng, RATIO_ROULETTE) as f32;
+    sample.radiance * (tr * p * weight / sample.pdf)
+}
+
 /// The radiance arriving at `origin` from direction `-dir` (unit, world), scattered in the
 /// medium, estimated by one path: free flights by delta tracking against the majorant grid;
 /// at each real collision the throughput takes the albedo (sigma_s / sigma_t) and next-event
@@ -36,10 +78,14 @@ impl PathLight {
 /// Henyey-Greenstein picks the next direction. Russian roulette on the throughput from
 /// [`ROULETTE_FROM_DEPTH`]; at most `max_depth` collisions.
 ///
-/// Lights are suns and points (delta lights), so next-event estimation is the only way light
-/// enters a path and needs no MIS; paths that escape add nothing.
+/// Suns and points are delta lights: next-event estimation is the only way their light
+/// enters a path. The environment (`sources.environment`) enters two ways, combined by the
+/// power heuristic: [`environment_nee`] at each collision, and a phase-sampled flight that
+/// escapes, which adds the environment's radiance in its direction (see [`PathStart`] for
+/// the first flight). At the last collision `max_depth` no flight follows, so its
+/// next-event estimate takes the whole weight.
 ///
-/// With `emission`, every real collision at x also adds `beta e(x) / sigma_t(x)` (beta the
+/// With `sources.emission`, every real collision at x also adds `beta e(x) / sigma_t(x)` (beta the
 /// throughput before the collision's albedo), e the emitted radiance per unit length: the
 /// collision estimator of emission. Real collisions along a flight fall with density
 /// `T(t) sigma_t(x(t))`, so its expectation is `integral T e dt` over where sigma_t > 0,
@@ -47,6 +93,9 @@ impl PathLight {
 /// `beta sigma_a Le / sigma_maj` at every tentative collision instead, which reaches
 /// emission where sigma_t = 0 too; ours emits only where the medium is, so the two agree,
 /// and ours spends no lookups at null collisions).
+///
+/// Light scattered last at the first collision (or, for a [`PathStart::Scattered`] path, at
+/// the origin) counts as `single`, later as `multiple`.
 #[allow(clippy::too_many_arguments)]
 pub fn trace_path(
     medium: DensityMedium,
@@ -55,20 +104,37 @@ pub fn trace_path(
     shadowing: Shadowing,
     origin: DVec3,
     dir: DVec3,
+    start: PathStart,
     max_depth: u32,
     rng: &mut Rng,
-    emission: Option<&EmissionField>,
+    sources: PathSources,
 ) -> PathLight {
     let phase = optics.phase();
+    let environment = sources.environment.filter(|e| !e.is_black());
     let mut light = PathLight::default();
     let (mut x, mut w) = (origin, dir);
     let mut beta = Vec3::ONE;
+    // The phase pdf the current flight's direction was drawn with (None: a camera ray).
+    let mut flight_pdf = match start {
+        PathStart::Camera => None,
+        PathStart::Scattered { w_in } => Some(phase.pdf(w_in, dir.as_vec3())),
+    };
     for depth in 1..=max_depth {
         let FreePath::Interaction(t) = MediumRay::new(medium, x, w, 0.0, f64::INFINITY).sample_delta(rng) else {
+            if let (Some(env), Some(pdf)) = (environment, flight_pdf) {
+                let toward = w.as_vec3();
+                let seen = beta * env.radiance(toward) * power_heuristic(pdf, env.pdf(toward));
+                // Scattered last at collision depth - 1 (0: the origin).
+                if depth <= 2 {
+                    light.single += seen;
+                } else {
+                    light.multiple += seen;
+                }
+            }
             break;
         };
         x += w * t;
-        if let Some(e) = emission {
+        if let Some(e) = sources.emission {
             let sigma_t = medium.extinction as f64 * medium.density.sample_world(x).max(0.0) as f64;
             if sigma_t > 0.0 {
                 light.emission += beta * e.at(x) * (1.0 / sigma_t) as f32;
@@ -91,6 +157,9 @@ pub fn trace_path(
                 direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
             }
         }
+        if let Some(env) = environment {
+            direct += environment_nee(medium, phase, env, x, w_out, depth == max_depth, rng);
+        }
         if depth == 1 {
             light.single += beta * direct;
         } else {
@@ -108,7 +177,9 @@ pub fn trace_path(
                 beta /= q;
             }
         }
-        w = phase.sample(w.as_vec3(), rng.next_vec2()).as_dvec3().normalize();
+        let (next, pdf) = phase.sample_with_pdf(w.as_vec3(), rng.next_vec2());
+        w = next.as_dvec3().normalize();
+        flight_pdf = Some(pdf);
     }
     light
 }

@@ -91,7 +91,7 @@ fn main() -> Result<()> {
                     }
                 }
             }
-            RayResult { single: radiance.as_vec3(), multiple: Vec3::ZERO, transmittance: tr as f32, depth: f32::INFINITY, emission: Vec3::ZERO }
+            RayResult { behind: Vec3::ZERO, single: radiance.as_vec3(), multiple: Vec3::ZERO, transmittance: tr as f32, depth: f32::INFINITY, emission: Vec3::ZERO }
         })
         .collect();
     let rendered = Image::from_rays(camera.width(), camera.height(), &rays, Vec3::ZERO, false);

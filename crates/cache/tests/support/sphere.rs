@@ -33,7 +33,7 @@ impl Sphere {
     /// default camera.
     fn multiple_only(&self, density: &Volume<f32>, cache_scale: f64, gather: Gather, estimator: MultipleEstimator, seed: u64) -> CacheParams {
         let (lo, hi) = density.world_bounds().unwrap();
-        CacheParams {
+        CacheParams { environment: None,
             medium: self.medium(),
             lights: vec![Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()],
             camera: Camera::default_for_bounds(lo, hi).unwrap(),
@@ -158,7 +158,7 @@ impl Sphere {
                     .map(|b| {
                         let mut rng = Rng::new(seed, i as u64 * 8 + b);
                         // w_out = +X: the eye lies along +X from p.
-                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), &[p], paths / 8, p + DVec3::X, &mut rng).x as f64
+                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), Default::default(), &[p], paths / 8, p + DVec3::X, &mut rng).x as f64
                     })
                     .collect();
                 let mean = batches.iter().sum::<f64>() / 8.0;

@@ -1,7 +1,7 @@
 //! The reference path tracer on the CPU: rows in parallel with rayon, in f64.
 
 use nimbus_optics::Rng;
-use nimbus_tracking::{trace_path, DensityMedium, EmissionField, MediumRay, Shadowing, RATIO_ROULETTE};
+use nimbus_tracking::{trace_path, DensityMedium, EmissionField, MediumRay, PathSources, PathStart, Shadowing, RATIO_ROULETTE};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
@@ -14,19 +14,31 @@ fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Op
     let w = camera.width() as u64;
     let (px, py) = ((index % w) as f64, (index / w) as f64);
     let mut sum = RayResult::default();
+    let map = crate::visible_map(params.environment.as_ref().filter(|_| params.environment_visible));
     for sample in 0..params.spp {
         let mut rng = Rng::with_domain(params.seed, sample_stream(index, sample), REFERENCE_DOMAIN);
         let (jx, jy) = (rng.next_f64(), rng.next_f64());
         let (origin, dir) = camera.ray(px + jx, py + jy);
         let tr = MediumRay::new(medium, origin, dir, 0.0, f64::INFINITY).transmittance_ratio(&mut rng, RATIO_ROULETTE);
-        let light = trace_path(medium, &params.medium, &params.lights, Shadowing::RatioTracked, origin, dir, params.max_depth, &mut rng, emission);
+        let sources = PathSources { environment: params.environment.as_ref(), emission };
+        let light = trace_path(medium, &params.medium, &params.lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, params.max_depth, &mut rng, sources);
         sum.single += light.single;
         sum.multiple += light.multiple;
         sum.emission += light.emission;
         sum.transmittance += tr as f32;
+        if let Some(env) = map {
+            sum.behind += env.radiance(dir.as_vec3()) * tr as f32;
+        }
     }
     let inv = 1.0 / params.spp as f32;
-    RayResult { single: sum.single * inv, multiple: sum.multiple * inv, transmittance: sum.transmittance * inv, depth: f32::INFINITY, emission: sum.emission * inv }
+    RayResult {
+        single: sum.single * inv,
+        multiple: sum.multiple * inv,
+        transmittance: sum.transmittance * inv,
+        depth: f32::INFINITY,
+        emission: sum.emission * inv,
+        behind: sum.behind * inv,
+    }
 }
 
 /// Renders the reference on the CPU; `progress` hears each finished row's pixel count.
@@ -57,7 +69,8 @@ pub fn render_reference_cpu_emitting(
             row_pixels
         })
         .collect();
-    Ok(Image::from_rays(params.camera.width(), params.camera.height(), &pixels, params.background, params.aovs))
+    let background = crate::constant_background(params.background, params.environment.as_ref().filter(|_| params.environment_visible));
+    Ok(Image::from_rays(params.camera.width(), params.camera.height(), &pixels, background, params.aovs))
 }
 
 #[cfg(test)]
@@ -71,7 +84,7 @@ mod tests {
     fn the_reference_renders_an_emitting_slab_to_its_closed_form() {
         let (slab, emission, expect) = emitting_slab();
         let field = EmissionField { grid: Some(&slab), temperature: None, params: &emission };
-        let params = ReferenceParams {
+        let params = ReferenceParams { environment: None, environment_visible: false,
             medium: Medium { extinction: 3.0, albedo: Vec3::ZERO, g: 0.0 },
             lights: vec![],
             camera: slab_camera(),

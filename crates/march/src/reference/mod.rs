@@ -33,7 +33,7 @@ pub use cpu::{render_reference_cpu, render_reference_cpu_emitting};
 pub use gpu::{reference_tile_pixels, render_reference_gpu, REFERENCE_WGSL};
 
 use glam::Vec3;
-use nimbus_optics::{Camera, Light, Medium};
+use nimbus_optics::{Camera, Environment, Light, Medium};
 
 use crate::MarchError;
 
@@ -59,6 +59,10 @@ pub struct ReferenceParams {
     /// Most collisions per path.
     pub max_depth: u32,
     pub background: Vec3,
+    /// The sky or map lighting the scene (next-event estimation and escaping paths).
+    pub environment: Option<Environment>,
+    /// Camera rays that leave the volume see the environment in place of `background`.
+    pub environment_visible: bool,
     pub seed: u64,
     /// Keep the single, multiple and transmittance layers.
     pub aovs: bool,
