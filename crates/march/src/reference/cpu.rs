@@ -106,4 +106,78 @@ mod tests {
         let dark = render_reference_cpu(&slab, &params, &|_| {}).unwrap();
         assert_eq!(dark.mean_rgb(), Vec3::ZERO);
     }
+
+    /// Single scattering of a uniform sky L = 1 at the centre of a thin slab (the emitting
+    /// slab's: faces at z = -0.05 and 0.75 through its ramps, sides at +-2.45), seen from
+    /// straight above: integral over depth t of sigma_s e^(-sigma_t t) times the sphere
+    /// integral of p(-w, +z) T(x, w) dw, T along w to the slab's boundary, by quadrature.
+    fn thin_slab_single(sigma_t: f64, albedo: f64, g: f64) -> f64 {
+        let (z_top, z_bottom, side) = (0.75f64, -0.05f64, 2.45f64);
+        let hg = |cos: f64| (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * cos).powf(1.5));
+        let (nt, nmu, nphi) = (100, 800, 32);
+        let mut total = 0.0;
+        for i in 0..nt {
+            let dt = (z_top - z_bottom) / nt as f64;
+            let t = (i as f64 + 0.5) * dt;
+            let z = z_top - t;
+            let mut sphere = 0.0;
+            for j in 0..nmu {
+                let mu = -1.0 + (j as f64 + 0.5) * 2.0 / nmu as f64;
+                let sin = (1.0 - mu * mu).sqrt();
+                for k in 0..nphi {
+                    let phi = (k as f64 + 0.5) * 2.0 * std::f64::consts::PI / nphi as f64;
+                    let (wx, wy) = (sin * phi.cos(), sin * phi.sin());
+                    let mut s = f64::INFINITY;
+                    if mu > 0.0 {
+                        s = s.min((z_top - z) / mu);
+                    } else if mu < 0.0 {
+                        s = s.min((z - z_bottom) / -mu);
+                    }
+                    if wx != 0.0 {
+                        s = s.min(side / wx.abs());
+                    }
+                    if wy != 0.0 {
+                        s = s.min(side / wy.abs());
+                    }
+                    // Light travels along -w and scatters toward the eye, +z.
+                    sphere += hg(-mu) * (-sigma_t * s).exp();
+                }
+            }
+            sphere *= (2.0 / nmu as f64) * (2.0 * std::f64::consts::PI / nphi as f64);
+            total += albedo * sigma_t * (-sigma_t * t).exp() * sphere * dt;
+        }
+        total
+    }
+
+    #[test]
+    fn a_thin_slab_under_a_uniform_sky_scatters_its_closed_form() {
+        let (slab, _, _) = emitting_slab();
+        for (g, seed) in [(0.0f32, 11u64), (0.6, 12)] {
+            let sigma_t = 0.25;
+            let params = ReferenceParams {
+                medium: Medium { extinction: sigma_t, albedo: Vec3::new(0.9, 0.6, 0.3), g },
+                lights: vec![],
+                environment: Some(nimbus_optics::Environment::uniform(Vec3::ONE).unwrap()),
+                environment_visible: false,
+                camera: slab_camera(),
+                spp: 16384,
+                max_depth: 16,
+                background: Vec3::ZERO,
+                seed,
+                aovs: true,
+            };
+            let image = render_reference_cpu(&slab, &params, &|_| {}).unwrap();
+            let single = image.aovs.as_ref().unwrap().single.iter().fold(glam::DVec3::ZERO, |a, &v| a + v.as_dvec3()) / 36.0;
+            let expect = thin_slab_single(sigma_t as f64, 1.0, g as f64);
+            let rel = single / (glam::DVec3::new(0.9, 0.6, 0.3) * expect) - 1.0;
+            eprintln!("thin slab, g {g}: single {single} against {expect} x albedo: {rel}");
+            // 590k paths, 18% of them colliding: the mean's standard deviation is about
+            // 0.3% (seed to seed); 1.2% is four of them.
+            assert!(rel.abs().max_element() < 0.012, "g {g}: {single} vs {expect}: {rel}");
+            // The total adds the higher orders: 25% more at g 0 (measured), as light arriving
+            // near the horizon crosses up to 4.8 units of slab, optical depth 1.2.
+            let total = image.mean_rgb().x as f64;
+            assert!(total > single.x && total < single.x * 1.4, "g {g}: total {total} against single {}", single.x);
+        }
+    }
 }
