@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_cli::{
-    environment_needs_cpu, read_density, read_vdb, run, CameraArgs, EnvironmentArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
+    cpu_only_feature, read_density, read_vdb, run, CameraArgs, EnvironmentArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
 };
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
@@ -180,7 +180,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             photons.len()
         ));
     }
-    let cpu_only = environment_needs_cpu(params.lit_by_environment(), args.common.device, "the environment light", &log)?;
+    let cpu_only = cpu_only_feature(params.lit_by_environment(), args.common.device, "the environment light", &log)?
+        | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", &log)?;
     let device = if cpu_only { nimbus_gpu::ComputeDevice::Cpu(nimbus_gpu::CpuReason::Requested) } else { args.common.compute_device(&log)? };
     let (cache, stats) = log
         .stage(

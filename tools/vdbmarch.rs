@@ -12,7 +12,7 @@ use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
 use nimbus_cli::{
-    environment_needs_cpu, parse_rgb, EnvironmentArgs, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
+    cpu_only_feature, parse_rgb, EnvironmentArgs, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
     PipelineMeta,
 };
 use nimbus_gpu::DeviceChoice;
@@ -344,7 +344,8 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
     };
     params.validate().map_err(Failure::usage)?;
     let lit = params.environment.as_ref().is_some_and(|e| !e.is_black());
-    let cpu_only = emission_device(args, &emission, log)? | environment_needs_cpu(lit, args.common.device, "the environment light", log)?;
+    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(lit, args.common.device, "the environment light", log)?
+        | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", log)?;
     let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
@@ -394,7 +395,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     };
     params.validate().map_err(Failure::usage)?;
     let map_behind = matches!(params.visible_environment(), Some(nimbus_optics::Environment::Map { .. }));
-    let cpu_only = emission_device(args, &emission, log)? | environment_needs_cpu(map_behind, args.common.device, "an environment map behind the volume", log)?;
+    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(map_behind, args.common.device, "an environment map behind the volume", log)?;
     if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
         log.verbose("emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (vdbcache does not trace emission yet; --reference includes it)");
     }

@@ -27,6 +27,9 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], depth
         .iter()
         .enumerate()
         .map(|(index, light)| {
+            if light.has_disc() {
+                return sun_disc_single(medium, phase, light, x, w_out, step, cutoff);
+            }
             let incident = light.incident(x);
             if incident.irradiance == Vec3::ZERO {
                 return Vec3::ZERO;
@@ -37,6 +40,32 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], depth
             incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out)
         })
         .sum()
+}
+
+/// Shadow rays per point toward a sun with a disc ([`sun_disc_single`]).
+pub const SUN_DISC_RAYS: usize = 8;
+
+/// Single scattering from a sun with a disc: the mean over [`SUN_DISC_RAYS`] Simpson shadow
+/// rays spread over the disc by the R2 sequence (Roberts 2018), its offset hashed from `x`
+/// so neighbouring points take different directions and the march's averaging smooths the
+/// penumbra instead of repeating one pattern.
+fn sun_disc_single(medium: DensityMedium, phase: nimbus_optics::HenyeyGreenstein, light: &Light, x: DVec3, w_out: Vec3, step: f64, cutoff: f64) -> Vec3 {
+    const A1: f64 = 0.754_877_666_246_692_8;
+    const A2: f64 = 0.569_840_290_998_053_3;
+    let h = x.x.to_bits().wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ x.y.to_bits().rotate_left(21).wrapping_mul(0xC2B2_AE3D_27D4_EB4F) ^ x.z.to_bits().rotate_left(42);
+    let h = Rng::new(h, 0).next_vec2().as_dvec2();
+    let mut sum = Vec3::ZERO;
+    for k in 0..SUN_DISC_RAYS {
+        let u = glam::DVec2::new((h.x + A1 * k as f64).fract(), (h.y + A2 * k as f64).fract()).as_vec2();
+        let incident = light.incident_over_disc(x, u);
+        if incident.irradiance == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let tr = MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance(step, cutoff);
+        let tr = if tr >= cutoff { tr } else { 0.0 } as f32;
+        sum += incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out);
+    }
+    sum / SUN_DISC_RAYS as f32
 }
 
 /// Directions of the ball quadrature: the 6 axes and the 8 diagonals.

@@ -7,7 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, GpuLight, GpuMedium, OPTICS_WGSL};
+use nimbus_optics::{split_u64, GpuLight, GpuMedium, Light, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -100,6 +100,9 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     params.validate()?;
     if params.lit_by_environment() {
         return Err(CacheError::Param("the environment is not built for the GPU cache baker yet (use --device cpu)".into()));
+    }
+    if params.lights.iter().any(Light::has_disc) {
+        return Err(CacheError::Param("a sun with angle > 0 is not built for the GPU cache baker yet (use --device cpu)".into()));
     }
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons);

@@ -227,3 +227,39 @@ fn counts_cover_the_lattices_baked() {
     let total = cache.li_single.unwrap().active_voxel_count() + cache.li_multiple.unwrap().active_voxel_count();
     assert_eq!(stats.baked, total as u64);
 }
+
+/// A sun's disc softens a shadow edge: below the edge of an opaque plate, half the disc
+/// is hidden, so single scattering there is half the unshadowed value, ramping to none and
+/// to all within the penumbra, tan(angle / 2) times the plate's height either side; a
+/// parallel sun (angle 0) leaves a sharp step there.
+#[test]
+fn a_sun_with_a_disc_casts_a_soft_shadow() {
+    // The plate: x < 0, z from 1 to 1.2, opaque (optical depth 2000 through it).
+    let plate = block(IVec3::new(-30, -10, 10), IVec3::new(-1, 10, 12), |_| 1000.0);
+    let majorant = nimbus_volume::MajorantGrid::build(&plate);
+    let medium = nimbus_tracking::DensityMedium { density: &plate, majorant: &majorant, extinction: 1.0 };
+    let optics = Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 };
+    let w_out = Vec3::X;
+    let at = |light: &Light, x: f64| {
+        let depths = nimbus_tracking::LightDepths::default();
+        let lit = nimbus_cache::li_single(medium, &optics, std::slice::from_ref(light), &depths, DVec3::new(x, 0.0, 0.0), w_out, 0.01, 0.0);
+        lit.x / (1.0 / (4.0 * std::f32::consts::PI))
+    };
+    let sharp = Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap();
+    let soft = Light::sun_with_angle(Vec3::NEG_Z, Vec3::ONE, 20.0).unwrap();
+    // The plate's face ramps over the voxel below x = 0, opaque within a hair of x = 0.
+    let edge = 0.0;
+    // tan(10 degrees) x 1.3 (the plate's top through its ramp): past this the whole disc
+    // is (un)hidden.
+    let half_width = (10.0f64).to_radians().tan() * 1.3;
+    assert!(at(&sharp, edge + 0.03) > 0.99 && at(&sharp, edge - 0.03) < 0.01, "a parallel sun's shadow is not sharp");
+    let middle = at(&soft, edge);
+    assert!((middle - 0.5).abs() < 0.15, "under the edge half the disc is seen: {middle}");
+    assert!(at(&soft, edge + 0.03) < 0.95 && at(&soft, edge - 0.03) > 0.05, "the disc's penumbra is missing");
+    assert!(at(&soft, edge + half_width + 0.02) > 0.99 && at(&soft, edge - half_width - 0.02) < 0.01, "past the penumbra the shadow is whole");
+    // And the penumbra falls monotonically (up to the 8 rays' stratification).
+    let ramp: Vec<f32> = (0..=10).map(|i| at(&soft, edge - half_width + 2.0 * half_width * i as f64 / 10.0)).collect();
+    assert!(ramp.windows(2).all(|w| w[1] >= w[0] - 0.15), "{ramp:?}");
+    assert_eq!(soft.to_string().parse::<Light>().unwrap(), soft, "the angle round-trips through text");
+    assert!(Light::parse_sun("angle=180").is_err() && Light::parse_sun("angle=-1").is_err());
+}

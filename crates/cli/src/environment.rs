@@ -106,11 +106,11 @@ fn record_text(r: &EnvironmentRecord) -> String {
     }
 }
 
-/// The environment is not built for the GPU backends yet: with one that sends light, an
-/// explicit `--device gpu` is refused (exit 2) and `auto` takes the CPU (said with -v).
-/// Returns whether the stage must run on the CPU.
-pub fn environment_needs_cpu(lit: bool, device: DeviceChoice, what: &str, log: &Log) -> Result<bool, Failure> {
-    if !lit {
+/// A feature not built for the GPU backends yet (the environment, a sun's disc): where it is
+/// `needed`, an explicit `--device gpu` is refused (exit 2) and `auto` takes the CPU (said
+/// with -v). Returns whether the stage must run on the CPU.
+pub fn cpu_only_feature(needed: bool, device: DeviceChoice, what: &str, log: &Log) -> Result<bool, Failure> {
+    if !needed {
         return Ok(false);
     }
     if device == DeviceChoice::Gpu {

@@ -22,7 +22,7 @@ pub mod meta;
 mod vdbio;
 
 pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
-pub use environment::{environment_needs_cpu, read_environment_map, EnvironmentArgs};
+pub use environment::{cpu_only_feature, read_environment_map, EnvironmentArgs};
 pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};

@@ -68,7 +68,7 @@ impl GpuLight {
     /// The light with positions taken relative to `origin`.
     pub fn new(light: &Light, origin: DVec3) -> Self {
         match *light {
-            Light::Sun { dir, irradiance } => GpuLight { vector: dir.to_array(), kind: LIGHT_SUN, power: irradiance.to_array(), _pad: 0.0 },
+            Light::Sun { dir, irradiance, .. } => GpuLight { vector: dir.to_array(), kind: LIGHT_SUN, power: irradiance.to_array(), _pad: 0.0 },
             Light::Point { position, intensity } => {
                 GpuLight { vector: (position - origin).as_vec3().to_array(), kind: LIGHT_POINT, power: intensity.to_array(), _pad: 0.0 }
             }

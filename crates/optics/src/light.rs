@@ -16,6 +16,8 @@ pub enum LightError {
     Position(DVec3),
     #[error("{name} must be finite and >= 0 per channel, got {}", rgb_text(*value))]
     Power { name: &'static str, value: Vec3 },
+    #[error("sun angle must be in [0, 180) degrees, got {0}")]
+    Angle(f32),
 }
 
 /// A light source.
@@ -28,9 +30,11 @@ pub enum LightError {
 /// same syntax back, with numbers in shortest round-trip form, so `parse(format(l)) == l`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Light {
-    /// Parallel light. `dir` is the direction the light travels (unit length);
-    /// `irradiance` E is RGB power per unit area perpendicular to `dir`.
-    Sun { dir: Vec3, irradiance: Vec3 },
+    /// Distant light. `dir` is the direction the light travels (unit length);
+    /// `irradiance` E is RGB power per unit area perpendicular to `dir`; `angle` the sun
+    /// disc's angular diameter in degrees (0: parallel light, sharp shadows; Blender's Sun
+    /// default is 0.526), spread uniformly over the disc's solid angle, as Cycles does.
+    Sun { dir: Vec3, irradiance: Vec3, angle: f32 },
     /// Isotropic point light with RGB `intensity` I (power per steradian).
     Point { position: DVec3, intensity: Vec3 },
 }
@@ -66,7 +70,23 @@ impl Light {
         }
         let dir = if (len2 - 1.0).abs() <= 4.0 * f32::EPSILON { dir } else { dir / len2.sqrt() };
         check_power("irradiance", irradiance)?;
-        Ok(Light::Sun { dir, irradiance })
+        Ok(Light::Sun { dir, irradiance, angle: 0.0 })
+    }
+
+    /// A sun whose disc spans `angle` degrees.
+    pub fn sun_with_angle(dir: Vec3, irradiance: Vec3, angle: f32) -> Result<Light, LightError> {
+        if !(0.0..180.0).contains(&angle) {
+            return Err(LightError::Angle(angle));
+        }
+        match Light::sun(dir, irradiance)? {
+            Light::Sun { dir, irradiance, .. } => Ok(Light::Sun { dir, irradiance, angle }),
+            point => Ok(point),
+        }
+    }
+
+    /// Whether the light is a sun with a disc of non-zero size (soft shadows).
+    pub fn has_disc(&self) -> bool {
+        matches!(*self, Light::Sun { angle, .. } if angle > 0.0)
     }
 
     pub fn point(position: DVec3, intensity: Vec3) -> Result<Light, LightError> {
@@ -79,7 +99,7 @@ impl Light {
 
     /// The design.md default sun: straight down, irradiance 1.
     pub fn default_sun() -> Light {
-        Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::ONE }
+        Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::ONE, angle: 0.0 }
     }
 
     /// Direction, distance and irradiance of this light at `p`.
@@ -89,7 +109,7 @@ impl Light {
     #[inline]
     pub fn incident(&self, p: DVec3) -> Incident {
         match *self {
-            Light::Sun { dir, irradiance } => Incident { to_light: -dir, distance: f64::INFINITY, irradiance },
+            Light::Sun { dir, irradiance, .. } => Incident { to_light: -dir, distance: f64::INFINITY, irradiance },
             Light::Point { position, intensity } => {
                 let offset = position - p;
                 let r2 = offset.length_squared();
@@ -100,6 +120,25 @@ impl Light {
                 Incident { to_light: (offset / r).as_vec3(), distance: r, irradiance: intensity * (1.0 / r2) as f32 }
             }
         }
+    }
+
+    /// [`Light::incident`] with the direction drawn uniformly over the sun's disc (its
+    /// solid angle) by `u` in [0,1)^2; the same as `incident` for every other light. The
+    /// irradiance is the whole disc's, so averaging over `u` gives the soft shadow.
+    #[inline]
+    pub fn incident_over_disc(&self, p: DVec3, u: glam::Vec2) -> Incident {
+        let mut incident = self.incident(p);
+        if let Light::Sun { angle, .. } = *self {
+            if angle > 0.0 {
+                let cos_max = (0.5 * angle).to_radians().cos();
+                let cos = 1.0 - u.x * (1.0 - cos_max);
+                let sin = (1.0 - cos * cos).max(0.0).sqrt();
+                let phi = 2.0 * std::f32::consts::PI * u.y;
+                let (t, b) = crate::orthonormal_basis(incident.to_light);
+                incident.to_light = (sin * (phi.cos() * t + phi.sin() * b) + cos * incident.to_light).normalize();
+            }
+        }
+        incident
     }
 
     /// Irradiance at `p` on a surface facing the light: E, or I / r^2.
@@ -133,13 +172,15 @@ impl Light {
         }
     }
 
-    /// Reads a `--sun` value, `dir=X,Y,Z,irradiance=R,G,B` (either key may be left out).
+    /// Reads a `--sun` value, `dir=X,Y,Z,irradiance=R,G,B,angle=DEG` (any key may be left
+    /// out).
     pub fn parse_sun(s: &str) -> Result<Light, ParseError> {
         let mut kv = KeyValues::parse("sun", s)?;
         let dir = kv.vec3("dir")?.unwrap_or(Vec3::NEG_Z);
         let irradiance = kv.rgb("irradiance")?.unwrap_or(Vec3::ONE);
-        kv.finish("dir, irradiance")?;
-        Light::sun(dir, irradiance).map_err(|e| kv_error("sun", s, e))
+        let angle = kv.f32("angle")?.unwrap_or(0.0);
+        kv.finish("dir, irradiance, angle")?;
+        Light::sun_with_angle(dir, irradiance, angle).map_err(|e| kv_error("sun", s, e))
     }
 
     /// Reads a `--point` value, `pos=X,Y,Z,intensity=R,G,B` (`pos` required).
@@ -161,7 +202,14 @@ fn kv_error(what: &'static str, input: &str, e: LightError) -> ParseError {
 impl fmt::Display for Light {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            Light::Sun { dir, irradiance } => write!(f, "dir={},irradiance={}", join(&dir.to_array()), rgb_text(irradiance)),
+            Light::Sun { dir, irradiance, angle } => {
+                write!(f, "dir={},irradiance={}", join(&dir.to_array()), rgb_text(irradiance))?;
+                // Parallel suns keep the text they always had.
+                if angle > 0.0 {
+                    write!(f, ",angle={angle}")?;
+                }
+                Ok(())
+            }
             Light::Point { position, intensity } => write!(f, "pos={},intensity={}", join(&position.to_array()), rgb_text(intensity)),
         }
     }
@@ -181,7 +229,7 @@ impl FromStr for Light {
             return Light::parse_point(rest);
         }
         let kv = KeyValues::parse("light", s)?;
-        match (kv.has("pos") || kv.has("intensity"), kv.has("dir") || kv.has("irradiance")) {
+        match (kv.has("pos") || kv.has("intensity"), kv.has("dir") || kv.has("irradiance") || kv.has("angle")) {
             (true, true) => Err(kv.error("mixes a sun's dir/irradiance with a point light's pos/intensity")),
             (true, false) => Light::parse_point(s),
             (false, true) => Light::parse_sun(s),

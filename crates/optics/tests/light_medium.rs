@@ -6,15 +6,15 @@ use proptest::prelude::*;
 
 #[test]
 fn parses_the_cli_syntax() {
-    assert_eq!(Light::parse_sun("dir=0,0,-1,irradiance=3,2,1").unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::new(3.0, 2.0, 1.0) });
-    assert_eq!(Light::parse_sun("irradiance=3").unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(3.0) });
-    assert_eq!("dir=0,0,-2,irradiance=3".parse::<Light>().unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(3.0) });
+    assert_eq!(Light::parse_sun("dir=0,0,-1,irradiance=3,2,1").unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::new(3.0, 2.0, 1.0), angle: 0.0 });
+    assert_eq!(Light::parse_sun("irradiance=3").unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(3.0), angle: 0.0 });
+    assert_eq!("dir=0,0,-2,irradiance=3".parse::<Light>().unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(3.0), angle: 0.0 });
     assert_eq!(
         "pos=1,2.5,-3,intensity=10,20,30".parse::<Light>().unwrap(),
         Light::Point { position: DVec3::new(1.0, 2.5, -3.0), intensity: Vec3::new(10.0, 20.0, 30.0) }
     );
     assert_eq!(" pos = 1, 2, 3 , intensity = 5 ".parse::<Light>().unwrap(), Light::Point { position: DVec3::new(1.0, 2.0, 3.0), intensity: Vec3::splat(5.0) });
-    assert_eq!("sun:irradiance=2".parse::<Light>().unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(2.0) });
+    assert_eq!("sun:irradiance=2".parse::<Light>().unwrap(), Light::Sun { dir: Vec3::NEG_Z, irradiance: Vec3::splat(2.0), angle: 0.0 });
     assert_eq!("point:pos=0,0,1".parse::<Light>().unwrap(), Light::Point { position: DVec3::Z, intensity: Vec3::ONE });
     // A non-unit direction is normalised.
     let Light::Sun { dir, .. } = Light::parse_sun("dir=3,0,-4").unwrap() else { panic!() };

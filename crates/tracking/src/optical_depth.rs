@@ -192,7 +192,9 @@ impl LightDepths {
     /// shine. Both backends ask this.
     pub fn tabled_direction(light: &Light) -> Option<Vec3> {
         match *light {
-            Light::Sun { dir, irradiance } if irradiance != Vec3::ZERO => Some(dir),
+            // A sun with a disc is shadowed by rays drawn over the disc: one table holds one
+            // direction's shadow.
+            Light::Sun { dir, irradiance, angle } if irradiance != Vec3::ZERO && angle == 0.0 => Some(dir),
             _ => None,
         }
     }

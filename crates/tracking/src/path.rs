@@ -144,7 +144,9 @@ pub fn trace_path(
         let w_out = -w.as_vec3();
         let mut direct = Vec3::ZERO;
         for (index, l) in lights.iter().enumerate() {
-            let incident = l.incident(x);
+            // A sun's disc: one direction over it per estimate (no draw for parallel light,
+            // so its paths keep their random numbers).
+            let incident = if l.has_disc() { l.incident_over_disc(x, rng.next_vec2()) } else { l.incident(x) };
             if incident.irradiance == Vec3::ZERO {
                 continue;
             }
