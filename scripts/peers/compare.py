@@ -42,6 +42,11 @@ def forward_flags(args):
             out += ["--" + name.replace("_", "-"), str(v)]
     for s in args.sun or []:
         out += ["--sun", s]
+    if args.sky:
+        out += ["--sky", args.sky]
+    if args.environment:
+        out += ["--environment", args.environment, "--environment-strength", str(args.environment_strength),
+                "--environment-rotation", str(args.environment_rotation)]
     return out
 
 

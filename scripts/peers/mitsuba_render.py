@@ -104,10 +104,30 @@ def scene_dict(scene, spp, max_depth, seed, rr_depth=5):
     for i, s in enumerate(scene["suns"]):
         out[f"sun{i}"] = {"type": "directional", "direction": list(s["dir"]),
                           "irradiance": {"type": "rgb", "value": list(s["irradiance"])}}
+    if scene.get("sky") is not None:
+        # nimbus's sky both lights the medium and is seen behind it, as a constant emitter is.
+        out["sky"] = {"type": "constant", "radiance": {"type": "rgb", "value": list(scene["sky"])}}
+    if scene.get("envmap"):
+        out["environment"] = envmap_dict(scene["envmap"])
+    if (scene.get("sky") is not None or scene.get("envmap")) and any(b > 0 for b in scene["background"]):
+        ns.fail("a background with an environment cannot be matched in Mitsuba (its emitter is what rays see)")
     if any(b > 0 for b in scene["background"]):
         out["background"] = {"type": "constant",
                              "radiance": {"type": "rgb", "value": list(scene["background"])}}
     return out
+
+
+def envmap_dict(envmap):
+    """Mitsuba's `envmap` read with Blender's World mapping. Mitsuba looks a direction v up
+    in the emitter's local frame at u = atan2(v.x, -v.z) / 2 pi, v = acos(v.y) / pi (Y up);
+    Blender at u = 0.5 - atan2(w.y, w.x) / 2 pi, v = acos(w.z) / pi (Z up). They agree when
+    local = (w.y, w.z, w.x), so to_world maps local x, y, z to world y, z, x; nimbus's
+    rotation reads the map at R_z(rotation) w, so the frame turns by -rotation."""
+    c, s = np.cos(np.radians(envmap["rotation"])), np.sin(np.radians(envmap["rotation"]))
+    turn_back = np.array([[c, s, 0, 0], [-s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    permute = np.array([[0, 0, 1, 0], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=float)
+    return {"type": "envmap", "filename": envmap["path"], "scale": float(envmap["strength"]),
+            "to_world": mi.ScalarTransform4f((turn_back @ permute).tolist())}
 
 
 def check_grid(scene, samples=2000, seed=1):

@@ -155,6 +155,10 @@ def add_scene_args(ap):
     ap.add_argument("--width", type=int)
     ap.add_argument("--height", type=int)
     ap.add_argument("--background", default="0", help="background radiance R,G,B")
+    ap.add_argument("--sky", help="uniform sky radiance R,G,B (vdbmarch's --sky)")
+    ap.add_argument("--environment", help="equirectangular EXR with Blender's World mapping")
+    ap.add_argument("--environment-strength", type=float, default=1.0)
+    ap.add_argument("--environment-rotation", type=float, default=0.0, help="degrees about +Z")
 
 
 def resolve_scene(args):
@@ -173,7 +177,9 @@ def resolve_scene(args):
     g = args.g if args.g is not None else float(medium.get("g", 0.0))
 
     lights_text = args.sun if args.sun else [s for s in meta.get("nimbus:lights", "").split(";") if s.strip()]
-    suns = [parse_sun(s) for s in lights_text] or [parse_sun("dir=0,0,-1,irradiance=1")]
+    lit_otherwise = bool(args.sky or args.environment or meta.get("nimbus:environment", "none").strip() not in ("", "none"))
+    # As vdbmarch: with an environment and no light given, no default sun.
+    suns = [parse_sun(s) for s in lights_text] or ([] if lit_otherwise else [parse_sun("dir=0,0,-1,irradiance=1")])
     if any(s is None for s in suns):
         print("warning: point lights are not passed to peers; only suns are used", file=sys.stderr)
         suns = [s for s in suns if s is not None]
@@ -193,7 +199,21 @@ def resolve_scene(args):
         # vdbmarch's default frames the bounds from -Y; peers need it given explicitly to be
         # sure of matching, so refuse rather than guess a different framing.
         fail("no camera: give --eye/--look-at or a file with nimbus:camera metadata")
+    sky, envmap = None, None
+    recorded = meta.get("nimbus:environment", "none").strip()
+    if args.sky:
+        sky = _vec(args.sky, what="sky")
+    elif args.environment:
+        envmap = {"path": os.path.abspath(args.environment), "strength": args.environment_strength,
+                  "rotation": args.environment_rotation}
+    elif recorded.startswith("sky="):
+        sky = _vec(recorded[4:], what="sky")
+    elif recorded.startswith("map="):
+        path, rest = recorded[4:].rsplit(",strength=", 1)
+        strength, rotation = rest.split(",rotation=")
+        envmap = {"path": path, "strength": float(strength), "rotation": float(rotation)}
     return {
+        "sky": sky, "envmap": envmap,
         "density": density, "extinction": ext, "albedo": albedo, "g": g, "suns": suns,
         "eye": eye, "look_at": look_at, "up": up, "fov": fov, "width": width, "height": height,
         "background": _vec(args.background, what="background"),
@@ -209,6 +229,12 @@ def vdbmarch_flags(scene):
              "--height", str(scene["height"]), "--background", j(scene["background"])]
     for s in scene["suns"]:
         flags += ["--sun", f"dir={j(s['dir'])},irradiance={j(s['irradiance'])}"]
+    if scene.get("sky") is not None:
+        flags += ["--sky", j(scene["sky"])]
+    if scene.get("envmap"):
+        e = scene["envmap"]
+        flags += ["--environment", e["path"], "--environment-strength", repr(e["strength"]),
+                  "--environment-rotation", repr(e["rotation"])]
     return flags
 
 
