@@ -57,11 +57,12 @@ struct CacheUniforms {
     max_depth: u32,
     first_path: u32,
     path_count: u32,
+    // The uniform sky the paths gather (zero: none).
+    sky_r: f32,
+    sky_g: f32,
+    sky_b: f32,
     _pad0: u32,
     _pad1: u32,
-    _pad2: u32,
-    _pad3: u32,
-    _pad4: u32,
 }
 
 // Photons sorted by bin; `index` is the photon's number in the map (the CPU's tie-break).
@@ -375,9 +376,16 @@ fn continue_paths(v: u32) {
         if (any(w_out != vec3<f32>(0.0))) {
             axis = -w_out;
         }
+        // The sky scattered at the origin itself: next-event estimation there, and the first
+        // flight below when it escapes (li_multiple_paths).
+        let sky = vec3<f32>(params.sky_r, params.sky_g, params.sky_b);
+        if (any(sky > vec3<f32>(0.0))) {
+            sum = sum + sky_nee(sky, x, -axis, params.medium, params.grid, false, &rng);
+        }
         // From the phase function about the camera ray's direction: the phase weight cancels.
-        let dir = normalize(hg_sample(params.medium.g, axis, rng_next_vec2(&rng)).w_out);
-        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, &rng);
+        let first = hg_sample(params.medium.g, axis, rng_next_vec2(&rng));
+        let dir = normalize(first.w_out);
+        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, sky, first.pdf, &rng);
         sum = sum + (path.single + path.multiple);
     }
     if (end == n) {

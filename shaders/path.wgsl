@@ -37,20 +37,64 @@ fn path_track_ray(x: vec3<f32>, w: vec3<f32>, extinction: f32) -> TrackRay {
     return TrackRay((to_index * vec4<f32>(x, 1.0)).xyz, (to_index * vec4<f32>(w, 0.0)).xyz, extinction);
 }
 
+// The power heuristic weight of a sample of density a against another of density b
+// (nimbus_optics::power_heuristic).
+fn power_heuristic(a: f32, b: f32) -> f32 {
+    let a2 = a * a;
+    let s = a2 + b * b;
+    if (s > 0.0) {
+        return a2 / s;
+    }
+    return 0.0;
+}
+
+// Next-event estimation of a uniform sky of radiance `sky` at x toward w_out
+// (nimbus_tracking::environment_nee for Environment::Uniform): a direction uniform over the
+// sphere, its ratio-tracked transmittance, weighed against HG sampling unless `alone`.
+fn sky_nee(sky: vec3<f32>, x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo, alone: bool,
+           rng: ptr<function, Rng>) -> vec3<f32> {
+    let toward = sample_uniform_sphere(rng_next_vec2(rng));
+    let pdf = 1.0 / (4.0 * OPTICS_PI);
+    let p = hg_eval(m.g, dot(-toward, w_out));
+    var weight = 1.0;
+    if (!alone) {
+        weight = power_heuristic(pdf, p);
+    }
+    if (p * weight <= 0.0) {
+        _ = rng_next_f32(rng);
+        return vec3<f32>(0.0);
+    }
+    let tr = track_transmittance_ratio(path_track_ray(x, toward, m.extinction), grid, TRACK_FAR, RATIO_ROULETTE, rng);
+    return sky * (tr * p * weight / pdf);
+}
+
 // The radiance arriving at `origin` from direction -dir, scattered in the medium, by one
 // path: delta-tracked free flights, albedo at each collision, next-event estimation toward
 // every light, its transmittance looked up where the light has a table and ratio-tracked
 // otherwise, Russian roulette from ROULETTE_FROM_DEPTH, HG scattering; at most `max_depth`
-// collisions.
+// collisions. A uniform `sky` (zero: none) enters by sky_nee at each collision and by
+// phase-sampled flights that escape, weighed by the power heuristic; `first_pdf` is the HG
+// density `dir` was drawn with at the origin (PathStart::Scattered), or negative for a
+// camera ray (PathStart::Camera), whose escape is the caller's background.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
-              rng: ptr<function, Rng>) -> PathLight {
+              sky: vec3<f32>, first_pdf: f32, rng: ptr<function, Rng>) -> PathLight {
     var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0));
     var x = origin;
     var w = dir;
     var beta = vec3<f32>(1.0);
+    let has_sky = any(sky > vec3<f32>(0.0));
+    var flight_pdf = first_pdf;
     for (var depth = 1u; depth <= max_depth; depth = depth + 1u) {
         let t = track_sample_delta(path_track_ray(x, w, m.extinction), grid, rng);
         if (t < 0.0) {
+            if (has_sky && flight_pdf >= 0.0) {
+                let seen = beta * sky * power_heuristic(flight_pdf, 1.0 / (4.0 * OPTICS_PI));
+                if (depth <= 2u) {
+                    out.single = out.single + seen;
+                } else {
+                    out.multiple = out.multiple + seen;
+                }
+            }
             break;
         }
         x = x + w * t;
@@ -71,6 +115,9 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
             }
         }
+        if (has_sky) {
+            direct = direct + sky_nee(sky, x, -w, m, grid, depth == max_depth, rng);
+        }
         if (depth == 1u) {
             out.single = out.single + beta * direct;
         } else {
@@ -88,7 +135,9 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
                 beta = beta / q;
             }
         }
-        w = normalize(hg_sample(m.g, w, rng_next_vec2(rng)).w_out);
+        let next = hg_sample(m.g, w, rng_next_vec2(rng));
+        w = normalize(next.w_out);
+        flight_pdf = next.pdf;
     }
     return out;
 }

@@ -31,9 +31,10 @@ struct ReferenceUniforms {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // The uniform sky lighting the scene (zero: none).
+    sky_r: f32,
+    sky_g: f32,
+    sky_b: f32,
 }
 
 struct PixelOut {
@@ -82,7 +83,8 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         let m = params.medium;
         sum.transmittance = sum.transmittance + track_transmittance_ratio(path_track_ray(params.camera.eye, dir, m.extinction),
                                                                           params.grid, TRACK_FAR, RATIO_ROULETTE, &rng);
-        let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, &rng);
+        let sky = vec3<f32>(params.sky_r, params.sky_g, params.sky_b);
+        let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, sky, -1.0, &rng);
         sum.single = sum.single + path.single;
         sum.multiple = sum.multiple + path.multiple;
     }

@@ -180,7 +180,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             photons.len()
         ));
     }
-    let cpu_only = cpu_only_feature(params.lit_by_environment(), args.common.device, "the environment light", &log)?
+    let cpu_only = cpu_only_feature(params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map), args.common.device, "an environment map", &log)?
         | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", &log)?;
     let device = if cpu_only { nimbus_gpu::ComputeDevice::Cpu(nimbus_gpu::CpuReason::Requested) } else { args.common.compute_device(&log)? };
     let (cache, stats) = log

@@ -343,8 +343,8 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let lit = params.environment.as_ref().is_some_and(|e| !e.is_black());
-    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(lit, args.common.device, "the environment light", log)?
+    let map = params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map);
+    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(map, args.common.device, "an environment map", log)?
         | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", log)?;
     let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;

@@ -7,7 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, GpuLight, GpuMedium, Light, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, Light, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -56,7 +56,8 @@ struct GpuCacheParams {
     max_depth: u32,
     first_path: u32,
     path_count: u32,
-    _pad: [u32; 5],
+    sky: [f32; 3],
+    _pad: [u32; 2],
 }
 
 /// WGSL `CachePhoton`.
@@ -98,8 +99,8 @@ fn constants_wgsl() -> String {
 /// paths and estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
-    if params.lit_by_environment() {
-        return Err(CacheError::Param("the environment is not built for the GPU cache baker yet (use --device cpu)".into()));
+    if params.environment.as_ref().is_some_and(Environment::is_lit_map) {
+        return Err(CacheError::Param("an environment map is not built for the GPU cache baker yet (use --device cpu; a uniform --sky is)".into()));
     }
     if params.lights.iter().any(Light::has_disc) {
         return Err(CacheError::Param("a sun with angle > 0 is not built for the GPU cache baker yet (use --device cpu)".into()));
@@ -315,7 +316,8 @@ impl<'a> GpuBaker<'a> {
             max_depth: PATH_MAX_DEPTH,
             first_path: 0,
             path_count: PATHS_PER_DISPATCH,
-            _pad: [0; 5],
+            sky: params.environment.as_ref().and_then(Environment::as_uniform).unwrap_or(Vec3::ZERO).to_array(),
+            _pad: [0; 2],
         };
         let tracking = match params.estimator {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons) => {

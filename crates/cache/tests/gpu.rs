@@ -319,6 +319,40 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     assert!((same_other as f64) < 0.5 * lit_other as f64, "seed 6 agrees with seed 5 at {same_other} of {lit_other} lit voxels");
 }
 
+/// A uniform sky through the paths on both backends: next-event estimation at the voxel and
+/// at every collision, and escaping flights, from the same random streams.
+#[test]
+fn a_uniform_sky_in_the_paths_agrees_with_the_cpu_in_distribution() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let sky = nimbus_optics::Environment::uniform(Vec3::new(0.3, 0.5, 0.9)).unwrap();
+    for lights in [vec![], params(&v).lights] {
+        let p = CacheParams {
+            single: false,
+            cache_scale: 1.5,
+            multiple_scale: Some(2.5),
+            estimator: MultipleEstimator::Paths { per_voxel: 8 },
+            environment: Some(sky.clone()),
+            lights: lights.clone(),
+            seed: 9,
+            ..params(&v)
+        };
+        let none = PhotonMap::default();
+        let (cpu, _) = bake_cpu(&v, &none, &p).unwrap();
+        let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
+        assert_eq!(gpu_stats.nonfinite, 0);
+        let (n, lit, same, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
+        eprintln!("sky, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
+        assert!(n > 500 && lit > 500 && level > 0.0);
+        assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+        assert!(same as f64 >= 0.3 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
+    }
+    // A map has no GPU twin yet: refused, not ignored.
+    let map = nimbus_optics::EnvironmentMap::new(2, 1, vec![Vec3::ONE, Vec3::ZERO]).unwrap();
+    let p = CacheParams { environment: Some(nimbus_optics::Environment::map(map, "m.exr", 1.0, 0.0).unwrap()), ..params(&v) };
+    assert!(bake_gpu(ctx, &v, &PhotonMap::default(), &p).is_err());
+}
+
 #[test]
 fn li_multiple_takes_its_own_lattice_on_the_gpu_as_on_the_cpu() {
     let v = lumpy_ball();

@@ -185,6 +185,32 @@ fn gpu_and_cpu_agree_in_distribution() {
     assert!(close >= 80, "only {close} of 108 pixels agree to 1e-3");
 }
 
+#[test]
+fn a_uniform_sky_renders_alike_on_gpu_and_cpu() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let density = ball();
+    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.85, 0.8), g: 0.3 };
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
+    let mut p = params(medium, vec![], camera, 256);
+    p.environment = Some(nimbus_optics::Environment::uniform(Vec3::new(0.2, 0.4, 0.8)).unwrap());
+    p.environment_visible = true;
+    let cpu = render_reference_cpu(&density, &p, &no_progress).unwrap();
+    let gpu = render_reference_gpu(ctx, &density, &p, 64, &|_| {}).unwrap();
+    let (c, g) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+    for (name, a, b) in [("single", &c.single, &g.single), ("multiple", &c.multiple, &g.multiple)] {
+        let (ma, mb) = (mean(a.iter().copied()), mean(b.iter().copied()));
+        eprintln!("sky, {name}: cpu {ma} gpu {mb}");
+        assert!(ma.z > 0.0);
+        assert!(((mb - ma) / ma).abs().max_element() < 0.03, "{name}: cpu {ma}, gpu {mb}");
+    }
+    // The sky is seen behind the ball on both.
+    let (mc, mg) = (cpu.mean_rgb(), gpu.mean_rgb());
+    assert!(((mg - mc) / mc).abs().max_element() < 0.02, "image: cpu {mc}, gpu {mg}");
+    let close = cpu.rgba.iter().zip(&gpu.rgba).filter(|(a, b)| (**a - **b).abs().max_element() <= 1e-3 * a.max_element().max(1e-3)).count();
+    eprintln!("sky: {close} of 108 pixels equal to 1e-3");
+    assert!(close >= 60, "only {close} of 108 pixels agree to 1e-3");
+}
+
 /// An albedo-1 cube 300 mean free paths across: a path random-walks tens of thousands of
 /// bounces before it leaves, more loop iterations than a software adapter (llvmpipe: 65535 per
 /// SIMD group) runs whole; it used to end the walks early without an error and return far too

@@ -277,6 +277,19 @@ impl Environment {
         Ok(Environment::Map { map: Arc::new(map), path: path.into(), strength, rotation })
     }
 
+    /// The radiance of a uniform sky; None for a map.
+    pub fn as_uniform(&self) -> Option<Vec3> {
+        match self {
+            Environment::Uniform(c) => Some(*c),
+            Environment::Map { .. } => None,
+        }
+    }
+
+    /// Whether it is a map that sends light: what the GPU backends do not take yet.
+    pub fn is_lit_map(&self) -> bool {
+        matches!(self, Environment::Map { .. }) && !self.is_black()
+    }
+
     /// Whether it sends no light at all (then no stage spends anything on it).
     pub fn is_black(&self) -> bool {
         match self {

@@ -30,7 +30,7 @@ struct GpuReferenceParams {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    _pad: [u32; 3],
+    sky: [f32; 3],
 }
 
 /// Samples per pixel per dispatch (see reference.wgsl: lavapipe's loop limit).
@@ -49,8 +49,8 @@ pub fn render_reference_gpu(
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    if params.environment.as_ref().is_some_and(|e| !e.is_black()) {
-        return Err(MarchError::Param("the environment is not built for the GPU reference tracer yet (use --device cpu)".into()));
+    if params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map) {
+        return Err(MarchError::Param("an environment map is not built for the GPU reference tracer yet (use --device cpu; a uniform --sky is)".into()));
     }
     if params.lights.iter().any(nimbus_optics::Light::has_disc) {
         return Err(MarchError::Param("a sun with angle > 0 is not built for the GPU reference tracer yet (use --device cpu)".into()));
@@ -94,7 +94,7 @@ pub fn render_reference_gpu(
         tile_pixels: 0,
         first_sample: 0,
         sample_count: SAMPLES_PER_DISPATCH,
-        _pad: [0; 3],
+        sky: params.environment.as_ref().and_then(nimbus_optics::Environment::as_uniform).unwrap_or(glam::Vec3::ZERO).to_array(),
     };
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
@@ -104,7 +104,8 @@ pub fn render_reference_gpu(
         guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out])
     })?;
     guard.check(ctx, "a pixel's paths", "")?;
-    Ok(Image::from_rays(camera.width(), camera.height(), &pixels, params.background, params.aovs))
+    let background = crate::constant_background(params.background, params.environment.as_ref().filter(|_| params.environment_visible));
+    Ok(Image::from_rays(camera.width(), camera.height(), &pixels, background, params.aovs))
 }
 
 /// Pixels per dispatch that keep a reference dispatch short on any device: a quarter of a
