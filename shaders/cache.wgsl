@@ -376,12 +376,9 @@ fn continue_paths(v: u32) {
         if (any(w_out != vec3<f32>(0.0))) {
             axis = -w_out;
         }
-        // The sky scattered at the origin itself: next-event estimation there, and the first
-        // flight below when it escapes (li_multiple_paths).
+        // The sky scattered at the origin itself: the first flight below, when it escapes (a
+        // uniform sky takes no next-event estimate, li_multiple_paths).
         let sky = vec3<f32>(params.sky_r, params.sky_g, params.sky_b);
-        if (any(sky > vec3<f32>(0.0))) {
-            sum = sum + sky_nee(sky, x, -axis, params.medium, params.grid, false, &rng);
-        }
         // From the phase function about the camera ray's direction: the phase weight cancels.
         let first = hg_sample(params.medium.g, axis, rng_next_vec2(&rng));
         let dir = normalize(first.w_out);

@@ -51,6 +51,8 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 // Next-event estimation of a uniform sky of radiance `sky` at x toward w_out
 // (nimbus_tracking::environment_nee for Environment::Uniform): a direction uniform over the
 // sphere, its ratio-tracked transmittance, weighed against HG sampling unless `alone`.
+// trace_path calls it only alone (at max_depth): for a uniform sky escaping flights carry
+// the rest.
 fn sky_nee(sky: vec3<f32>, x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo, alone: bool,
            rng: ptr<function, Rng>) -> vec3<f32> {
     let toward = sample_uniform_sphere(rng_next_vec2(rng));
@@ -72,8 +74,8 @@ fn sky_nee(sky: vec3<f32>, x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: Majo
 // path: delta-tracked free flights, albedo at each collision, next-event estimation toward
 // every light, its transmittance looked up where the light has a table and ratio-tracked
 // otherwise, Russian roulette from ROULETTE_FROM_DEPTH, HG scattering; at most `max_depth`
-// collisions. A uniform `sky` (zero: none) enters by sky_nee at each collision and by
-// phase-sampled flights that escape, weighed by the power heuristic; `first_pdf` is the HG
+// collisions. A uniform `sky` (zero: none) enters where phase-sampled flights escape (and
+// by sky_nee at the last collision, which no flight follows); `first_pdf` is the HG
 // density `dir` was drawn with at the origin (PathStart::Scattered), or negative for a
 // camera ray (PathStart::Camera), whose escape is the caller's background.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
@@ -88,7 +90,9 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
         let t = track_sample_delta(path_track_ray(x, w, m.extinction), grid, rng);
         if (t < 0.0) {
             if (has_sky && flight_pdf >= 0.0) {
-                let seen = beta * sky * power_heuristic(flight_pdf, 1.0 / (4.0 * OPTICS_PI));
+                // A uniform sky takes no next-event estimate (Environment::wants_next_event):
+                // escaping flights carry all of it.
+                let seen = beta * sky;
                 if (depth <= 2u) {
                     out.single = out.single + seen;
                 } else {
@@ -115,8 +119,9 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
             }
         }
-        if (has_sky) {
-            direct = direct + sky_nee(sky, x, -w, m, grid, depth == max_depth, rng);
+        if (has_sky && depth == max_depth) {
+            // No flight follows the last collision: its sky by a shadow ray alone.
+            direct = direct + sky_nee(sky, x, -w, m, grid, true, rng);
         }
         if (depth == 1u) {
             out.single = out.single + beta * direct;

@@ -285,6 +285,15 @@ impl Environment {
         }
     }
 
+    /// Whether next-event estimation toward it pays: not for a uniform sky, whose radiance
+    /// the phase function's own sampling follows as well as any draw can (the integrand is
+    /// p T with L constant), so its light enters only where phase-sampled flights escape; a
+    /// shadow ray per collision toward a uniform direction added the same error at 2.2x the
+    /// paths' time on the bundled plume (1.33% against 1.29%, 63 against 28 CPU s).
+    pub fn wants_next_event(&self) -> bool {
+        matches!(self, Environment::Map { .. })
+    }
+
     /// Whether it is a map that sends light: what the GPU backends do not take yet.
     pub fn is_lit_map(&self) -> bool {
         matches!(self, Environment::Map { .. }) && !self.is_black()

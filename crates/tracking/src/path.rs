@@ -52,8 +52,13 @@ pub struct PathSources<'a> {
 /// from the environment ([`Environment::sample`]), its transmittance to infinity by ratio
 /// tracking, weighed by the power heuristic against the phase function's own sampling of
 /// that direction (which [`trace_path`] adds when a flight escapes) unless `alone`, when no
-/// phase-sampled direction follows.
+/// phase-sampled direction follows. A uniform sky takes no next-event estimate but `alone`
+/// ([`Environment::wants_next_event`]): escaping flights carry all of it, and draw nothing
+/// here.
 pub fn environment_nee(medium: DensityMedium, phase: HenyeyGreenstein, environment: &Environment, x: DVec3, w_out: Vec3, alone: bool, rng: &mut Rng) -> Vec3 {
+    if !alone && !environment.wants_next_event() {
+        return Vec3::ZERO;
+    }
     let sample = environment.sample(rng.next_vec2());
     if sample.pdf <= 0.0 || sample.radiance == Vec3::ZERO {
         // Keep the stream's length independent of the draw.
@@ -79,10 +84,10 @@ pub fn environment_nee(medium: DensityMedium, phase: HenyeyGreenstein, environme
 /// [`ROULETTE_FROM_DEPTH`]; at most `max_depth` collisions.
 ///
 /// Suns and points are delta lights: next-event estimation is the only way their light
-/// enters a path. The environment (`sources.environment`) enters two ways, combined by the
-/// power heuristic: [`environment_nee`] at each collision, and a phase-sampled flight that
+/// enters a path. A map (`sources.environment`) enters two ways, combined by the power
+/// heuristic: [`environment_nee`] at each collision, and a phase-sampled flight that
 /// escapes, which adds the environment's radiance in its direction (see [`PathStart`] for
-/// the first flight). At the last collision `max_depth` no flight follows, so its
+/// the first flight); a uniform sky by escaping flights alone. At the last collision `max_depth` no flight follows, so its
 /// next-event estimate takes the whole weight.
 ///
 /// With `sources.emission`, every real collision at x also adds `beta e(x) / sigma_t(x)` (beta the
@@ -123,7 +128,8 @@ pub fn trace_path(
         let FreePath::Interaction(t) = MediumRay::new(medium, x, w, 0.0, f64::INFINITY).sample_delta(rng) else {
             if let (Some(env), Some(pdf)) = (environment, flight_pdf) {
                 let toward = w.as_vec3();
-                let seen = beta * env.radiance(toward) * power_heuristic(pdf, env.pdf(toward));
+                let weight = if env.wants_next_event() { power_heuristic(pdf, env.pdf(toward)) } else { 1.0 };
+                let seen = beta * env.radiance(toward) * weight;
                 // Scattered last at collision depth - 1 (0: the origin).
                 if depth <= 2 {
                     light.single += seen;
