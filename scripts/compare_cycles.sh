@@ -57,22 +57,22 @@ fi
 blend "$work/fire.blend" -P scripts/blender/blender_temperature.py -- data/fire.vdb "$work/fire-bt.vdb"
 [ -s "$work/fire-bt.vdb" ] || { echo "compare_cycles: no $work/fire-bt.vdb" >&2; exit 1; }
 
-# nimbus: NAME, input, then flags for vdbcache, then flags for vdbmarch.
+# nimbus: NAME, input, flags for vdbcache, flags for vdbmarch, and the medium (default $medium).
 nimbus() {
-    local name=$1 in=$2 cache=$3 march=$4 start
+    local name=$1 in=$2 cache=$3 march=$4 med=${5:-$medium} start
     start=$(date +%s%N)
     # shellcheck disable=SC2086
-    "$BIN/vdbcache" -q "$in" $medium $cam $cache | "$BIN/vdbmarch" -q -o "$work/$name.exr" $march
+    "$BIN/vdbcache" -q "$in" $med $cam $cache | "$BIN/vdbmarch" -q -o "$work/$name.exr" $march
     echo "nimbus $name: $(( ($(date +%s%N) - start) / 1000000 )) ms" >&2
 }
 # The reference path tracer (all orders, fire light scattered by the smoke included): NAME,
-# input, flags.
+# input, the medium, flags.
 reference() {
-    local name=$1 in=$2 start
-    shift 2
+    local name=$1 in=$2 med=$3 start
+    shift 3
     start=$(date +%s%N)
     # shellcheck disable=SC2086
-    "$BIN/vdbmarch" -q --reference "$in" $medium $cam --spp "$ref_spp" "$@" -o "$work/$name.exr"
+    "$BIN/vdbmarch" -q --reference "$in" $med $cam --spp "$ref_spp" "$@" -o "$work/$name.exr"
     echo "nimbus --reference $name: $(( ($(date +%s%N) - start) / 1000000 )) ms" >&2
 }
 ref_spp=${REF_SPP:-2048}
@@ -85,13 +85,14 @@ nimbus n-sun data/fire.vdb "--sun $sun" "--no-emission"
 nimbus n-bt-full "$work/fire-bt.vdb" "--sun $sun" "$bt"
 nimbus n-bt-fire "$work/fire-bt.vdb" "--sun $dark" "$bt"
 # A pure absorber (albedo 0): nothing scatters, so emission and its attenuation alone.
-nimbus n-bt-fire-a0 "$work/fire-bt.vdb" "--sun $dark --albedo 0" "$bt"
+absorber="--extinction 5 --albedo 0 --g 0"
+nimbus n-bt-fire-a0 "$work/fire-bt.vdb" "--sun $dark" "$bt" "$absorber"
 # shellcheck disable=SC2086
-reference r-bt-fire "$work/fire-bt.vdb" --sun "$dark" $bt
+reference r-bt-fire "$work/fire-bt.vdb" "$medium" --sun "$dark" $bt
 # shellcheck disable=SC2086
-reference r-bt-fire-a0 "$work/fire-bt.vdb" --sun "$dark" --albedo 0 $bt
+reference r-bt-fire-a0 "$work/fire-bt.vdb" "$absorber" --sun "$dark" $bt
 # shellcheck disable=SC2086
-reference r-bt-full "$work/fire-bt.vdb" --sun "$sun" $bt
+reference r-bt-full "$work/fire-bt.vdb" "$medium" --sun "$sun" $bt
 
 cycles() {
     local name=$1; shift

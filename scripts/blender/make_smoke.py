@@ -1,7 +1,7 @@
 """Bakes a Blender (Mantaflow) smoke plume, or a fire, to an OpenVDB file nimbus can read.
 
     blender -b --python-exit-code 1 --python scripts/blender/make_smoke.py -- OUTDIR \
-        [--fire] [--resolution N] [--frames F]
+        [--fire] [--resolution N] [--frames F] [--bundle PATH]
 
 Builds what Blender's Object > Quick Effects > Quick Smoke builds from one small emitter, by
 hand (the operator's geometry and material, without its fake-context operator calls): an
@@ -47,10 +47,12 @@ What Blender 3.4.1 (Debian 12) writes, `vdb_print -l -m` of smoke.vdb at the def
 - Transform: a plain scale, voxel size 0.0703125 (= 4.5 / 64), no translation: index
   (i,j,k) sits at world (i,j,k) * 0.0703125. The domain's own placement (its min corner at
   Blender's (-1.25, -1.25, -1.25), the object's matrix) is not in the file, so in the VDB's
-  world space the plume sits 1.25 units off on each axis from where Blender shows it
-  (Blender places the cache by the domain object itself; not checked against Blender's
-  loader here). Voxels are cubic (the same size on every
-  axis).
+  world space the plume sits 1.25 units off on each axis from where Blender shows it:
+  Blender places the cache by the domain object, mapping the grid onto the domain's box
+  (texel centres at (i + 0.5) / res), so in Blender's world voxels are 2.5/36 = 0.0694 wide
+  in x and y and 4.5/64 in z, half a voxel further in. `--bundle PATH` writes the frame with
+  that transform (write_bundle below; checked against Cycles by scripts/compare_cycles.sh,
+  whose sunlit smoke agrees to 0.9% RMSE). In the cache's own transform voxels are cubic.
 - `shadow` is Mantaflow's light transmittance over the whole domain (dense), not medium;
   nimbus's default `--grid density` is the one to render.
 - Optical depth at nimbus's default extinction 1 (density x voxel size summed along an
