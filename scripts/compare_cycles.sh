@@ -42,7 +42,19 @@ for t in vdbcache vdbmarch; do
 done
 command -v blender >/dev/null || { echo "compare_cycles: blender is not installed" >&2; exit 2; }
 # Blender on one thread: this is a shared 2-core machine, and the timings stay comparable.
-blend() { blender -b --factory-startup -t 1 --python-exit-code 1 "$@" 2>&1 | grep -E '^(make_smoke|render_cycles|blender_temperature|compare_exr)|mean RGB|rror' || true; }
+# Only the scripts' own lines are shown; a failing run shows its last lines and stops here.
+blend() {
+    local log
+    log=$(mktemp)
+    if ! blender -b --factory-startup -t 1 --python-exit-code 1 "$@" >"$log" 2>&1; then
+        tail -20 "$log" >&2
+        rm -f "$log"
+        echo "compare_cycles: blender $* failed" >&2
+        return 1
+    fi
+    grep -E '^(make_smoke|render_cycles|blender_temperature|compare_exr)|mean RGB' "$log" || true
+    rm -f "$log"
+}
 
 # The demo's fire scene (scripts/demo.sh), at a third of its size: camera, sun, and
 # Blender's material as the medium.
