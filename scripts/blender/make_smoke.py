@@ -1,7 +1,7 @@
 """Bakes a Blender (Mantaflow) smoke plume, or a fire, to an OpenVDB file nimbus can read.
 
     blender -b --python-exit-code 1 --python scripts/blender/make_smoke.py -- OUTDIR \
-        [--fire] [--resolution N] [--frames F]
+        [--fire] [--resolution N] [--frames F] [--bundle PATH]
 
 Builds what Blender's Object > Quick Effects > Quick Smoke builds from one small emitter, by
 hand (the operator's geometry and material, without its fake-context operator calls): an
@@ -47,10 +47,12 @@ What Blender 3.4.1 (Debian 12) writes, `vdb_print -l -m` of smoke.vdb at the def
 - Transform: a plain scale, voxel size 0.0703125 (= 4.5 / 64), no translation: index
   (i,j,k) sits at world (i,j,k) * 0.0703125. The domain's own placement (its min corner at
   Blender's (-1.25, -1.25, -1.25), the object's matrix) is not in the file, so in the VDB's
-  world space the plume sits 1.25 units off on each axis from where Blender shows it
-  (Blender places the cache by the domain object itself; not checked against Blender's
-  loader here). Voxels are cubic (the same size on every
-  axis).
+  world space the plume sits 1.25 units off on each axis from where Blender shows it:
+  Blender places the cache by the domain object, mapping the grid onto the domain's box
+  (texel centres at (i + 0.5) / res), so in Blender's world voxels are 2.5/36 = 0.0694 wide
+  in x and y and 4.5/64 in z, half a voxel further in. `--bundle PATH` writes the frame with
+  that transform (write_bundle below; checked against Cycles by scripts/compare_cycles.sh,
+  whose sunlit smoke agrees to 0.9% RMSE). In the cache's own transform voxels are cubic.
 - `shadow` is Mantaflow's light transmittance over the whole domain (dense), not medium;
   nimbus's default `--grid density` is the one to render.
 - Optical depth at nimbus's default extinction 1 (density x voxel size summed along an
@@ -79,6 +81,9 @@ def parse_args():
     p.add_argument("--fire", action="store_true", help="fuel + flame instead of smoke only")
     p.add_argument("--resolution", type=int, default=64, help="domain resolution (longest side)")
     p.add_argument("--frames", type=int, default=40, help="frames to bake (the last is kept)")
+    p.add_argument("--bundle", metavar="PATH",
+                   help="also write the last frame's density, flame and temperature grids here, "
+                        "in Blender's world space (the file nimbus bundles as data/fire.vdb)")
     return p.parse_args(argv)
 
 
@@ -200,6 +205,57 @@ def main():
     target = os.path.join(outdir, name + ".vdb")
     shutil.copyfile(last, target)
     print(f"make_smoke: {last} -> {target}; {blend_path}", flush=True)
+    if args.bundle:
+        write_bundle(last, domain, os.path.abspath(args.bundle))
+
+
+def write_bundle(cache_file, domain, path):
+    """The cache frame with the domain's placement baked into the VDB transform.
+
+    Mantaflow writes its grids with a plain scale (voxel size dx = the domain's longest side
+    / resolution) and no translation, in the domain's own grid space. Blender draws and renders
+    them by the domain object instead: Cycles maps the grid onto the domain mesh's texture
+    space (its bounding box, texel i's centre at (i + 0.5) / res), so world = matrix_world @
+    (p0 + (i + 0.5) * cell_size), p0 the mesh's local minimum corner and cell_size the local
+    box / res per axis (BKE fluid_set_domain_from_mesh). Here that is x = -1.25 + (i + 0.5) *
+    2.5/36 (z: -1.25 + (k + 0.5) * 4.5/64): the file's own transform puts voxel i at i * 4.5/64,
+    1.25 units off on each axis (plus half a voxel), and 1.25% too wide in x and y, whose
+    cells are 2.5/36 = 0.0694 against dx = 0.0703. The shadow (Mantaflow's own light
+    transmittance) and velocity grids are left out; half floats as Blender writes them.
+    """
+    import pyopenvdb as vdb
+    from mathutils import Matrix
+
+    # cell_size and the resolution live on the evaluated modifier (the original's stay 0).
+    bpy.context.scene.frame_set(bpy.context.scene.frame_end)
+    evaluated = domain.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    eds = evaluated.modifiers["Fluid"].domain_settings
+    lo = Vector([min(v[a] for v in domain.bound_box) for a in range(3)])
+    cell = Vector(eds.cell_size)  # local units per voxel, per axis
+    if min(cell) <= 0.0:
+        print(f"make_smoke: error: the domain's cell size is {tuple(cell)}", file=sys.stderr)
+        sys.exit(1)
+    local = Matrix.Identity(4)
+    for a in range(3):
+        local[a][a] = cell[a]
+        local[a][3] = lo[a] + 0.5 * cell[a]
+    m = domain.matrix_world @ local  # column vectors: world = m @ (i, j, k, 1)
+    # OpenVDB's Mat4 takes row vectors (translation in the last row): the transpose.
+    xform = vdb.createLinearTransform([[m[c][r] for c in range(4)] for r in range(4)])
+    grids = []
+    for name in ("density", "flame", "temperature"):
+        g = vdb.read(cache_file, name)
+        g.transform = xform
+        g.saveFloatAsHalf = True
+        grids.append(g)
+    meta = {"creator": "Blender %s Mantaflow, scripts/blender/make_smoke.py --fire --bundle "
+                       "(frame %d)" % (bpy.app.version_string, bpy.context.scene.frame_end)}
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    vdb.write(path, grids=grids, metadata=meta)
+    w0 = m @ Vector((0, 0, 0, 1))
+    print(f"make_smoke: bundle {path}: {', '.join(g.name for g in grids)}; voxel (0,0,0) at "
+          f"({w0.x:.5f}, {w0.y:.5f}, {w0.z:.5f}), voxel size "
+          f"{', '.join('%.6f' % (m[a][a]) for a in range(3))}", flush=True)
 
 
 if __name__ == "__main__":
