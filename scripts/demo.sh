@@ -40,16 +40,19 @@ render_vdb() {
   printf '== %s: %d.%03d s in all -> out/%s.exr, out/%s.png\n' "$scene" $((ms / 1000)) $((ms % 1000)) "$scene" "$scene" >&2
 }
 
-# Sky light (issue #19's --sky R,G,B, which every tool is getting): it goes into each scene's
-# light flags below, beside its --sun.
+# Each scene is lit by a sun and a blue sky (--sky: uniform radiance from every direction,
+# about a sixth of the light on a horizontal surface, as on a clear day), which camera rays
+# also see behind the volume, as Blender shows its World.
 
-# A flat cumulus deck (340 x 360 x 40 units) lit by a low sun, seen from above its edge.
+# A flat cumulus deck (340 x 360 x 40 units) under a low sun, seen from above its edge,
+# with the paper's Perlin offset noise (one voxel) for detail finer than the particles.
 render cloud data/cloud.ply "--voxel-size 2" \
-  "--extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4" \
-  "--eye 170,-300,160 --look-at 170,180,10"
+  "--extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4 --sky 0.12,0.2,0.36" \
+  "--eye 170,-300,160 --look-at 170,180,10" \
+  --offset-noise 2
 # A smoke plume rising 150 units, darker and more absorbing, lit from the side.
 render plume data/plume.ply "--voxel-size 1" \
-  "--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5" \
+  "--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5 --sky 0.15,0.24,0.42" \
   ""
 # A Blender 3.4 Mantaflow fire (data/fire.vdb, data/README.md): its `temperature` grid is
 # recognised as a blackbody and rendered as fire by default. The medium is the .blend's own
@@ -58,7 +61,7 @@ render plume data/plume.ply "--voxel-size 1" \
 # frames the plume from slightly right of -Y (scripts/compare_cycles.sh renders the same
 # view in Cycles).
 render_vdb fire data/fire.vdb \
-  "--extinction 5 --albedo 0.5 --g 0 --sun dir=0.6,0.5,-0.62,irradiance=12" \
+  "--extinction 5 --albedo 0.5 --g 0 --sun dir=0.6,0.5,-0.62,irradiance=12 --sky 0.03,0.04,0.07" \
   "--eye 2.6,-7.8,1.8 --look-at 0,0,1.05"
 
 cp out/cloud.exr out/demo.exr
