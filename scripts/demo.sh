@@ -9,32 +9,24 @@ cd "$(dirname "$0")/.."
 BIN=${BIN:-${CARGO_TARGET_DIR:-target}/release}
 mkdir -p out
 
+# render SCENE INPUT DENSITY_FLAGS LIGHT_FLAGS CAMERA_FLAGS [vdbmarch flags...]: particles
+# through particles2vdb | vdbcache, or a VDB (already a fog volume; DENSITY_FLAGS unused)
+# straight into vdbcache; then vdbmarch.
 render() {
   local scene=$1; shift
-  local particles=$1; shift
+  local input=$1; shift
   local density_flags=$1; shift
   local light_flags=$1; shift
   local camera_flags=$1; shift
-  echo "== $scene: $particles" >&2
+  echo "== $scene: $input" >&2
   local start=$(date +%s%N)
   # shellcheck disable=SC2086
-  "$BIN/particles2vdb" "$particles" -v $density_flags \
-    | "$BIN/vdbcache" -v $light_flags $camera_flags -o "out/$scene.vdb"
-  "$BIN/vdbmarch" -v "out/$scene.vdb" -o "out/$scene.exr" --preview "out/$scene.png" "$@"
-  local ms=$(( ($(date +%s%N) - start) / 1000000 ))
-  printf '== %s: %d.%03d s in all -> out/%s.exr, out/%s.png\n' "$scene" $((ms / 1000)) $((ms % 1000)) "$scene" "$scene" >&2
-}
-
-# A VDB scene: the same without particles2vdb (the file is already a fog volume).
-render_vdb() {
-  local scene=$1; shift
-  local vdb=$1; shift
-  local light_flags=$1; shift
-  local camera_flags=$1; shift
-  echo "== $scene: $vdb" >&2
-  local start=$(date +%s%N)
-  # shellcheck disable=SC2086
-  "$BIN/vdbcache" -v "$vdb" $light_flags $camera_flags -o "out/$scene.vdb"
+  if [[ $input == *.vdb ]]; then
+    "$BIN/vdbcache" -v "$input" $light_flags $camera_flags -o "out/$scene.vdb"
+  else
+    "$BIN/particles2vdb" "$input" -v $density_flags \
+      | "$BIN/vdbcache" -v $light_flags $camera_flags -o "out/$scene.vdb"
+  fi
   "$BIN/vdbmarch" -v "out/$scene.vdb" -o "out/$scene.exr" --preview "out/$scene.png" "$@"
   local ms=$(( ($(date +%s%N) - start) / 1000000 ))
   printf '== %s: %d.%03d s in all -> out/%s.exr, out/%s.png\n' "$scene" $((ms / 1000)) $((ms % 1000)) "$scene" "$scene" >&2
@@ -60,7 +52,7 @@ render plume data/plume.ply "--voxel-size 1" \
 # the camera's left, above, strong enough that the smoke beside the flame reads. The camera
 # frames the plume from slightly right of -Y (scripts/compare_cycles.sh renders the same
 # view in Cycles).
-render_vdb fire data/fire.vdb \
+render fire data/fire.vdb "" \
   "--extinction 5 --albedo 0.5 --g 0 --sun dir=0.6,0.5,-0.62,irradiance=12 --sky 0.03,0.04,0.07" \
   "--eye 2.6,-7.8,1.8 --look-at 0,0,1.05"
 
