@@ -95,11 +95,12 @@ fn constants_wgsl() -> String {
 }
 
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
-/// paths and estimators as [`crate::bake_cpu`], in f32.
+/// paths and estimators as [`crate::bake_cpu`], in f32. The medium's emission is CPU-only so
+/// far ([`crate::bake_cpu_emitting`]; vdbcache keeps an emitting scene on the CPU).
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
     let single = params.bakes_single();
-    let multiple = params.bakes_multiple(photons);
+    let multiple = params.bakes_multiple(photons, false);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
     if let Gather::Neighbours { k, .. } = params.gather {
         if gathers && k > GPU_MAX_NEIGHBOURS {
@@ -110,7 +111,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     }
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, false);
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
@@ -133,7 +134,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         None => Kernel::Photons,
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
-    let lattice = params.light_lattice(photons);
+    let lattice = params.light_lattice(photons, false);
     // The CPU tables the lights whenever something reads them, baked voxels or not (the
     // transmittance grids are view-independent): so does this.
     let volume = (work || lattice.is_some())
@@ -312,7 +313,7 @@ impl<'a> GpuBaker<'a> {
             _pad: [0; 5],
         };
         let tracking = match params.estimator {
-            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons) => {
+            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, false) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
                 Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background())))
             }

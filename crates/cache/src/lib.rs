@@ -54,7 +54,7 @@ mod importance;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
+pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use plan::{cache_transform, CachePlan};
@@ -238,9 +238,10 @@ impl CacheParams {
     }
 
     /// The lights' tabled optical depths, where the shadows are tabled and something reads
-    /// them (single scattering, or paths' next-event estimation); none otherwise.
-    pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap) -> LightDepths {
-        match self.light_lattice(photons) {
+    /// them (single scattering, or paths' next-event estimation); none otherwise. `emits`:
+    /// whether the medium emits (the paths then run without lights too).
+    pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap, emits: bool) -> LightDepths {
+        match self.light_lattice(photons, emits) {
             Some(lattice) => LightDepths::build(medium, &self.lights, lattice, self.opaque_depth()),
             None => LightDepths::default(),
         }
@@ -248,8 +249,9 @@ impl CacheParams {
 
     /// The lattice [`CacheParams::light_depths`] tables on, where it tables anything (both
     /// backends ask).
-    pub fn light_lattice(&self, photons: &nimbus_photon::PhotonMap) -> Option<LightLattice> {
-        let reads = self.bakes_single() || (self.bakes_multiple(photons) && matches!(self.estimator, MultipleEstimator::Paths { .. }));
+    pub fn light_lattice(&self, photons: &nimbus_photon::PhotonMap, emits: bool) -> Option<LightLattice> {
+        let reads = !self.lights.is_empty()
+            && (self.bakes_single() || (self.bakes_multiple(photons, emits) && matches!(self.estimator, MultipleEstimator::Paths { .. })));
         match self.shadows {
             ShadowMode::Table(lattice) if reads => Some(lattice),
             _ => None,
@@ -257,13 +259,14 @@ impl CacheParams {
     }
 
     /// Whether multiple scattering is asked for and has something to estimate it from:
-    /// photons to gather, or lights for the paths to reach.
-    pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
+    /// photons to gather, or light for the paths to gather (lights, or the medium's own
+    /// emission where `emits`: a fire with no lights still lights its smoke).
+    pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap, emits: bool) -> bool {
         self.multiple
             && !self.medium.is_non_scattering()
             && match self.estimator {
                 MultipleEstimator::Photons => !photons.is_empty(),
-                MultipleEstimator::Paths { .. } => !self.lights.is_empty(),
+                MultipleEstimator::Paths { .. } => !self.lights.is_empty() || emits,
             }
     }
 

@@ -12,8 +12,11 @@
 //!   [`VdbOutputArgs`]) and the pipeline's metadata ([`PipelineMeta`], [`MetaWriter`]): what
 //!   one tool records, the next takes as its defaults; a flag overrides, with a warning
 //!   where that makes earlier work inconsistent.
+//! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
+//!   vdbphoton, vdbcache and vdbmarch ([`emission_device`]: emission stays on the CPU).
 
 mod args;
+mod emission;
 mod failure;
 mod io;
 mod log;
@@ -21,6 +24,7 @@ pub mod meta;
 mod vdbio;
 
 pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
+pub use emission::{emission_device, EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
