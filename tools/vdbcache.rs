@@ -192,8 +192,10 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             ));
         }
     }
-    // Only the paths read the emission; the photon gather runs on any device.
-    let device = emission_device(&args.common, emission.as_ref().filter(|_| paths), &log)?;
+    // Only the paths read the emission, and only in a medium that scatters; the photon
+    // gather runs on any device.
+    let reads_emission = paths && params.multiple && !params.medium.is_non_scattering();
+    let device = emission_device(&args.common, emission.as_ref().filter(|_| reads_emission), &log)?;
     let field = emission.as_ref().map(|e| e.field());
     let (cache, stats) = log
         .stage(
