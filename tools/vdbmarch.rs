@@ -259,7 +259,7 @@ fn scattered_emission_note(meta: &PipelineMeta, emission: Option<&EmissionGrids>
         log.warn(format!("the cache's light includes emission '{baked}' scattered by the medium, but the march adds '{marched}' (pass the same emission flags to vdbcache and vdbmarch)"));
     } else if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
         log.verbose(if baked == marched {
-            "emission: the march adds it and its attenuation; its light scattered by the medium is in the cache (vdbcache traced it)"
+            "emission: the march adds it and its attenuation; its light scattered by the medium is in the cache, as the cache records"
         } else {
             "emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (it was baked without emission; --reference includes it)"
         });

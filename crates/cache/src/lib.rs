@@ -18,7 +18,10 @@
 //!   image reads through it, and a coarse lattice blurs but does not darken (centre values
 //!   had darkened the bundled cloud 2.1-2.4% at 4 voxels, 8% at 8; origin-averaged values
 //!   keep its mean within 0.5%). Voxels no camera ray reads, nor a neighbour, get no paths.
-//!   Unbiased per point, so the error falls as 1/sqrt(N).
+//!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission
+//!   ([`bake_cpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
+//!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
+//!   along camera rays itself), with or without lights.
 //! - Or the paper's estimator ([`MultipleEstimator::Photons`]):
 //!   `[sum_p p(w_p, w_out) dPhi_p / (4/3 pi r^3)] / mean sigma_s(ball)`, the volume radiance
 //!   estimate over the photons in a ball around x (radius fixed, or the distance to the K-th

@@ -143,7 +143,8 @@ impl Default for PhotonParams {
     }
 }
 
-/// Photons stored at interactions after the first scattering event, in emission order.
+/// Photons stored at interactions after the first scattering event (a light's) or from the
+/// first interaction on (the medium's emission's), in emission order.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PhotonMap {
     /// World-space positions.
