@@ -233,7 +233,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     };
     params.validate().map_err(Failure::usage)?;
     let device = emission_device(&args.common, emission.as_ref(), log)?;
-    scattered_emission_note(&meta, emission.as_ref(), &params, log);
+    scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "march",
@@ -252,9 +252,10 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
 /// cache's `nimbus:emission` records it (vdbcache's paths gather it); warns where the cache
 /// holds another emission's light than the march adds, which would light the smoke with one
 /// fire and show another.
-fn scattered_emission_note(meta: &PipelineMeta, emission: Option<&EmissionGrids>, params: &MarchParams, log: &Log) {
+fn scattered_emission_note(meta: &PipelineMeta, cache: &IlluminationCache, emission: Option<&EmissionGrids>, params: &MarchParams, log: &Log) {
     let marched = emission.map_or("none".to_string(), |e| e.params.describe());
-    let baked = meta.emission().unwrap_or("none");
+    // A file without Li_multiple (a photon map, say) has no cache to hold it, whatever it records.
+    let baked = if cache.li_multiple.is_some() { meta.emission().unwrap_or("none") } else { "none" };
     if baked != "none" && baked != marched {
         log.warn(format!("the cache's light includes emission '{baked}' scattered by the medium, but the march adds '{marched}' (pass the same emission flags to vdbcache and vdbmarch)"));
     } else if emission.is_some() && params.medium.albedo.max_element() > 0.0 {

@@ -94,6 +94,9 @@ impl<'a> MediumEmission<'a> {
                         continue;
                     }
                     let mean = corners.map(|c| emitted[c]).sum::<Vec3>() / 8.0;
+                    // The grids are finite (the tools refuse others), but a temperature whose
+                    // T^4 overflows f32 is not: such a cell is left out rather than send an
+                    // infinite power into the photon map.
                     if mean.element_sum() > 0.0 && mean.is_finite() {
                         cells.push((origin + l, mean));
                     }
