@@ -5,9 +5,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_cli::{
-    cpu_only_feature, read_density, read_vdb, run, CameraArgs, EnvironmentArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs,
+    read_density, read_vdb, run, CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta,
+    Quality, VdbOutputArgs,
 };
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
@@ -85,6 +86,10 @@ struct Args {
     /// Copy the photons grid to the output too.
     #[arg(long)]
     keep_photons: bool,
+    /// The medium's emission, which the paths gather so a fire lights its own smoke (the
+    /// emission vdbmarch adds along camera rays is the same; pass it the same flags).
+    #[command(flatten)]
+    emission: EmissionArgs,
     #[command(flatten)]
     common: CommonArgs,
 }
@@ -180,15 +185,35 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             photons.len()
         ));
     }
-    let cpu_only = cpu_only_feature(params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map), args.common.device, "an environment map", &log)?
-        | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", &log)?;
-    let device = if cpu_only { nimbus_gpu::ComputeDevice::Cpu(nimbus_gpu::CpuReason::Requested) } else { args.common.compute_device(&log)? };
+    let emission = args.emission.resolve(&file, &log)?;
+    let paths = matches!(params.estimator, MultipleEstimator::Paths { .. });
+    let photons_emission = meta.emission().unwrap_or("none").to_string();
+    if let (Some(e), false) = (&emission, paths) {
+        if e.params.describe() != photons_emission {
+            log.warn(format!(
+                "the photon gather takes emission from the photons, traced with emission '{photons_emission}', not '{}' (pass the same emission flags to vdbphoton, or use --paths)",
+                e.params.describe()
+            ));
+        }
+    }
+    // Only the paths read the emission, and only in a medium that scatters; the photon
+    // gather runs on any device.
+    let reads_emission = paths && params.multiple && !params.medium.is_non_scattering();
+    let device = args.common.device_for(
+        &[
+            (emission.is_some() && reads_emission, "emission"),
+            (params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map), "an environment map"),
+            (params.lights.iter().any(nimbus_optics::Light::has_disc), "a sun with angle > 0"),
+        ],
+        &log,
+    )?;
+    let field = emission.as_ref().map(|e| e.field());
     let (cache, stats) = log
         .stage(
             "bake",
             || match device.gpu() {
                 Some(ctx) => bake_gpu(ctx, &density, &photons, &params),
-                None => bake_cpu(&density, &photons, &params),
+                None => bake_cpu_emitting(&density, &photons, &params, field.as_ref()),
             },
             |r| {
                 r.as_ref()
@@ -244,12 +269,21 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         ("seed", params.seed.to_string()),
         ("shadows", params.shadows.describe()),
     ];
+    // What emission the cache's Li holds scattered by the medium (vdbmarch reads it to say
+    // so, and to warn where it adds another): the paths' own, the photons' for a gather.
+    let scattered_emission = match (&cache.li_multiple, &emission) {
+        (None, _) => "none".to_string(),
+        (Some(_), Some(e)) if paths => e.params.describe(),
+        (Some(_), _) if paths => "none".to_string(),
+        (Some(_), _) => photons_emission,
+    };
     MetaWriter::new(&mut file)
         .density_grid(&grid)?
         .medium(&params.medium)?
         .lights(&params.lights)?
         .environment(params.environment.as_ref())?
         .camera(&params.camera)?
+        .emission(&scattered_emission)?
         .tool("vdbcache", &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
     log.finish();

@@ -12,13 +12,10 @@ use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
 use nimbus_cli::{
-    cpu_only_feature, parse_rgb, EnvironmentArgs, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, Failure, Input, LightArgs, MediumArgs, Output,
-    PipelineMeta,
+    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure,
+    Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_gpu::DeviceChoice;
-use nimbus_optics::{blackbody_rgb, Emission};
-use nimbus_vdb::GridKind;
-use nimbus_march::{render_cpu_emitting, render_reference_cpu_emitting, EmissionField};
+use nimbus_march::{render_cpu_emitting, render_reference_cpu_emitting};
 use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
@@ -127,152 +124,6 @@ struct Args {
     common: CommonArgs,
 }
 
-/// Emission (issue #19): radiance per unit length `S * color * grid(x)` and/or a blackbody
-/// from a temperature grid, with Cycles' Principled Volume meaning (`nimbus_optics::Emission`).
-/// Without these flags, a file with Blender's or Houdini's fire grids renders with fire.
-#[derive(clap::Args, Debug, Clone)]
-struct EmissionArgs {
-    /// The grid whose value scales the emission (e.g. Blender's `flame`).
-    #[arg(long, value_name = "NAME")]
-    emission_grid: Option<String>,
-    /// Emission strength S (default 1 with --emission-grid).
-    #[arg(long, value_name = "S")]
-    emission_strength: Option<f32>,
-    /// Emission colour R,G,B (default white).
-    #[arg(long, value_parser = parse_rgb, value_name = "R,G,B")]
-    emission_color: Option<Vec3>,
-    /// The grid holding temperature, in units of --temperature-scale (e.g. `temperature`).
-    #[arg(long, value_name = "NAME")]
-    temperature_grid: Option<String>,
-    /// Kelvin per temperature-grid unit (Cycles' Temperature; default 1000, or 1 for a grid
-    /// already in kelvin).
-    #[arg(long, value_name = "K")]
-    temperature_scale: Option<f32>,
-    /// Blackbody intensity B: 1 is physically accurate radiance sigma T^4 / pi (in Cycles'
-    /// scale), coloured by the blackbody's chromaticity (default 1 with --temperature-grid).
-    #[arg(long, value_name = "B")]
-    blackbody_intensity: Option<f32>,
-    /// No emission, even where the file has fire grids.
-    #[arg(long, conflicts_with_all = ["emission_grid", "temperature_grid", "emission_strength", "emission_color", "temperature_scale", "blackbody_intensity"])]
-    no_emission: bool,
-}
-
-/// Default emission strength of a recognised `flame`/`heat` grid without a temperature grid.
-const AUTO_FLAME_STRENGTH: f32 = 1.0;
-/// Its colour: the blackbody's at this temperature (a flame's orange).
-const AUTO_FLAME_KELVIN: f64 = 1500.0;
-/// A temperature grid whose largest value is below this is normalised (Blender's Mantaflow,
-/// max about 3; Houdini pyro's): --temperature-scale 1000, Cycles' default Temperature, as
-/// Blender's Quick Smoke fire material reads it. At or above, it is taken as kelvin.
-const KELVIN_LIKE_MIN: f32 = 100.0;
-
-/// The emission grids of the file, read.
-struct EmissionGrids {
-    params: Emission,
-    grid: Option<Volume<f32>>,
-    temperature: Option<Volume<f32>>,
-}
-
-impl EmissionGrids {
-    fn field(&self) -> EmissionField<'_> {
-        EmissionField { grid: self.grid.as_ref(), temperature: self.temperature.as_ref(), params: &self.params }
-    }
-}
-
-/// A float grid's largest value, or None when the file has no non-empty float grid of that name.
-fn grid_max(file: &VdbFile, name: &str) -> Result<Option<(Volume<f32>, f32)>, Failure> {
-    if !file.has_grid(name) || file.grid(name).map(|g| g.kind != GridKind::Float).unwrap_or(true) {
-        return Ok(None);
-    }
-    let (_, v) = read_density(file, Some(name))?;
-    let max = v.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max);
-    Ok((max > 0.0).then_some((v, max)))
-}
-
-/// The emission: from the flags, else recognised from the file's grids (Blender's
-/// `temperature` and `flame`, Houdini pyro's `temperature`, `heat`, `flame`), else none.
-fn resolve_emission(args: &EmissionArgs, file: &VdbFile, log: &Log) -> Result<Option<EmissionGrids>, Failure> {
-    if args.no_emission {
-        return Ok(None);
-    }
-    let mut params = Emission::default();
-    let read = |name: &str| -> Result<Volume<f32>, Failure> { read_density(file, Some(name)).map(|(_, v)| v) };
-    let explicit = args.emission_grid.is_some() || args.temperature_grid.is_some();
-    let (mut grid, mut temperature) = (None, None);
-    if explicit {
-        if let Some(name) = &args.emission_grid {
-            grid = Some(read(name)?);
-            params.grid = Some(name.clone());
-            params.strength = args.emission_strength.unwrap_or(1.0);
-            params.color = args.emission_color.unwrap_or(Vec3::ONE);
-        }
-        if let Some(name) = &args.temperature_grid {
-            temperature = Some(read(name)?);
-            params.temperature_grid = Some(name.clone());
-            params.temperature_scale = args.temperature_scale.unwrap_or(1000.0);
-            params.blackbody_intensity = args.blackbody_intensity.unwrap_or(1.0);
-        }
-    } else {
-        if let Some((v, max)) = grid_max(file, "temperature")? {
-            let kelvin = max >= KELVIN_LIKE_MIN;
-            params.temperature_grid = Some("temperature".into());
-            params.temperature_scale = args.temperature_scale.unwrap_or(if kelvin { 1.0 } else { 1000.0 });
-            params.blackbody_intensity = args.blackbody_intensity.unwrap_or(1.0);
-            log.verbose(format!(
-                "emission: recognised grid 'temperature' (max {max:.3}, {}): blackbody, {} K per unit (hottest {:.0} K), intensity {} (Blender's Quick Smoke fire; --no-emission turns it off)",
-                if kelvin { "kelvin" } else { "normalised" },
-                params.temperature_scale,
-                max * params.temperature_scale,
-                params.blackbody_intensity
-            ));
-            temperature = Some(v);
-        } else {
-            for name in ["flame", "heat"] {
-                if let Some((v, max)) = grid_max(file, name)? {
-                    params.grid = Some(name.into());
-                    params.strength = args.emission_strength.unwrap_or(AUTO_FLAME_STRENGTH);
-                    params.color = args.emission_color.unwrap_or_else(|| blackbody_rgb(AUTO_FLAME_KELVIN));
-                    log.verbose(format!(
-                        "emission: recognised grid '{name}' (max {max:.3}): strength {} x colour {:.3},{:.3},{:.3} (a {AUTO_FLAME_KELVIN} K blackbody's) x grid; --no-emission turns it off",
-                        params.strength, params.color.x, params.color.y, params.color.z
-                    ));
-                    grid = Some(v);
-                    break;
-                }
-            }
-        }
-    }
-    params.validate().map_err(Failure::usage)?;
-    if !params.is_active() {
-        let given = [
-            (args.emission_strength.is_some(), "--emission-strength"),
-            (args.emission_color.is_some(), "--emission-color"),
-            (args.temperature_scale.is_some(), "--temperature-scale"),
-            (args.blackbody_intensity.is_some(), "--blackbody-intensity"),
-        ];
-        for (_, flag) in given.iter().filter(|(g, _)| *g) {
-            log.warn(format!("{flag} changes nothing: no emission (no fire grid recognised; name one with --emission-grid or --temperature-grid)"));
-        }
-        return Ok(None);
-    }
-    if explicit {
-        log.verbose(format!("emission: {}", params.describe()));
-    }
-    Ok(Some(EmissionGrids { params, grid, temperature }))
-}
-
-/// Emission has no GPU twin yet: an explicit --device gpu is refused (exit 2), auto takes the CPU.
-fn emission_device(args: &Args, emission: &Option<EmissionGrids>, log: &Log) -> Result<bool, Failure> {
-    if emission.is_none() {
-        return Ok(false);
-    }
-    if args.common.device == DeviceChoice::Gpu {
-        return Err(Failure::usage("emission is not built for the GPU backends yet (use --device cpu, or --no-emission)"));
-    }
-    log.verbose("device: cpu (emission is CPU-only so far)");
-    Ok(true)
-}
-
 fn main() -> ExitCode {
     let args = Args::parse();
     run(move || vdbmarch(args))
@@ -328,7 +179,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
             log.warn(format!("{flag} is for ray marching; the reference path tracer ignores it"));
         }
     }
-    let emission = resolve_emission(&args.emission, file, log)?;
+    let emission = args.emission.resolve(file, log)?;
     let environment = args.environment.resolve(&meta, log, None)?;
     let params = ReferenceParams {
         lights: args.lights.resolve(&meta, log, None, environment.is_some())?,
@@ -343,16 +194,20 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let map = params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map);
-    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(map, args.common.device, "an environment map", log)?
-        | cpu_only_feature(params.lights.iter().any(nimbus_optics::Light::has_disc), args.common.device, "a sun with angle > 0", log)?;
-    let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
+    let device = args.common.device_for(
+        &[
+            (emission.is_some(), "emission"),
+            (params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map), "an environment map"),
+            (params.lights.iter().any(nimbus_optics::Light::has_disc), "a sun with angle > 0"),
+        ],
+        log,
+    )?;
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "path trace",
-        || match device.as_ref().and_then(|d| d.gpu()) {
+        || match device.gpu() {
             Some(ctx) => render_reference_gpu(ctx, density, &params, reference_tile_pixels(), &|n| bar.inc(n)),
             None if field.is_some() => render_reference_cpu_emitting(density, &params, field.as_ref(), &|n| bar.inc(n)),
             None => render_reference_cpu(density, &params, &|n| bar.inc(n)),
@@ -369,7 +224,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
     }
     let cache = IlluminationCache { li_single: read_vec3_grid(file, "Li_single")?, li_multiple: read_vec3_grid(file, "Li_multiple")?, ..Default::default() };
-    let emission = resolve_emission(&args.emission, file, log)?;
+    let emission = args.emission.resolve(file, log)?;
     if cache.li_single.is_none() && cache.li_multiple.is_none() && emission.is_none() {
         log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
     }
@@ -395,15 +250,12 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     };
     params.validate().map_err(Failure::usage)?;
     let map_behind = matches!(params.visible_environment(), Some(nimbus_optics::Environment::Map { .. }));
-    let cpu_only = emission_device(args, &emission, log)? | cpu_only_feature(map_behind, args.common.device, "an environment map behind the volume", log)?;
-    if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
-        log.verbose("emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (vdbcache does not trace emission yet; --reference includes it)");
-    }
-    let device = if cpu_only { None } else { Some(args.common.compute_device(log)?) };
+    let device = args.common.device_for(&[(emission.is_some(), "emission"), (map_behind, "an environment map behind the volume")], log)?;
+    scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "march",
-        || match device.as_ref().and_then(|d| d.gpu()) {
+        || match device.gpu() {
             Some(ctx) => render_gpu(ctx, density, &cache, &params),
             None if field.is_some() => render_cpu_emitting(density, &cache, &params, field.as_ref()),
             None => render_cpu(density, &cache, &params),
@@ -412,4 +264,23 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
     )
     .map_err(|e| march_failure(e, "GPU ray marcher"));
     Ok((image?, emission))
+}
+
+/// Says with -v whether the emission's light scattered by the medium is in the cache, as the
+/// cache's `nimbus:emission` records it (vdbcache's paths gather it); warns where the cache
+/// holds another emission's light than the march adds, which would light the smoke with one
+/// fire and show another.
+fn scattered_emission_note(meta: &PipelineMeta, cache: &IlluminationCache, emission: Option<&EmissionGrids>, params: &MarchParams, log: &Log) {
+    let marched = emission.map_or("none".to_string(), |e| e.params.describe());
+    // A file without Li_multiple (a photon map, say) has no cache to hold it, whatever it records.
+    let baked = if cache.li_multiple.is_some() { meta.emission().unwrap_or("none") } else { "none" };
+    if baked != "none" && baked != marched {
+        log.warn(format!("the cache's light includes emission '{baked}' scattered by the medium, but the march adds '{marched}' (pass the same emission flags to vdbcache and vdbmarch)"));
+    } else if emission.is_some() && params.medium.albedo.max_element() > 0.0 {
+        log.verbose(if baked == marched {
+            "emission: the march adds it and its attenuation; its light scattered by the medium is in the cache, as the cache records"
+        } else {
+            "emission: the march adds it and its attenuation; its light scattered by the medium is not in the cache (it was baked without emission; --reference includes it)"
+        });
+    }
 }

@@ -1,12 +1,16 @@
 //! vdbphoton: density VDB -> the same VDB plus a `photons` points grid, by tracing photons
-//! from the lights through the nonhomogeneous medium. The engine is `nimbus-photon`.
+//! from the lights (and from the medium's emission, a fire's, issue #19) through the
+//! nonhomogeneous medium. The engine is `nimbus-photon`.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cli::{read_density, read_vdb, run, CommonArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality, VdbOutputArgs};
-use nimbus_photon::{trace_cpu, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
+use nimbus_cli::{
+    read_density, read_vdb, run, CommonArgs, EmissionArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
+    VdbOutputArgs,
+};
+use nimbus_photon::{trace_cpu_emitting, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
 #[derive(Parser, Debug)]
@@ -47,6 +51,10 @@ struct Args {
     /// Random seed (default: what the file records, else 0).
     #[arg(long)]
     seed: Option<u64>,
+    /// The medium's emission: photons also leave the emitting voxels, stored from their first
+    /// interaction on (a fire lights its own smoke through the photon gather).
+    #[command(flatten)]
+    emission: EmissionArgs,
     #[command(flatten)]
     common: CommonArgs,
 }
@@ -79,12 +87,14 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
         seed: args.seed.or(meta.seed()).unwrap_or(0),
     };
     params.validate().map_err(|e| Failure::usage(e))?;
-    let device = args.common.compute_device(&log)?;
+    let emission = args.emission.resolve(&file, &log)?;
+    let device = args.common.device_for(&[(emission.is_some(), "emission")], &log)?;
+    let field = emission.as_ref().map(|e| e.field());
     let traced = log.stage(
         "trace",
         || match device.gpu() {
             Some(ctx) => trace_gpu(ctx, &density, &params),
-            None => trace_cpu(&density, &params),
+            None => trace_cpu_emitting(&density, &params, field.as_ref()),
         },
         |r| {
             r.as_ref()
@@ -129,6 +139,11 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
         .medium(&params.medium)?
         .lights(&params.lights)?
         .seed(params.seed)?
+        // The emission the photons carry (vdbcache's photon gather holds it scattered).
+        .emission(&match (&emission, &stats.skipped) {
+            (Some(e), None) => e.params.describe(),
+            _ => "none".to_string(),
+        })?
         .tool("vdbphoton", &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
     log.finish();

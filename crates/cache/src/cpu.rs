@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{environment_nee, trace_path, DensityMedium, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
+use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
@@ -190,6 +190,13 @@ pub fn li_multiple(
 /// With an environment, each path also estimates the environment's light scattered at x
 /// itself: a next-event estimate at x, and the path's first flight when it escapes, weighed
 /// against each other by the power heuristic ([`environment_nee`], [`PathStart::Scattered`]).
+///
+/// With `sources.emission` the paths also gather the medium's emission at every collision
+/// ([`trace_path`]'s `beta e / sigma_t`): at the first, emitted light reaching x unscattered,
+/// which x scatters toward the eye (emission's single scattering: there is no separate
+/// Li_single term for it); at later ones, emitted light scattered more often. None of it is
+/// the emission vdbmarch adds along the camera ray itself (light emitted toward the eye that
+/// no medium scattered), so nothing is counted twice.
 #[allow(clippy::too_many_arguments)]
 pub fn li_multiple_paths(
     medium: DensityMedium,
@@ -230,18 +237,34 @@ pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
 
 /// Bakes the cache on the CPU.
 pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
+    bake_cpu_emitting(density, photons, params, None)
+}
+
+/// [`bake_cpu`] with the medium's emission: the path-traced Li_multiple gathers it
+/// ([`li_multiple_paths`]), so a fire lights its own smoke, with or without lights. The
+/// photon estimator takes emission from the photons (vdbphoton's emission photons) and reads
+/// `emission` not at all; Li_single stays the lights' alone.
+pub fn bake_cpu_emitting(
+    density: &Volume<f32>,
+    photons: &PhotonMap,
+    params: &CacheParams,
+    emission: Option<&EmissionField>,
+) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
+    let emission = emission.filter(|e| e.params.is_active());
+    // Only the paths read the field: the photon estimator's emission came with the photons.
+    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
     let start = std::time::Instant::now();
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     stats.stages.push(("plan", start.elapsed().as_millis() as u64));
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);
     let camera = &params.camera;
-    let depths = stats.time("light tables", || params.light_depths(medium, photons));
+    let depths = stats.time("light tables", || params.light_depths(medium, photons, emits));
     stats.light_table_nodes = depths.nodes();
 
     let mut nonfinite = 0;
@@ -260,7 +283,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
     });
     stats.stages.push(("single", started.elapsed().as_millis() as u64));
     let li_multiple = match params.estimator {
-        _ if !params.bakes_multiple(photons) => None,
+        _ if !params.bakes_multiple(photons, emits) => None,
         MultipleEstimator::Photons => {
             let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
             let gathered = AtomicU64::new(0);
@@ -283,7 +306,7 @@ pub fn bake_cpu(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams
                 let paths = path_plan.counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                let sources = PathSources { environment: params.environment.as_ref(), emission: None };
+                let sources = PathSources { environment: params.environment.as_ref(), emission };
                 li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, path_plan.origins_of(i), paths, camera.eye(), &mut rng)
             });
             stats.stages.push(("paths", started.elapsed().as_millis() as u64));

@@ -96,7 +96,8 @@ fn constants_wgsl() -> String {
 }
 
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
-/// paths and estimators as [`crate::bake_cpu`], in f32.
+/// paths and estimators as [`crate::bake_cpu`], in f32. The medium's emission is CPU-only so
+/// far ([`crate::bake_cpu_emitting`]; vdbcache keeps an emitting scene on the CPU).
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
     if params.environment.as_ref().is_some_and(Environment::is_lit_map) {
@@ -106,7 +107,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         return Err(CacheError::Param("a sun with angle > 0 is not built for the GPU cache baker yet (use --device cpu)".into()));
     }
     let single = params.bakes_single();
-    let multiple = params.bakes_multiple(photons);
+    let multiple = params.bakes_multiple(photons, false);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
     if let Gather::Neighbours { k, .. } = params.gather {
         if gathers && k > GPU_MAX_NEIGHBOURS {
@@ -117,7 +118,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     }
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons);
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, false);
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
@@ -140,7 +141,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         None => Kernel::Photons,
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
-    let lattice = params.light_lattice(photons);
+    let lattice = params.light_lattice(photons, false);
     // The CPU tables the lights whenever something reads them, baked voxels or not (the
     // transmittance grids are view-independent): so does this.
     let volume = (work || lattice.is_some())
@@ -320,7 +321,7 @@ impl<'a> GpuBaker<'a> {
             _pad: [0; 2],
         };
         let tracking = match params.estimator {
-            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons) => {
+            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, false) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
                 Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background())))
             }

@@ -18,7 +18,10 @@
 //!   image reads through it, and a coarse lattice blurs but does not darken (centre values
 //!   had darkened the bundled cloud 2.1-2.4% at 4 voxels, 8% at 8; origin-averaged values
 //!   keep its mean within 0.5%). Voxels no camera ray reads, nor a neighbour, get no paths.
-//!   Unbiased per point, so the error falls as 1/sqrt(N).
+//!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission
+//!   ([`bake_cpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
+//!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
+//!   along camera rays itself), with or without lights.
 //! - Or the paper's estimator ([`MultipleEstimator::Photons`]):
 //!   `[sum_p p(w_p, w_out) dPhi_p / (4/3 pi r^3)] / mean sigma_s(ball)`, the volume radiance
 //!   estimate over the photons in a ball around x (radius fixed, or the distance to the K-th
@@ -54,7 +57,7 @@ mod importance;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::{bake_cpu, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
+pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use plan::{cache_transform, CachePlan};
@@ -242,9 +245,10 @@ impl CacheParams {
     }
 
     /// The lights' tabled optical depths, where the shadows are tabled and something reads
-    /// them (single scattering, or paths' next-event estimation); none otherwise.
-    pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap) -> LightDepths {
-        match self.light_lattice(photons) {
+    /// them (single scattering, or paths' next-event estimation); none otherwise. `emits`:
+    /// whether the medium emits (the paths then run without lights too).
+    pub fn light_depths(&self, medium: DensityMedium, photons: &nimbus_photon::PhotonMap, emits: bool) -> LightDepths {
+        match self.light_lattice(photons, emits) {
             Some(lattice) => LightDepths::build(medium, &self.lights, lattice, self.opaque_depth()),
             None => LightDepths::default(),
         }
@@ -252,8 +256,9 @@ impl CacheParams {
 
     /// The lattice [`CacheParams::light_depths`] tables on, where it tables anything (both
     /// backends ask).
-    pub fn light_lattice(&self, photons: &nimbus_photon::PhotonMap) -> Option<LightLattice> {
-        let reads = self.bakes_single() || (self.bakes_multiple(photons) && matches!(self.estimator, MultipleEstimator::Paths { .. }));
+    pub fn light_lattice(&self, photons: &nimbus_photon::PhotonMap, emits: bool) -> Option<LightLattice> {
+        let reads = !self.lights.is_empty()
+            && (self.bakes_single() || (self.bakes_multiple(photons, emits) && matches!(self.estimator, MultipleEstimator::Paths { .. })));
         match self.shadows {
             ShadowMode::Table(lattice) if reads => Some(lattice),
             _ => None,
@@ -266,13 +271,14 @@ impl CacheParams {
     }
 
     /// Whether multiple scattering is asked for and has something to estimate it from:
-    /// photons to gather, or lights or an environment for the paths to reach.
-    pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap) -> bool {
+    /// photons to gather, or light for the paths to gather (lights, an environment, or the
+    /// medium's own emission where `emits`: a fire with no lights still lights its smoke).
+    pub fn bakes_multiple(&self, photons: &nimbus_photon::PhotonMap, emits: bool) -> bool {
         self.multiple
             && !self.medium.is_non_scattering()
             && match self.estimator {
                 MultipleEstimator::Photons => !photons.is_empty(),
-                MultipleEstimator::Paths { .. } => !self.lights.is_empty() || self.lit_by_environment(),
+                MultipleEstimator::Paths { .. } => !self.lights.is_empty() || emits || self.lit_by_environment(),
             }
     }
 

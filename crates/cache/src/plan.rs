@@ -91,10 +91,11 @@ impl CachePlan {
     }
 
     /// Li_multiple's own plan, where it has its own lattice (`multiple_scale`) and will be
-    /// baked; None where it shares `single`'s.
-    pub fn for_multiple(density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, single: &CachePlan, photons: &PhotonMap) -> Option<CachePlan> {
+    /// baked (`emits`: the medium emits, [`CacheParams::bakes_multiple`]); None where it
+    /// shares `single`'s.
+    pub fn for_multiple(density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, single: &CachePlan, photons: &PhotonMap, emits: bool) -> Option<CachePlan> {
         let scale = params.multiple_scale();
-        (params.bakes_multiple(photons) && scale != params.cache_scale)
+        (params.bakes_multiple(photons, emits) && scale != params.cache_scale)
             .then(|| CachePlan::new(density, majorant, &params.camera, scale))
             .filter(|p| p.transform != single.transform)
     }

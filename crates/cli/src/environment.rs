@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use glam::Vec3;
-use nimbus_gpu::DeviceChoice;
 use nimbus_optics::{Environment, EnvironmentMap, EnvironmentRecord};
 
 use crate::args::parse_rgb;
@@ -104,18 +103,4 @@ fn record_text(r: &EnvironmentRecord) -> String {
         EnvironmentRecord::Uniform(c) => Environment::Uniform(*c).describe(),
         EnvironmentRecord::Map { path, strength, rotation } => format!("map={path},strength={strength},rotation={rotation}"),
     }
-}
-
-/// A feature not built for the GPU backends yet (the environment, a sun's disc): where it is
-/// `needed`, an explicit `--device gpu` is refused (exit 2) and `auto` takes the CPU (said
-/// with -v). Returns whether the stage must run on the CPU.
-pub fn cpu_only_feature(needed: bool, device: DeviceChoice, what: &str, log: &Log) -> Result<bool, Failure> {
-    if !needed {
-        return Ok(false);
-    }
-    if device == DeviceChoice::Gpu {
-        return Err(Failure::usage(format!("{what} is not built for the GPU backends yet (use --device cpu)")));
-    }
-    log.verbose(format!("device: cpu ({what} is CPU-only so far)"));
-    Ok(true)
 }

@@ -12,9 +12,12 @@
 //!   [`VdbOutputArgs`]) and the pipeline's metadata ([`PipelineMeta`], [`MetaWriter`]): what
 //!   one tool records, the next takes as its defaults; a flag overrides, with a warning
 //!   where that makes earlier work inconsistent.
+//! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
+//!   vdbphoton, vdbcache and vdbmarch ([`CommonArgs::device_for`]: emission stays on the CPU).
 
 mod args;
 mod environment;
+mod emission;
 mod failure;
 mod io;
 mod log;
@@ -22,7 +25,8 @@ pub mod meta;
 mod vdbio;
 
 pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
-pub use environment::{cpu_only_feature, read_environment_map, EnvironmentArgs};
+pub use environment::{read_environment_map, EnvironmentArgs};
+pub use emission::{EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};

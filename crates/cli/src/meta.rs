@@ -2,7 +2,10 @@
 //! next tool can use it as defaults (design.md section 6).
 //!
 //! Shared keys: `nimbus:medium`, `nimbus:lights`, `nimbus:environment`, `nimbus:camera` (each
-//! in the text form the flags take), `nimbus:seed`, `nimbus:density_grid` (the grid the chain treats as density).
+//! in the text form the flags take), `nimbus:seed`, `nimbus:density_grid` (the grid the chain
+//! treats as density), `nimbus:emission` (the medium's emission the file's light includes:
+//! vdbphoton's photons leave from it, vdbcache's Li holds it scattered by the medium; `none`,
+//! or `nimbus_optics::Emission::describe`'s text, as vdbmarch's EXR header records it).
 //! Per tool: `nimbus:<tool>` holds `key=value` pairs of its parameters and counts, and
 //! `nimbus:<tool>:timings` its stage times in seconds.
 
@@ -17,6 +20,7 @@ pub const CAMERA: &str = "nimbus:camera";
 pub const SEED: &str = "nimbus:seed";
 pub const DENSITY_GRID: &str = "nimbus:density_grid";
 pub const ENVIRONMENT: &str = "nimbus:environment";
+pub const EMISSION: &str = "nimbus:emission";
 
 /// A file's metadata, read as the pipeline's shared parameters.
 pub struct PipelineMeta {
@@ -69,6 +73,12 @@ impl PipelineMeta {
         self.text(DENSITY_GRID)
     }
 
+    /// The emission the file's light includes ([`EMISSION`]); None where no tool recorded one
+    /// (files from before emission lit the medium: their light holds none).
+    pub fn emission(&self) -> Option<&str> {
+        self.text(EMISSION)
+    }
+
     /// A value from a tool's `key=value` record, e.g. `tool_value("vdbphoton", "distance")`.
     pub fn tool_value(&self, tool: &str, key: &str) -> Option<String> {
         let record = self.text(&format!("nimbus:{tool}"))?;
@@ -118,6 +128,12 @@ impl<'a> MetaWriter<'a> {
 
     pub fn density_grid(&mut self, name: &str) -> Result<&mut Self, Failure> {
         self.set(DENSITY_GRID, name.to_string())?;
+        Ok(self)
+    }
+
+    /// [`EMISSION`]: `describe` is `nimbus_optics::Emission::describe`'s text, or `none`.
+    pub fn emission(&mut self, describe: &str) -> Result<&mut Self, Failure> {
+        self.set(EMISSION, describe.to_string())?;
         Ok(self)
     }
 

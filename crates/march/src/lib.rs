@@ -36,6 +36,9 @@
 //! [`march_ray`]), not in the layout's fused march nor on the GPU. The reference adds
 //! `beta e / sigma_t` at each real collision ([`render_reference_cpu_emitting`]; not on the
 //! GPU either).
+//! The emission the medium scatters is not the march's: it comes through the cache's Li
+//! (vdbcache's paths gather it, vdbphoton's photons carry it), so the march adds the
+//! unscattered emission only and nothing is counted twice.
 //!
 //! `vdbmarch --reference` renders the same image by an unbiased path tracer over the
 //! density alone ([`render_reference_cpu`], [`ReferenceParams`]; see `reference.rs`): the

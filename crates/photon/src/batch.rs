@@ -10,6 +10,8 @@ use nimbus_optics::{Light, Rng};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::emission::{PointEmission, SunEmission};
+use crate::medium::MediumEmission;
+use nimbus_tracking::EmissionField;
 use crate::{PhotonError, PhotonMap, PhotonParams, TraceStats};
 
 /// Random-number domain of photon paths (kept apart from other uses of the same seed).
@@ -19,19 +21,21 @@ pub(crate) const PHOTON_DOMAIN: u32 = 0x5048_4f54; // "PHOT"
 const FIRST_BATCH: u64 = 1 << 14;
 
 /// Where photons leave one light from.
-pub(crate) enum Source {
+pub(crate) enum Source<'a> {
     /// A sun's emitting lattice over the medium's projection.
     Sun(SunEmission),
     /// A point light's directions toward the medium.
     Point(PointEmission),
+    /// The medium's emitting cells (after the lights; CPU only so far).
+    Medium(MediumEmission<'a>),
 }
 
-/// Where and how photons leave the lights: per light its source, its power and the
-/// probability of choosing it (proportional to its mean power).
-pub(crate) struct Emitter {
-    pub sources: Vec<Source>,
-    /// Each light's emitted power: E x emitting area for a sun, I x emitting solid angle for a
-    /// point light.
+/// Where and how photons leave the lights and the emitting medium: per source its power and
+/// the probability of choosing it (proportional to its mean power).
+pub(crate) struct Emitter<'a> {
+    pub sources: Vec<Source<'a>>,
+    /// Each source's emitted power: E x emitting area for a sun, I x emitting solid angle for a
+    /// point light, 4 pi integral e dV for the medium.
     pub power: Vec<Vec3>,
     /// Light power / choice probability: the power a photon carries before dividing by the
     /// number emitted.
@@ -39,17 +43,23 @@ pub(crate) struct Emitter {
     pub cdf: Vec<f32>,
 }
 
-/// One photon leaving a light: origin, unit direction, power times photons emitted.
+/// One photon leaving a light: origin, unit direction, power times photons emitted, and
+/// whether its first interaction is stored.
 pub(crate) struct Emission {
     pub origin: DVec3,
     pub dir: DVec3,
     pub weight: Vec3,
+    /// A light's photon arrives at its first interaction as direct light, which vdbcache
+    /// counts as single scattering, so it is not stored there; the medium's emission has no
+    /// such separate term (the cache's Li_single is the lights' alone), so its photons are
+    /// stored from their first interaction on (design.md section 5).
+    pub store_first: bool,
 }
 
-impl Emitter {
-    /// The lights' sources over `density`, which must hold a positive voxel; None when they
-    /// emit no power.
-    pub fn new(lights: &[Light], density: &Volume<f32>) -> Option<Emitter> {
+impl<'a> Emitter<'a> {
+    /// The lights' sources over `density`, which must hold a positive voxel, and the medium's
+    /// where `emission` emits; None when they emit no power.
+    pub fn new(lights: &[Light], density: &'a Volume<f32>, emission: Option<&EmissionField<'a>>) -> Option<Emitter<'a>> {
         let mut sources = Vec::with_capacity(lights.len());
         let mut power = Vec::with_capacity(lights.len());
         for light in lights {
@@ -67,6 +77,10 @@ impl Emitter {
             };
             sources.push(source);
             power.push(light.emitted_power(extent));
+        }
+        if let Some(medium) = emission.and_then(|e| MediumEmission::new(density, *e)) {
+            power.push(medium.power());
+            sources.push(Source::Medium(medium));
         }
         let total: f32 = power.iter().map(|p| p.element_sum()).sum();
         if total.is_nan() || total <= 0.0 {
@@ -92,8 +106,14 @@ impl Emitter {
     pub fn emit(&self, rng: &mut Rng) -> Emission {
         let i = self.choose(rng.next_f32());
         match &self.sources[i] {
-            Source::Sun(emission) => Emission { origin: emission.sample_point(rng), dir: emission.normal, weight: self.weight[i] },
-            Source::Point(emission) => Emission { origin: emission.position, dir: emission.sample_direction(rng), weight: self.weight[i] },
+            Source::Sun(emission) => Emission { origin: emission.sample_point(rng), dir: emission.normal, weight: self.weight[i], store_first: false },
+            Source::Point(emission) => Emission { origin: emission.position, dir: emission.sample_direction(rng), weight: self.weight[i], store_first: false },
+            Source::Medium(emission) => {
+                // weight[i] sums to the total power over all sources; the cell's importance
+                // weight is in the ratio (medium.rs).
+                let (origin, dir, ratio) = emission.sample(rng);
+                Emission { origin, dir, weight: ratio * self.weight[i].element_sum(), store_first: true }
+            }
         }
     }
 }
@@ -132,8 +152,8 @@ pub(crate) struct Batch {
 }
 
 /// What a trace needs once it is known there is something to trace.
-pub(crate) struct Setup {
-    pub emitter: Emitter,
+pub(crate) struct Setup<'a> {
+    pub emitter: Emitter<'a>,
     pub bounds: (DVec3, DVec3),
     pub majorant: MajorantGrid,
     /// Simpson step (and exponential search step) in world units.
@@ -141,8 +161,8 @@ pub(crate) struct Setup {
 }
 
 /// Either a [`Setup`], or the finished (empty) result of a trace with nothing to do.
-pub(crate) enum Prepared {
-    Trace(Setup),
+pub(crate) enum Prepared<'a> {
+    Trace(Setup<'a>),
     Skip(PhotonMap, TraceStats),
 }
 
@@ -152,8 +172,8 @@ fn skipped(why: &str, mut stats: TraceStats) -> (PhotonMap, TraceStats) {
 }
 
 /// Validates `params` and decides whether anything can be stored (design.md section 7:
-/// work whose contribution is zero is not done).
-pub(crate) fn prepare(density: &Volume<f32>, params: &PhotonParams) -> Result<Prepared, PhotonError> {
+/// work whose contribution is zero is not done); `emission`, the medium's, emits photons too.
+pub(crate) fn prepare<'a>(density: &'a Volume<f32>, params: &PhotonParams, emission: Option<&EmissionField<'a>>) -> Result<Prepared<'a>, PhotonError> {
     params.validate()?;
     let skip = |why: &str| {
         let (map, stats) = skipped(why, TraceStats::default());
@@ -171,8 +191,8 @@ pub(crate) fn prepare(density: &Volume<f32>, params: &PhotonParams) -> Result<Pr
     if !density.bricks().any(|b| b.values.iter().any(|&d| d > 0.0)) {
         return skip("no voxel of the density grid is above 0");
     }
-    let Some(emitter) = Emitter::new(&params.lights, density) else {
-        return skip("the lights emit no power");
+    let Some(emitter) = Emitter::new(&params.lights, density, emission) else {
+        return skip(if emission.is_some() { "neither the lights nor the medium emit power" } else { "the lights emit no power" });
     };
     let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
     let step = params.step * density.transform().voxel_size().min_element();

@@ -3,7 +3,7 @@
 
 use glam::{DVec3, Vec3};
 use nimbus_optics::Rng;
-use nimbus_tracking::{DensityMedium, FreePath, MediumRay};
+use nimbus_tracking::{DensityMedium, EmissionField, FreePath, MediumRay};
 use nimbus_volume::Volume;
 use rayon::prelude::*;
 
@@ -32,6 +32,11 @@ fn trace_path(index: u64, emitter: &Emitter, medium: DensityMedium, params: &Pho
     let phase = params.medium.phase();
     let (mut x, mut w, mut power) = (emission.origin, emission.dir, emission.weight);
     let mut stored = Vec::new();
+    if power == Vec3::ZERO {
+        // A medium photon drawn where nothing emits (a cell's face at zero density) carries
+        // nothing: counted as emitted and escaped, not traced.
+        return PathResult { stored, interactions: 0, end: PathEnd::Escaped };
+    }
     for interaction in 0..params.max_interactions {
         let ray = MediumRay::new(medium, x, w, 0.0, f64::INFINITY);
         let path = match params.distance {
@@ -44,7 +49,7 @@ fn trace_path(index: u64, emitter: &Emitter, medium: DensityMedium, params: &Pho
         };
         x += w * t;
         let w_in = w.as_vec3();
-        if interaction > 0 {
+        if interaction > 0 || emission.store_first {
             stored.push(StoredPhoton { position: x, power: power * albedo, dir: w_in });
         }
         if rng.next_f32() >= survival {
@@ -59,7 +64,13 @@ fn trace_path(index: u64, emitter: &Emitter, medium: DensityMedium, params: &Pho
 /// Traces photons through `density` until `params.photons` are stored (or
 /// `params.max_emitted` have left the lights).
 pub fn trace_cpu(density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
-    let setup = match prepare(density, params)? {
+    trace_cpu_emitting(density, params, None)
+}
+
+/// [`trace_cpu`] with photons also leaving the medium's emission (`crate::medium`), stored
+/// from their first interaction on, chosen among the sources in proportion to power.
+pub fn trace_cpu_emitting(density: &Volume<f32>, params: &PhotonParams, emission: Option<&EmissionField>) -> Result<(PhotonMap, TraceStats), PhotonError> {
+    let setup = match prepare(density, params, emission)? {
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),
     };
@@ -124,7 +135,7 @@ mod tests {
             distance: DistanceSampling::Delta,
             ..PhotonParams::default()
         };
-        let Prepared::Trace(setup) = prepare(&v, &params).unwrap() else { panic!("nothing to trace") };
+        let Prepared::Trace(setup) = prepare(&v, &params, None).unwrap() else { panic!("nothing to trace") };
         let Source::Point(table) = &setup.emitter.sources[0] else { panic!("a point light") };
         let all = (0..DIRECTION_ROWS).flat_map(|r| (0..DIRECTION_COLUMNS).map(move |c| [c, r])).collect();
         let every_direction = PointEmission { cells: all, ..table.clone() };
@@ -170,7 +181,7 @@ mod tests {
             distance: DistanceSampling::Delta,
             ..PhotonParams::default()
         };
-        let Prepared::Trace(setup) = prepare(&v, &params).unwrap() else { panic!("nothing to trace") };
+        let Prepared::Trace(setup) = prepare(&v, &params, None).unwrap() else { panic!("nothing to trace") };
         let medium = DensityMedium { density: &v, majorant: &setup.majorant, extinction: 1.0 };
         let paths = 100_000;
         let met = (0..paths).into_par_iter().filter(|&i| trace_path(i, &setup.emitter, medium, &params, setup.step).interactions > 0).count();

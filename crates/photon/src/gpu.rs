@@ -147,6 +147,9 @@ impl<'a> GpuTracer<'a> {
                         l.cell_count = point.cells.len() as u32;
                         cells.extend_from_slice(&point.cells);
                     }
+                    // Not reached: trace_gpu prepares without the medium's emission (vdbphoton
+                    // keeps an emitting scene on the CPU); a zero-weight light emits nothing.
+                    Source::Medium(_) => l.weight = [0.0; 3],
                 }
                 l
             })
@@ -308,7 +311,7 @@ pub(crate) fn read_prefix<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes
 /// `params.max_emitted` have left the lights): the same emission, free paths, roulette and
 /// stopping rule as [`crate::trace_cpu`], in f32.
 pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
-    let setup = match prepare(density, params)? {
+    let setup = match prepare(density, params, None)? {
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),
     };

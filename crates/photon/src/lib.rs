@@ -9,6 +9,12 @@
 //! Henyey-Greenstein sampling. The first interaction is not stored: it is direct light,
 //! which vdbcache computes exactly as single scattering.
 //!
+//! With the medium's emission ([`trace_cpu_emitting`], issue #19) photons also leave the
+//! emitting voxels ([`MediumEmission`]: power `4 pi integral e dV`, positions in proportion
+//! to emitted power, isotropic directions), chosen among the sources in proportion to power,
+//! and are stored from their first interaction on: the cache has no single-scattering term
+//! for emission, so that interaction is theirs to carry. CPU only so far.
+//!
 //! Photon `i` draws every random number from `Rng(seed, i)`, and photons are emitted in
 //! index order until the stored count is reached, so the map is the same on any thread count
 //! and on the GPU backend (up to f32 rounding there, see below). Power is set at the end: each photon carries
@@ -41,10 +47,12 @@ mod batch;
 mod cpu;
 mod emission;
 mod gpu;
+mod medium;
 
-pub use cpu::trace_cpu;
+pub use cpu::{trace_cpu, trace_cpu_emitting};
 pub use emission::{PointEmission, SunEmission, DIRECTION_COLUMNS, DIRECTION_ROWS};
 pub use gpu::{trace_gpu, PHOTON_WGSL};
+pub use medium::MediumEmission;
 
 use glam::{DVec3, Vec3};
 use nimbus_optics::{Light, Medium};
@@ -55,7 +63,13 @@ use nimbus_volume::Volume;
 /// [`PointEmission`]); None where the trace would be skipped. Each stored photon's power is a
 /// share of it divided by the photons emitted.
 pub fn emitted_power(density: &Volume<f32>, params: &PhotonParams) -> Result<Option<Vec3>, PhotonError> {
-    Ok(match batch::prepare(density, params)? {
+    emitted_power_emitting(density, params, None)
+}
+
+/// [`emitted_power`] with the medium's emission ([`MediumEmission`]): the lights' and
+/// `4 pi integral e dV`.
+pub fn emitted_power_emitting(density: &Volume<f32>, params: &PhotonParams, emission: Option<&nimbus_tracking::EmissionField>) -> Result<Option<Vec3>, PhotonError> {
+    Ok(match batch::prepare(density, params, emission)? {
         batch::Prepared::Trace(setup) => Some(setup.emitter.power.iter().copied().sum()),
         batch::Prepared::Skip(..) => None,
     })
@@ -129,7 +143,8 @@ impl Default for PhotonParams {
     }
 }
 
-/// Photons stored at interactions after the first scattering event, in emission order.
+/// Photons stored at interactions after the first scattering event (a light's) or from the
+/// first interaction on (the medium's emission's), in emission order.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct PhotonMap {
     /// World-space positions.

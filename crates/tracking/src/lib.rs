@@ -24,8 +24,9 @@
 //!
 //! On these, [`trace_path`] traces a volumetric path with next-event estimation: the
 //! reference path tracer's paths from the eye and vdbcache's path-traced multiple scattering;
-//! with an [`EmissionField`] (the reference only, so far) also the medium's emission, by the
-//! collision estimator `beta e / sigma_t` at each real collision.
+//! with an [`EmissionField`] also the medium's emission, by the collision estimator
+//! `beta e / sigma_t` at each real collision (the reference's paths, and vdbcache's, which so
+//! hold emitted light the medium scatters).
 //!
 //! The WGSL twin is `shaders/tracking.wgsl` ([`TRACKING_WGSL`], with [`GpuMajorantInfo`] and
 //! [`majorant_buffer`] for the host side), and `shaders/path.wgsl` ([`PATH_WGSL`]) that of

@@ -1,0 +1,153 @@
+//! Emission flags (issue #19; design.md section 5), one meaning for every tool that reads
+//! them: vdbphoton (photons leave from emitting voxels), vdbcache (the paths gather the
+//! medium's emission, so Li holds emitted light the medium scatters) and vdbmarch (camera
+//! rays add the emission itself; `--reference` everything).
+//!
+//! [`EmissionArgs::resolve`] reads the flags, else recognises Blender's and Houdini's fire
+//! grids (`temperature`, `flame`, `heat`), and says with `-v` which grid and mapping it chose.
+//! [`emission_device`] keeps stages whose emission has no GPU twin on the CPU.
+
+use glam::Vec3;
+use nimbus_optics::{blackbody_rgb, Emission};
+use nimbus_tracking::EmissionField;
+use nimbus_vdb::{GridKind, VdbFile};
+use nimbus_volume::Volume;
+
+use crate::{parse_rgb, read_density, Failure, Log};
+
+/// Emission (issue #19): radiance per unit length `S * color * grid(x)` and/or a blackbody
+/// from a temperature grid, with Cycles' Principled Volume meaning (`nimbus_optics::Emission`).
+/// Without these flags, a file with Blender's or Houdini's fire grids renders with fire.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct EmissionArgs {
+    /// The grid whose value scales the emission (e.g. Blender's `flame`).
+    #[arg(long, value_name = "NAME")]
+    pub emission_grid: Option<String>,
+    /// Emission strength S (default 1 with --emission-grid).
+    #[arg(long, value_name = "S")]
+    pub emission_strength: Option<f32>,
+    /// Emission colour R,G,B (default white).
+    #[arg(long, value_parser = parse_rgb, value_name = "R,G,B")]
+    pub emission_color: Option<Vec3>,
+    /// The grid holding temperature, in units of --temperature-scale (e.g. `temperature`).
+    #[arg(long, value_name = "NAME")]
+    pub temperature_grid: Option<String>,
+    /// Kelvin per temperature-grid unit (Cycles' Temperature; default 1000, or 1 for a grid
+    /// already in kelvin).
+    #[arg(long, value_name = "K")]
+    pub temperature_scale: Option<f32>,
+    /// Blackbody intensity B: 1 is physically accurate radiance sigma T^4 / pi (in Cycles'
+    /// scale), coloured by the blackbody's chromaticity (default 1 with --temperature-grid).
+    #[arg(long, value_name = "B")]
+    pub blackbody_intensity: Option<f32>,
+    /// No emission, even where the file has fire grids.
+    #[arg(long, conflicts_with_all = ["emission_grid", "temperature_grid", "emission_strength", "emission_color", "temperature_scale", "blackbody_intensity"])]
+    pub no_emission: bool,
+}
+
+/// Default emission strength of a recognised `flame`/`heat` grid without a temperature grid.
+const AUTO_FLAME_STRENGTH: f32 = 1.0;
+/// Its colour: the blackbody's at this temperature (a flame's orange).
+const AUTO_FLAME_KELVIN: f64 = 1500.0;
+/// A temperature grid whose largest value is below this is normalised (Blender's Mantaflow,
+/// max about 3; Houdini pyro's): --temperature-scale 1000, Cycles' default Temperature, as
+/// Blender's Quick Smoke fire material reads it. At or above, it is taken as kelvin.
+const KELVIN_LIKE_MIN: f32 = 100.0;
+
+/// The emission grids of the file, read, and what they mean.
+pub struct EmissionGrids {
+    pub params: Emission,
+    pub grid: Option<Volume<f32>>,
+    pub temperature: Option<Volume<f32>>,
+}
+
+impl EmissionGrids {
+    /// The field the engines look emission up in.
+    pub fn field(&self) -> EmissionField<'_> {
+        EmissionField { grid: self.grid.as_ref(), temperature: self.temperature.as_ref(), params: &self.params }
+    }
+}
+
+/// A float grid's largest value, or None when the file has no non-empty float grid of that name.
+fn grid_max(file: &VdbFile, name: &str) -> Result<Option<(Volume<f32>, f32)>, Failure> {
+    if !file.has_grid(name) || file.grid(name).map(|g| g.kind != GridKind::Float).unwrap_or(true) {
+        return Ok(None);
+    }
+    let (_, v) = read_density(file, Some(name))?;
+    let max = v.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max);
+    Ok((max > 0.0).then_some((v, max)))
+}
+
+impl EmissionArgs {
+    /// The emission: from the flags, else recognised from the file's grids (Blender's
+    /// `temperature` and `flame`, Houdini pyro's `temperature`, `heat`, `flame`), else none.
+    pub fn resolve(&self, file: &VdbFile, log: &Log) -> Result<Option<EmissionGrids>, Failure> {
+        let args = self;
+        if args.no_emission {
+            return Ok(None);
+        }
+        let mut params = Emission::default();
+        let read = |name: &str| -> Result<Volume<f32>, Failure> { read_density(file, Some(name)).map(|(_, v)| v) };
+        let explicit = args.emission_grid.is_some() || args.temperature_grid.is_some();
+        let (mut grid, mut temperature) = (None, None);
+        if explicit {
+            if let Some(name) = &args.emission_grid {
+                grid = Some(read(name)?);
+                params.grid = Some(name.clone());
+                params.strength = args.emission_strength.unwrap_or(1.0);
+                params.color = args.emission_color.unwrap_or(Vec3::ONE);
+            }
+            if let Some(name) = &args.temperature_grid {
+                temperature = Some(read(name)?);
+                params.temperature_grid = Some(name.clone());
+                params.temperature_scale = args.temperature_scale.unwrap_or(1000.0);
+                params.blackbody_intensity = args.blackbody_intensity.unwrap_or(1.0);
+            }
+        } else if let Some((v, max)) = grid_max(file, "temperature")? {
+            let kelvin = max >= KELVIN_LIKE_MIN;
+            params.temperature_grid = Some("temperature".into());
+            params.temperature_scale = args.temperature_scale.unwrap_or(if kelvin { 1.0 } else { 1000.0 });
+            params.blackbody_intensity = args.blackbody_intensity.unwrap_or(1.0);
+            log.verbose(format!(
+                "emission: recognised grid 'temperature' (max {max:.3}, {}): blackbody, {} K per unit (hottest {:.0} K), intensity {} (Blender's Quick Smoke fire; --no-emission turns it off)",
+                if kelvin { "kelvin" } else { "normalised" },
+                params.temperature_scale,
+                max * params.temperature_scale,
+                params.blackbody_intensity
+            ));
+            temperature = Some(v);
+        } else {
+            for name in ["flame", "heat"] {
+                if let Some((v, max)) = grid_max(file, name)? {
+                    params.grid = Some(name.into());
+                    params.strength = args.emission_strength.unwrap_or(AUTO_FLAME_STRENGTH);
+                    params.color = args.emission_color.unwrap_or_else(|| blackbody_rgb(AUTO_FLAME_KELVIN));
+                    log.verbose(format!(
+                        "emission: recognised grid '{name}' (max {max:.3}): strength {} x colour {:.3},{:.3},{:.3} (a {AUTO_FLAME_KELVIN} K blackbody's) x grid; --no-emission turns it off",
+                        params.strength, params.color.x, params.color.y, params.color.z
+                    ));
+                    grid = Some(v);
+                    break;
+                }
+            }
+        }
+        params.validate().map_err(Failure::usage)?;
+        if !params.is_active() {
+            let given = [
+                (args.emission_strength.is_some(), "--emission-strength"),
+                (args.emission_color.is_some(), "--emission-color"),
+                (args.temperature_scale.is_some(), "--temperature-scale"),
+                (args.blackbody_intensity.is_some(), "--blackbody-intensity"),
+            ];
+            for (_, flag) in given.iter().filter(|(g, _)| *g) {
+                log.warn(format!("{flag} changes nothing: no emission (no fire grid recognised; name one with --emission-grid or --temperature-grid)"));
+            }
+            return Ok(None);
+        }
+        if explicit {
+            log.verbose(format!("emission: {}", params.describe()));
+        }
+        Ok(Some(EmissionGrids { params, grid, temperature }))
+    }
+}
+
