@@ -158,6 +158,36 @@ fn fire_grids_are_recognised_and_no_emission_turns_them_off() {
     assert!(rgba(&flame.stdout)[14][0] > 0.0);
 }
 
+/// The slab with `density` and the grids `(name, value)` of its shape.
+fn slab_with(grids: &[(&str, f32)]) -> Vec<u8> {
+    let mut file = VdbFile::new();
+    let density = slab();
+    file.insert_volume("density", &density, GridClass::FogVolume).unwrap();
+    for &(name, value) in grids {
+        file.insert_volume(name, &density.map(0.0, |v| v * value), GridClass::FogVolume).unwrap();
+    }
+    file.to_bytes(&WriteOptions::default()).unwrap()
+}
+
+/// A Blender Mantaflow fire renders from its flame, as Blender's domain does: temperature
+/// 1.5 + 1.5 flame (units of 1000 K) where flame > 0.01, the file's `temperature` (the heat)
+/// unused; so flame 0.5 renders as a 2250 K blackbody, exactly as a normalised temperature
+/// grid of 2.25. With Houdini's `vel` beside them, the temperature grid is the fire.
+#[test]
+fn a_blender_fire_renders_from_its_flame() {
+    let march = |vdb: &[u8]| ok("vdbmarch", &["-v", "--device", "cpu"], &ok("vdbcache", &[CAMERA, MEDIUM].concat(), vdb).stdout);
+    let blender = march(&slab_with(&[("flame", 0.5), ("temperature", 2.0)]));
+    let log = String::from_utf8_lossy(&blender.stderr);
+    assert!(log.contains("recognised a Blender Mantaflow fire") && log.contains("(1500 to 3000 K)"), "{log}");
+    let same = march(&slab_with(&[("temperature", 2.25)]));
+    assert_eq!(rgba(&blender.stdout), rgba(&same.stdout), "flame 0.5 is not a 2250 K blackbody");
+    assert_eq!(exr_attribute(&blender.stdout, "nimbus:emission").as_deref(), Some("temperature=flame->temperature,scale=1000,blackbody=1"));
+    let houdini = march(&slab_with(&[("flame", 0.5), ("temperature", 2.0), ("vel", 0.0)]));
+    assert!(String::from_utf8_lossy(&houdini.stderr).contains("recognised grid 'temperature'"));
+    let heat = march(&slab_with(&[("temperature", 2.0)]));
+    assert_eq!(rgba(&houdini.stdout), rgba(&heat.stdout));
+}
+
 /// A cube of 12^3 voxels of 0.1 whose central 4^3 voxels glow, as a VDB: `density` and
 /// `glow`.
 fn glowing_cube_vdb() -> Vec<u8> {
