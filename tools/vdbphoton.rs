@@ -7,7 +7,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use nimbus_cli::{
-    read_density, read_vdb, run, CommonArgs, EmissionArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
+    read_density, read_vdb, run, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
     VdbOutputArgs,
 };
 use nimbus_photon::{trace_cpu_emitting, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
@@ -27,6 +27,10 @@ struct Args {
     medium: MediumArgs,
     #[command(flatten)]
     lights: LightArgs,
+    /// The sky or environment map: photons also leave it, stored from their first interaction
+    /// (CPU only so far).
+    #[command(flatten)]
+    environment: EnvironmentArgs,
     /// Free-path sampling: delta (delta tracking, unbiased; the default: 1.4-2.1x more
     /// accurate than simpson at equal time), simpson (the paper's Eq. 2) or exponential
     /// (Eq. 1, biased); the last two for comparison.
@@ -72,9 +76,11 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     log.verbose(format!("density grid '{grid}': {} active voxels in {} bricks", density.active_voxel_count(), density.brick_count()));
     let meta = PipelineMeta::of(&file);
     let preset = args.quality.map(Quality::settings);
+    let environment = args.environment.resolve(&meta, &log, None)?;
     let params = PhotonParams {
         medium: args.medium.resolve(&meta, &log, None)?,
-        lights: args.lights.resolve(&meta, &log, None, false)?,
+        lights: args.lights.resolve(&meta, &log, None, environment.is_some())?,
+        environment,
         distance: match (args.distance, preset) {
             (Some(d), _) => d,
             (None, Some(q)) => q.distance.parse().map_err(Failure::usage)?,
@@ -88,7 +94,13 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     };
     params.validate().map_err(|e| Failure::usage(e))?;
     let emission = args.emission.resolve(&file, &log)?;
-    let device = args.common.device_for(&[(emission.is_some(), "emission")], &log)?;
+    let device = args.common.device_for(
+        &[
+            (emission.is_some(), "emission"),
+            (params.environment.as_ref().is_some_and(|e| !e.is_black()), "the environment's light"),
+        ],
+        &log,
+    )?;
     let field = emission.as_ref().map(|e| e.field());
     let traced = log.stage(
         "trace",
@@ -138,6 +150,7 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
         .density_grid(&grid)?
         .medium(&params.medium)?
         .lights(&params.lights)?
+        .environment(params.environment.as_ref())?
         .seed(params.seed)?
         // The emission the photons carry (vdbcache's photon gather holds it scattered).
         .emission(&match (&emission, &stats.skipped) {

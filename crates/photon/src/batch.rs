@@ -6,7 +6,7 @@
 use std::ops::Range;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{Light, Rng};
+use nimbus_optics::{Environment, Light, Rng};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::emission::{PointEmission, SunEmission};
@@ -28,6 +28,46 @@ pub(crate) enum Source<'a> {
     Point(PointEmission),
     /// The medium's emitting cells (after the lights; CPU only so far).
     Medium(MediumEmission<'a>),
+    /// The sky or environment map (last; CPU only so far).
+    Environment(EnvironmentEmission),
+}
+
+/// Photons from the environment: a direction drawn from it ([`Environment::sample`]), then
+/// a point uniform on the disc of the medium's bounding sphere facing that direction, outside
+/// the sphere; each carries `L(w) pi R^2 / pdf(w)` (the flux through the disc from around
+/// w), so the source's power is `pi R^2` times the integral of L over the sphere.
+pub(crate) struct EnvironmentEmission {
+    pub environment: Environment,
+    pub centre: DVec3,
+    pub radius: f64,
+}
+
+impl EnvironmentEmission {
+    fn new(environment: &Environment, density: &Volume<f32>) -> Option<EnvironmentEmission> {
+        let (lo, hi) = density.world_bounds()?;
+        // Trilinear sampling reaches a voxel beyond the active ones.
+        let radius = (hi - lo).length() * 0.5 + density.transform().voxel_size().max_element() * 2.0;
+        (!environment.is_black()).then(|| EnvironmentEmission { environment: environment.clone(), centre: (lo + hi) * 0.5, radius })
+    }
+
+    fn disc_area(&self) -> f64 {
+        std::f64::consts::PI * self.radius * self.radius
+    }
+
+    fn power(&self) -> Vec3 {
+        self.environment.mean_radiance() * (4.0 * std::f64::consts::PI * self.disc_area()) as f32
+    }
+
+    /// Origin, unit direction of travel, and the flux the photon carries.
+    fn sample(&self, rng: &mut Rng) -> (DVec3, DVec3, Vec3) {
+        let s = self.environment.sample(rng.next_vec2());
+        let disc = nimbus_optics::sample_uniform_disk_concentric(rng.next_vec2()).as_dvec2() * self.radius;
+        let toward = s.toward.as_dvec3().normalize();
+        let (t, b) = nimbus_optics::orthonormal_basis(s.toward);
+        let origin = self.centre + toward * (2.0 * self.radius) + t.as_dvec3() * disc.x + b.as_dvec3() * disc.y;
+        let flux = if s.pdf > 0.0 { s.radiance * (self.disc_area() / s.pdf as f64) as f32 } else { Vec3::ZERO };
+        (origin, -toward, flux)
+    }
 }
 
 /// Where and how photons leave the lights and the emitting medium: per source its power and
@@ -59,7 +99,7 @@ pub(crate) struct Emission {
 impl<'a> Emitter<'a> {
     /// The lights' sources over `density`, which must hold a positive voxel, and the medium's
     /// where `emission` emits; None when they emit no power.
-    pub fn new(lights: &[Light], density: &'a Volume<f32>, emission: Option<&EmissionField<'a>>) -> Option<Emitter<'a>> {
+    pub fn new(lights: &[Light], environment: Option<&Environment>, density: &'a Volume<f32>, emission: Option<&EmissionField<'a>>) -> Option<Emitter<'a>> {
         let mut sources = Vec::with_capacity(lights.len());
         let mut power = Vec::with_capacity(lights.len());
         for light in lights {
@@ -81,6 +121,10 @@ impl<'a> Emitter<'a> {
         if let Some(medium) = emission.and_then(|e| MediumEmission::new(density, *e)) {
             power.push(medium.power());
             sources.push(Source::Medium(medium));
+        }
+        if let Some(sky) = environment.and_then(|e| EnvironmentEmission::new(e, density)) {
+            power.push(sky.power());
+            sources.push(Source::Environment(sky));
         }
         let total: f32 = power.iter().map(|p| p.element_sum()).sum();
         if total.is_nan() || total <= 0.0 {
@@ -108,6 +152,13 @@ impl<'a> Emitter<'a> {
         match &self.sources[i] {
             Source::Sun(emission) => Emission { origin: emission.sample_point(rng), dir: emission.normal, weight: self.weight[i], store_first: false },
             Source::Point(emission) => Emission { origin: emission.position, dir: emission.sample_direction(rng), weight: self.weight[i], store_first: false },
+            Source::Environment(sky) => {
+                // weight[i] sums to the total power: the flux over this source's share of it
+                // (the probability of choosing it).
+                let (origin, dir, flux) = sky.sample(rng);
+                let share = self.power[i].element_sum() / self.weight[i].element_sum();
+                Emission { origin, dir, weight: flux / share, store_first: true }
+            }
             Source::Medium(emission) => {
                 // weight[i] sums to the total power over all sources; the cell's importance
                 // weight is in the ratio (medium.rs).
@@ -191,7 +242,7 @@ pub(crate) fn prepare<'a>(density: &'a Volume<f32>, params: &PhotonParams, emiss
     if !density.bricks().any(|b| b.values.iter().any(|&d| d > 0.0)) {
         return skip("no voxel of the density grid is above 0");
     }
-    let Some(emitter) = Emitter::new(&params.lights, density, emission) else {
+    let Some(emitter) = Emitter::new(&params.lights, params.environment.as_ref(), density, emission) else {
         return skip(if emission.is_some() { "neither the lights nor the medium emit power" } else { "the lights emit no power" });
     };
     let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);

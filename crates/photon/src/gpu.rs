@@ -148,8 +148,9 @@ impl<'a> GpuTracer<'a> {
                         cells.extend_from_slice(&point.cells);
                     }
                     // Not reached: trace_gpu prepares without the medium's emission (vdbphoton
-                    // keeps an emitting scene on the CPU); a zero-weight light emits nothing.
-                    Source::Medium(_) => l.weight = [0.0; 3],
+                    // keeps an emitting scene on the CPU) and refuses an environment; a
+                    // zero-weight light emits nothing.
+                    Source::Medium(_) | Source::Environment(_) => l.weight = [0.0; 3],
                 }
                 l
             })
@@ -311,6 +312,9 @@ pub(crate) fn read_prefix<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes
 /// `params.max_emitted` have left the lights): the same emission, free paths, roulette and
 /// stopping rule as [`crate::trace_cpu`], in f32.
 pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
+    if params.environment.as_ref().is_some_and(|e| !e.is_black()) {
+        return Err(PhotonError::Param("photons from the environment are not built for the GPU yet (use --device cpu)".into()));
+    }
     let setup = match prepare(density, params, None)? {
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),

@@ -116,6 +116,9 @@ impl std::str::FromStr for DistanceSampling {
 pub struct PhotonParams {
     pub medium: Medium,
     pub lights: Vec<Light>,
+    /// A sky or map: photons also leave it (stored from their first interaction, as the
+    /// cache has no single-scattering term for it), CPU only.
+    pub environment: Option<nimbus_optics::Environment>,
     pub distance: DistanceSampling,
     /// Simpson step as a fraction of the smallest voxel edge.
     pub step: f64,
@@ -133,6 +136,7 @@ impl Default for PhotonParams {
         PhotonParams {
             medium: Medium::default(),
             lights: vec![Light::default_sun()],
+            environment: None,
             distance: DistanceSampling::Delta,
             step: 0.5,
             photons: 200_000,
