@@ -21,7 +21,7 @@
 //   the two agree in distribution, not voxel for voxel.
 // Positions are f32 relative to the host's origin, which is the photon bins' origin when
 // there are photons, so bin-local positions are the very f32 values the CPU compares.
-// Composed after nimbus_gpu::LoopGuard::wgsl (binding 10 of group 1): every voxel ends with
+// Composed after nimbus_gpu::LoopGuard::wgsl (binding 11 of group 1): every voxel ends with
 // loop_guard_check(), so a software adapter that cut a shadow ray, a photon search or a path
 // short says so. llvmpipe (lavapipe) ends any loop of a SIMD group after 65535 iterations
 // counted over the whole invocation, so each bake_paths dispatch traces a few paths per
@@ -57,12 +57,11 @@ struct CacheUniforms {
     max_depth: u32,
     first_path: u32,
     path_count: u32,
-    // The uniform sky the paths gather (zero: none).
-    sky_r: f32,
-    sky_g: f32,
-    sky_b: f32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
+    _pad3: u32,
+    _pad4: u32,
 }
 
 // Photons sorted by bin; `index` is the photon's number in the map (the CPU's tie-break).
@@ -96,6 +95,12 @@ const GATHER_RADIUS: u32 = 1u;
 // PathPlan::first and PathPlan::origins (relative to the host's origin) for bake_paths.
 @group(1) @binding(8) var<storage, read> path_first: array<u32>;
 @group(1) @binding(9) var<storage, read> path_origins: array<vec4<f32>>;
+// The environment (nimbus_optics::Environment::gpu_words), read by environment.wgsl.
+@group(1) @binding(10) var<storage, read> environment: array<f32>;
+
+fn env_word(i: u32) -> f32 {
+    return environment[i];
+}
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -376,13 +381,15 @@ fn continue_paths(v: u32) {
         if (any(w_out != vec3<f32>(0.0))) {
             axis = -w_out;
         }
-        // The sky scattered at the origin itself: the first flight below, when it escapes (a
-        // uniform sky takes no next-event estimate, li_multiple_paths).
-        let sky = vec3<f32>(params.sky_r, params.sky_g, params.sky_b);
+        // The environment scattered at the origin itself: a next-event estimate there (a map's)
+        // and the first flight below when it escapes (li_multiple_paths).
+        if (env_kind() == 2u) {
+            sum = sum + environment_nee(x, -axis, params.medium, params.grid, false, &rng);
+        }
         // From the phase function about the camera ray's direction: the phase weight cancels.
         let first = hg_sample(params.medium.g, axis, rng_next_vec2(&rng));
         let dir = normalize(first.w_out);
-        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, sky, first.pdf, &rng);
+        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
         sum = sum + (path.single + path.multiple);
     }
     if (end == n) {

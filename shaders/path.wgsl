@@ -3,7 +3,8 @@
 // path-traced multiple scattering (shaders/cache.wgsl: paths from a cache voxel).
 //
 // Composed after volume.wgsl (the density is the default volume at group 0), optics.wgsl and
-// tracking.wgsl. The stage shader provides, besides tracking.wgsl's majorant_fetch,
+// tracking.wgsl and environment.wgsl. The stage shader provides, besides tracking.wgsl's
+// majorant_fetch and environment.wgsl's env_word,
 //     fn path_light(index: u32) -> Light
 // returning light `index` of the scene (usually from a storage buffer), and
 //     fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32>
@@ -48,51 +49,60 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
     return 0.0;
 }
 
-// Next-event estimation of a uniform sky of radiance `sky` at x toward w_out
-// (nimbus_tracking::environment_nee for Environment::Uniform): a direction uniform over the
-// sphere, its ratio-tracked transmittance, weighed against HG sampling unless `alone`.
-// trace_path calls it only alone (at max_depth): for a uniform sky escaping flights carry
-// the rest.
-fn sky_nee(sky: vec3<f32>, x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo, alone: bool,
-           rng: ptr<function, Rng>) -> vec3<f32> {
-    let toward = sample_uniform_sphere(rng_next_vec2(rng));
-    let pdf = 1.0 / (4.0 * OPTICS_PI);
-    let p = hg_eval(m.g, dot(-toward, w_out));
+// Next-event estimation of the environment at x toward w_out (nimbus_tracking::
+// environment_nee): a direction drawn from it (environment.wgsl's env_sample), its
+// ratio-tracked transmittance, weighed against HG sampling unless `alone`. A uniform sky
+// takes none but `alone` (Environment::wants_next_event): escaping flights carry it.
+fn environment_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo, alone: bool,
+                   rng: ptr<function, Rng>) -> vec3<f32> {
+    if (!alone && env_kind() != 2u) {
+        return vec3<f32>(0.0);
+    }
+    let s = env_sample(rng_next_vec2(rng));
+    if (s.pdf <= 0.0 || all(s.radiance == vec3<f32>(0.0))) {
+        _ = rng_next_f32(rng);
+        return vec3<f32>(0.0);
+    }
+    let p = hg_eval(m.g, dot(-s.toward, w_out));
     var weight = 1.0;
     if (!alone) {
-        weight = power_heuristic(pdf, p);
+        weight = power_heuristic(s.pdf, p);
     }
     if (p * weight <= 0.0) {
         _ = rng_next_f32(rng);
         return vec3<f32>(0.0);
     }
-    let tr = track_transmittance_ratio(path_track_ray(x, toward, m.extinction), grid, TRACK_FAR, RATIO_ROULETTE, rng);
-    return sky * (tr * p * weight / pdf);
+    let tr = track_transmittance_ratio(path_track_ray(x, s.toward, m.extinction), grid, TRACK_FAR, RATIO_ROULETTE, rng);
+    return s.radiance * (tr * p * weight / s.pdf);
 }
 
 // The radiance arriving at `origin` from direction -dir, scattered in the medium, by one
 // path: delta-tracked free flights, albedo at each collision, next-event estimation toward
 // every light, its transmittance looked up where the light has a table and ratio-tracked
 // otherwise, Russian roulette from ROULETTE_FROM_DEPTH, HG scattering; at most `max_depth`
-// collisions. A uniform `sky` (zero: none) enters where phase-sampled flights escape (and
-// by sky_nee at the last collision, which no flight follows); `first_pdf` is the HG
-// density `dir` was drawn with at the origin (PathStart::Scattered), or negative for a
-// camera ray (PathStart::Camera), whose escape is the caller's background.
+// collisions. The environment (environment.wgsl; none where env_kind() is 0) enters where
+// phase-sampled flights escape, weighed by the power heuristic against environment_nee at
+// each collision for a map; a uniform sky by escapes alone (and environment_nee at the last
+// collision, which no flight follows). `first_pdf` is the HG density `dir` was drawn with at
+// the origin (PathStart::Scattered), or negative for a camera ray (PathStart::Camera), whose
+// escape is the caller's background.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
-              sky: vec3<f32>, first_pdf: f32, rng: ptr<function, Rng>) -> PathLight {
+              first_pdf: f32, rng: ptr<function, Rng>) -> PathLight {
     var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0));
     var x = origin;
     var w = dir;
     var beta = vec3<f32>(1.0);
-    let has_sky = any(sky > vec3<f32>(0.0));
+    let kind = env_kind();
     var flight_pdf = first_pdf;
     for (var depth = 1u; depth <= max_depth; depth = depth + 1u) {
         let t = track_sample_delta(path_track_ray(x, w, m.extinction), grid, rng);
         if (t < 0.0) {
-            if (has_sky && flight_pdf >= 0.0) {
-                // A uniform sky takes no next-event estimate (Environment::wants_next_event):
-                // escaping flights carry all of it.
-                let seen = beta * sky;
+            if (kind != 0u && flight_pdf >= 0.0) {
+                var weight = 1.0;
+                if (kind == 2u) {
+                    weight = power_heuristic(flight_pdf, env_pdf(w));
+                }
+                let seen = beta * env_radiance(w) * weight;
                 if (depth <= 2u) {
                     out.single = out.single + seen;
                 } else {
@@ -119,9 +129,8 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
                 direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
             }
         }
-        if (has_sky && depth == max_depth) {
-            // No flight follows the last collision: its sky by a shadow ray alone.
-            direct = direct + sky_nee(sky, x, -w, m, grid, true, rng);
+        if (kind != 0u) {
+            direct = direct + environment_nee(x, -w, m, grid, depth == max_depth, rng);
         }
         if (depth == 1u) {
             out.single = out.single + beta * direct;

@@ -31,10 +31,9 @@ struct ReferenceUniforms {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    // The uniform sky lighting the scene (zero: none).
-    sky_r: f32,
-    sky_g: f32,
-    sky_b: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 struct PixelOut {
@@ -50,6 +49,12 @@ const REFERENCE_DOMAIN: u32 = 0x52454650u;
 @group(1) @binding(1) var<storage, read> lights: array<Light>;
 @group(1) @binding(2) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(3) var<storage, read_write> pixels: array<PixelOut>;
+// The environment (nimbus_optics::Environment::gpu_words), read by environment.wgsl.
+@group(1) @binding(4) var<storage, read> environment: array<f32>;
+
+fn env_word(i: u32) -> f32 {
+    return environment[i];
+}
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -83,8 +88,7 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         let m = params.medium;
         sum.transmittance = sum.transmittance + track_transmittance_ratio(path_track_ray(params.camera.eye, dir, m.extinction),
                                                                           params.grid, TRACK_FAR, RATIO_ROULETTE, &rng);
-        let sky = vec3<f32>(params.sky_r, params.sky_g, params.sky_b);
-        let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, sky, -1.0, &rng);
+        let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, -1.0, &rng);
         sum.single = sum.single + path.single;
         sum.multiple = sum.multiple + path.multiple;
     }

@@ -202,7 +202,6 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let device = args.common.device_for(
         &[
             (emission.is_some() && reads_emission, "emission"),
-            (params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map), "an environment map"),
             (params.lights.iter().any(nimbus_optics::Light::has_disc), "a sun with angle > 0"),
         ],
         &log,

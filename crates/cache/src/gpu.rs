@@ -7,7 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, Light, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, Light, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -29,8 +29,8 @@ pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 const WORKGROUP_SIZE: u32 = 64;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
-/// Group 1 binding of the [`LoopGuard`] flag (after the 10 buffers).
-const GUARD_BINDING: u32 = 10;
+/// Group 1 binding of the [`LoopGuard`] flag (after the 11 buffers).
+const GUARD_BINDING: u32 = 11;
 
 /// WGSL `CacheUniforms`.
 #[repr(C)]
@@ -56,8 +56,7 @@ struct GpuCacheParams {
     max_depth: u32,
     first_path: u32,
     path_count: u32,
-    sky: [f32; 3],
-    _pad: [u32; 2],
+    _pad: [u32; 5],
 }
 
 /// WGSL `CachePhoton`.
@@ -100,9 +99,6 @@ fn constants_wgsl() -> String {
 /// far ([`crate::bake_cpu_emitting`]; vdbcache keeps an emitting scene on the CPU).
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
-    if params.environment.as_ref().is_some_and(Environment::is_lit_map) {
-        return Err(CacheError::Param("an environment map is not built for the GPU cache baker yet (use --device cpu; a uniform --sky is)".into()));
-    }
     if params.lights.iter().any(Light::has_disc) {
         return Err(CacheError::Param("a sun with angle > 0 is not built for the GPU cache baker yet (use --device cpu)".into()));
     }
@@ -224,6 +220,8 @@ struct GpuBaker<'a> {
     /// The majorant for the Simpson shadow rays, and lights, bin starts, photons by bin.
     majorant: wgpu::Buffer,
     buffers: [wgpu::Buffer; 3],
+    /// The environment the paths gather (Environment::gpu_words).
+    environment: wgpu::Buffer,
     /// The paths' majorant (MajorantGrid::for_tracking), where paths are traced.
     tracking: Option<(wgpu::Buffer, GpuMajorantInfo)>,
     /// The lights' tables at group 2.
@@ -261,13 +259,14 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(7, false),
                 storage_entry(8, true),
                 storage_entry(9, true),
+                storage_entry(10, true),
                 guard.layout_entry(),
             ],
         )?;
         let tables_layout = GpuLightTables::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
             light_tables_wgsl(),
             constants_wgsl(),
             guard.wgsl(1)
@@ -317,8 +316,7 @@ impl<'a> GpuBaker<'a> {
             max_depth: PATH_MAX_DEPTH,
             first_path: 0,
             path_count: PATHS_PER_DISPATCH,
-            sky: params.environment.as_ref().and_then(Environment::as_uniform).unwrap_or(Vec3::ZERO).to_array(),
-            _pad: [0; 2],
+            _pad: [0; 5],
         };
         let tracking = match params.estimator {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, false) => {
@@ -338,6 +336,7 @@ impl<'a> GpuBaker<'a> {
             origin,
             majorant: majorant_buffer(ctx, majorant)?,
             buffers: [lights_buffer, ctx.storage_buffer("photon bin starts", &starts)?, ctx.storage_buffer("photons by bin", &sorted)?],
+            environment: ctx.storage_buffer("cache environment", &Environment::gpu_words(params.environment.as_ref()))?,
             tracking,
             tables_layout,
             tables_group,
@@ -403,7 +402,7 @@ impl<'a> GpuBaker<'a> {
                     ctx,
                     "cache",
                     &self.layout,
-                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins],
+                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment],
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group], count, WORKGROUP_SIZE)?;
                 first += count;

@@ -319,14 +319,15 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     assert!((same_other as f64) < 0.5 * lit_other as f64, "seed 6 agrees with seed 5 at {same_other} of {lit_other} lit voxels");
 }
 
-/// A uniform sky through the paths on both backends: next-event estimation at the voxel and
-/// at every collision, and escaping flights, from the same random streams.
+/// A uniform sky and a map through the paths on both backends: escaping flights, and for
+/// the map next-event estimation at the voxel and at every collision, from the same random
+/// streams.
 #[test]
-fn a_uniform_sky_in_the_paths_agrees_with_the_cpu_in_distribution() {
+fn the_environment_in_the_paths_agrees_with_the_cpu_in_distribution() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
     let v = lumpy_ball();
     let sky = nimbus_optics::Environment::uniform(Vec3::new(0.3, 0.5, 0.9)).unwrap();
-    for lights in [vec![], params(&v).lights] {
+    for (sky, lights) in [(sky.clone(), vec![]), (sky, params(&v).lights), (test_map(), vec![])] {
         let p = CacheParams {
             single: false,
             cache_scale: 1.5,
@@ -342,15 +343,20 @@ fn a_uniform_sky_in_the_paths_agrees_with_the_cpu_in_distribution() {
         let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
         assert_eq!(gpu_stats.nonfinite, 0);
         let (n, lit, same, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
-        eprintln!("sky, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
+        let what = if sky.wants_next_event() { "map" } else { "sky" };
+        eprintln!("{what}, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
         assert!(n > 500 && lit > 500 && level > 0.0);
         assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
         assert!(same as f64 >= 0.3 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
     }
-    // A map has no GPU twin yet: refused, not ignored.
-    let map = nimbus_optics::EnvironmentMap::new(2, 1, vec![Vec3::ONE, Vec3::ZERO]).unwrap();
-    let p = CacheParams { environment: Some(nimbus_optics::Environment::map(map, "m.exr", 1.0, 0.0).unwrap()), ..params(&v) };
-    assert!(bake_gpu(ctx, &v, &PhotonMap::default(), &p).is_err());
+}
+
+/// A 16 x 8 map with a bright patch, turned by 30 degrees: what the GPU's map sampling
+/// (environment.wgsl) must draw as the CPU does.
+pub fn test_map() -> nimbus_optics::Environment {
+    let texels = (0..16 * 8).map(|i| if i % 16 == 5 && i / 16 == 2 { Vec3::new(20.0, 18.0, 15.0) } else { Vec3::new(0.2, 0.3, 0.5 + 0.05 * (i / 16) as f32) }).collect();
+    let map = nimbus_optics::EnvironmentMap::new(16, 8, texels).unwrap();
+    nimbus_optics::Environment::map(map, "test.exr", 1.5, 30.0).unwrap()
 }
 
 #[test]

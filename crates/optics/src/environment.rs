@@ -221,6 +221,44 @@ impl EnvironmentMap {
     }
 }
 
+/// Floats of [`Environment::gpu_words`]' header.
+pub const GPU_ENVIRONMENT_HEADER: usize = 8;
+
+impl Environment {
+    /// The environment as one f32 array for `shaders/environment.wgsl`: a header (kind 0 none
+    /// or black, 1 uniform, 2 map; width, height, strength, cos and sin of the rotation, then
+    /// for a uniform sky its RGB at 5..8), then for a map its texels (RGB, row-major from the
+    /// top), the rows' cdf (height + 1) and pdfs (height), and per row the columns' cdf
+    /// (width + 1) and pdfs (width): what [`Environment::sample`] and [`Environment::pdf`]
+    /// read, so the shader draws what the CPU draws.
+    pub fn gpu_words(environment: Option<&Environment>) -> Vec<f32> {
+        let mut w = vec![0.0f32; GPU_ENVIRONMENT_HEADER];
+        match environment {
+            Some(e) if e.is_black() => {}
+            None => {}
+            Some(Environment::Uniform(c)) => {
+                w[0] = 1.0;
+                w[5..8].copy_from_slice(&c.to_array());
+            }
+            Some(Environment::Map { map, strength, rotation, .. }) => {
+                let (c, s) = Self::turn(*rotation);
+                w[..5].copy_from_slice(&[2.0, map.width as f32, map.height as f32, *strength, c]);
+                w[5] = s;
+                w.extend(map.texels.iter().flat_map(|t| t.to_array()));
+                w.extend_from_slice(&map.rows.cdf);
+                w.extend((0..map.rows.len()).map(|i| map.rows.pdf_of_cell(i)));
+                for row in &map.columns {
+                    w.extend_from_slice(&row.cdf);
+                }
+                for row in &map.columns {
+                    w.extend((0..row.len()).map(|i| row.pdf_of_cell(i)));
+                }
+            }
+        }
+        w
+    }
+}
+
 /// Image coordinates `(s, t)` (t = 0 at the top) of the map-frame direction `d`.
 #[inline]
 fn direction_to_image(d: Vec3) -> Vec2 {

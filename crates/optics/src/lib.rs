@@ -58,7 +58,7 @@ mod rng;
 mod sampling;
 
 pub use emission::{blackbody_rgb, Emission, EmissionError};
-pub use environment::{power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample};
+pub use environment::{power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample, GPU_ENVIRONMENT_HEADER};
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
 pub use light::{format_lights, parse_lights, Incident, Light, LightError};
@@ -71,3 +71,8 @@ pub use sampling::{orthonormal_basis, sample_uniform_disk_concentric, sample_uni
 /// The WGSL twins of this crate (`shaders/optics.wgsl`): plain functions and structs, no
 /// bindings, for stage shaders to concatenate.
 pub const OPTICS_WGSL: &str = include_str!("../../../shaders/optics.wgsl");
+
+/// The WGSL twin of [`Environment`]'s radiance, sampling and pdf
+/// (`shaders/environment.wgsl`), reading [`Environment::gpu_words`] through a stage-provided
+/// `env_word(i)`; composed after [`OPTICS_WGSL`].
+pub const ENVIRONMENT_WGSL: &str = include_str!("../../../shaders/environment.wgsl");

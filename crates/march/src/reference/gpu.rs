@@ -2,7 +2,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
@@ -30,13 +30,13 @@ struct GpuReferenceParams {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    sky: [f32; 3],
+    _pad: [u32; 3],
 }
 
 /// Samples per pixel per dispatch (see reference.wgsl: lavapipe's loop limit).
 const SAMPLES_PER_DISPATCH: u32 = 4;
 /// Group 1 binding of the [`LoopGuard`] flag.
-const GUARD_BINDING: u32 = 4;
+const GUARD_BINDING: u32 = 5;
 
 /// Renders the reference on the GPU (tiles of at most `max_tile_pixels`: keep them small
 /// for high spp on a desktop GPU, whose watchdog ends long dispatches); `progress` hears each
@@ -49,9 +49,6 @@ pub fn render_reference_gpu(
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    if params.environment.as_ref().is_some_and(nimbus_optics::Environment::is_lit_map) {
-        return Err(MarchError::Param("an environment map is not built for the GPU reference tracer yet (use --device cpu; a uniform --sky is)".into()));
-    }
     if params.lights.iter().any(nimbus_optics::Light::has_disc) {
         return Err(MarchError::Param("a sun with angle > 0 is not built for the GPU reference tracer yet (use --device cpu)".into()));
     }
@@ -66,10 +63,10 @@ pub fn render_reference_gpu(
     let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
     let layout = ctx.bind_group_layout(
         "reference",
-        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), guard.layout_entry()],
+        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
+    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
@@ -79,6 +76,7 @@ pub fn render_reference_gpu(
         lights.push(GpuLight::zeroed()); // a binding may not be empty
     }
     let light_buffer = ctx.storage_buffer("reference lights", &lights)?;
+    let environment = ctx.storage_buffer("reference environment", &Environment::gpu_words(params.environment.as_ref()))?;
     let majorant_buffer = majorant_buffer(ctx, &majorant)?;
     let uniforms = GpuReferenceParams {
         camera: GpuCamera::new(camera, origin),
@@ -94,14 +92,14 @@ pub fn render_reference_gpu(
         tile_pixels: 0,
         first_sample: 0,
         sample_count: SAMPLES_PER_DISPATCH,
-        sky: params.environment.as_ref().and_then(nimbus_optics::Environment::as_uniform).unwrap_or(glam::Vec3::ZERO).to_array(),
+        _pad: [0; 3],
     };
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("reference params", &tile)?;
-        guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out])
+        guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out, &environment])
     })?;
     guard.check(ctx, "a pixel's paths", "")?;
     let background = crate::constant_background(params.background, params.environment.as_ref().filter(|_| params.environment_visible));
