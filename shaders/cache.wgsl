@@ -123,10 +123,42 @@ fn toward_eye(x: vec3<f32>) -> vec3<f32> {
 // ---------------------------------------------------------------------------------------
 // Single scattering: sum over lights of p(w_light, w_out) E T_light(x).
 
+// Single scattering from a sun with a disc (cpu.rs sun_disc_single): the mean over
+// SUN_DISC_RAYS Simpson shadow rays spread over the disc by the R2 sequence, offset by a hash
+// of x. The CPU hashes x's f64 bits and this its f32 bits relative to the origin, so the two
+// take other directions at a point and agree in distribution.
+const SUN_DISC_RAYS: u32 = 8u;
+
+fn sun_disc_single(light: Light, x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
+    let o = volume_world_to_index(x);
+    let bits = bitcast<vec3<u32>>(x);
+    var rng = rng_new(vec2<u32>(bits.x ^ (bits.z * 0x9E3779B9u), bits.y), vec2<u32>(0u, 0u), 0u);
+    let h = rng_next_vec2(&rng);
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < SUN_DISC_RAYS; k = k + 1u) {
+        let u = fract(h + vec2<f32>(0.7548776662, 0.5698402910) * f32(k));
+        let inc = light_incident_over_disc(light, x, u);
+        if (all(inc.irradiance == vec3<f32>(0.0))) {
+            return vec3<f32>(0.0);
+        }
+        let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
+        var tr = track_transmittance(TrackRay(o, d, params.medium.extinction), params.grid, inc.distance, params.step, params.cutoff);
+        if (tr < params.cutoff) {
+            tr = 0.0;
+        }
+        sum = sum + inc.irradiance * tr * hg_eval(params.medium.g, dot(-inc.to_light, w_out));
+    }
+    return sum / f32(SUN_DISC_RAYS);
+}
+
 fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
     let o = volume_world_to_index(x);
     var sum = vec3<f32>(0.0);
     for (var i = 0u; i < params.light_count; i = i + 1u) {
+        if (lights[i].disc > 0.0) {
+            sum = sum + sun_disc_single(lights[i], x, w_out);
+            continue;
+        }
         let inc = light_incident(lights[i], x);
         if (all(inc.irradiance == vec3<f32>(0.0))) {
             continue;

@@ -153,7 +153,8 @@ struct Light {
     kind: u32,
     // Sun: irradiance E. Point: intensity I.
     power: vec3<f32>,
-    _pad: f32,
+    // Sun: 1 - cos of its disc's angular radius (0: parallel). Point: 0.
+    disc: f32,
 }
 
 struct LightIncident {
@@ -176,6 +177,21 @@ fn light_incident(light: Light, p: vec3<f32>) -> LightIncident {
     }
     let r = sqrt(r2);
     return LightIncident(offset / r, r, light.power * (1.0 / r2));
+}
+
+// light_incident with the direction drawn uniformly over a sun's disc (its solid angle) by u
+// in [0,1)^2 (Light::incident_over_disc); the same as light_incident for parallel suns and
+// point lights.
+fn light_incident_over_disc(light: Light, p: vec3<f32>, u: vec2<f32>) -> LightIncident {
+    var inc = light_incident(light, p);
+    if (light.kind == LIGHT_SUN && light.disc > 0.0) {
+        let c = 1.0 - u.x * light.disc;
+        let s = sqrt(max(1.0 - c * c, 0.0));
+        let phi = 2.0 * OPTICS_PI * u.y;
+        let frame = orthonormal_basis(inc.to_light);
+        inc.to_light = normalize(s * (cos(phi) * frame[0] + sin(phi) * frame[1]) + c * inc.to_light);
+    }
+    return inc;
 }
 
 // ---------------------------------------------------------------------------------------

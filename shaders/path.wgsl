@@ -115,7 +115,12 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
         beta = beta * m.albedo;
         var direct = vec3<f32>(0.0);
         for (var i = 0u; i < light_count; i = i + 1u) {
-            let inc = light_incident(path_light(i), x);
+            // A sun's disc: one direction over it per estimate (no draw for parallel light).
+            let light = path_light(i);
+            var inc = light_incident(light, x);
+            if (light.disc > 0.0) {
+                inc = light_incident_over_disc(light, x, rng_next_vec2(rng));
+            }
             if (all(inc.irradiance == vec3<f32>(0.0))) {
                 continue;
             }

@@ -202,7 +202,6 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let device = args.common.device_for(
         &[
             (emission.is_some() && reads_emission, "emission"),
-            (params.lights.iter().any(nimbus_optics::Light::has_disc), "a sun with angle > 0"),
         ],
         &log,
     )?;

@@ -197,7 +197,6 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
     let device = args.common.device_for(
         &[
             (emission.is_some(), "emission"),
-            (params.lights.iter().any(nimbus_optics::Light::has_disc), "a sun with angle > 0"),
         ],
         log,
     )?;

@@ -7,7 +7,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, Light, ENVIRONMENT_WGSL, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -99,9 +99,6 @@ fn constants_wgsl() -> String {
 /// far ([`crate::bake_cpu_emitting`]; vdbcache keeps an emitting scene on the CPU).
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
-    if params.lights.iter().any(Light::has_disc) {
-        return Err(CacheError::Param("a sun with angle > 0 is not built for the GPU cache baker yet (use --device cpu)".into()));
-    }
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons, false);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
@@ -416,6 +413,11 @@ impl<'a> GpuBaker<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_shader_spreads_as_many_rays_over_a_sun_disc() {
+        assert!(CACHE_WGSL.contains(&format!("const SUN_DISC_RAYS: u32 = {}u;", crate::cpu::SUN_DISC_RAYS)));
+    }
 
     #[test]
     fn layouts_match_the_wgsl_structs() {

@@ -351,6 +351,41 @@ fn the_environment_in_the_paths_agrees_with_the_cpu_in_distribution() {
     }
 }
 
+/// A sun with a disc (10 degrees) on both backends: Li_single's rays over the disc (at other
+/// directions per point on each: the offset hashes of positions differ) and the paths'
+/// next-event estimates over it (the same streams).
+#[test]
+fn a_sun_with_a_disc_agrees_with_the_cpu_in_distribution() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let sun = Light::sun_with_angle(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(2.0), 10.0).unwrap();
+    let p = CacheParams {
+        cache_scale: 1.5,
+        multiple_scale: Some(2.5),
+        estimator: MultipleEstimator::Paths { per_voxel: 8 },
+        lights: vec![sun],
+        seed: 3,
+        ..params(&v)
+    };
+    let none = PhotonMap::default();
+    let (cpu, _) = bake_cpu(&v, &none, &p).unwrap();
+    let (gpu, stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
+    assert_eq!(stats.nonfinite, 0);
+    assert_eq!(stats.light_table_nodes, 0, "a sun with a disc has no table");
+    let mean = |c: &IlluminationCache, single: bool| {
+        let v = if single { c.li_single.as_ref() } else { c.li_multiple.as_ref() }.unwrap();
+        let (sum, n) = v.bricks().flat_map(|b| b.values.iter()).fold((0.0f64, 0usize), |(s, n), x| (s + x.x as f64, n + 1));
+        sum / n as f64
+    };
+    for single in [true, false] {
+        let (c, g) = (mean(&cpu, single), mean(&gpu, single));
+        eprintln!("disc sun, {}: cpu {c:.5e}, gpu {g:.5e}", if single { "single" } else { "multiple" });
+        assert!(c > 0.0 && (g / c - 1.0).abs() < 0.02, "{c} vs {g}");
+    }
+    let (n, lit, same, ..) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
+    assert!(n > 500 && same as f64 >= 0.3 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
+}
+
 /// A 16 x 8 map with a bright patch, turned by 30 degrees: what the GPU's map sampling
 /// (environment.wgsl) must draw as the CPU does.
 pub fn test_map() -> nimbus_optics::Environment {

@@ -49,7 +49,7 @@ impl From<&Medium> for GpuMedium {
 ///     vector: vec3<f32>,   // offset  0: sun: direction travelled (unit); point: position - origin
 ///     kind: u32,           // offset 12
 ///     power: vec3<f32>,    // offset 16: sun: irradiance E; point: intensity I
-///     _pad: f32,           // offset 28
+///     disc: f32,           // offset 28: sun: 1 - cos(half its angle), 0 parallel; point: 0
 /// }
 /// ```
 #[repr(C)]
@@ -58,7 +58,8 @@ pub struct GpuLight {
     pub vector: [f32; 3],
     pub kind: u32,
     pub power: [f32; 3],
-    pub _pad: f32,
+    /// A sun's disc as 1 - cos of its angular radius (0: parallel light).
+    pub disc: f32,
 }
 
 pub const LIGHT_SUN: u32 = 0;
@@ -68,9 +69,11 @@ impl GpuLight {
     /// The light with positions taken relative to `origin`.
     pub fn new(light: &Light, origin: DVec3) -> Self {
         match *light {
-            Light::Sun { dir, irradiance, .. } => GpuLight { vector: dir.to_array(), kind: LIGHT_SUN, power: irradiance.to_array(), _pad: 0.0 },
+            Light::Sun { dir, irradiance, angle } => {
+                GpuLight { vector: dir.to_array(), kind: LIGHT_SUN, power: irradiance.to_array(), disc: 1.0 - (0.5 * angle).to_radians().cos() }
+            }
             Light::Point { position, intensity } => {
-                GpuLight { vector: (position - origin).as_vec3().to_array(), kind: LIGHT_POINT, power: intensity.to_array(), _pad: 0.0 }
+                GpuLight { vector: (position - origin).as_vec3().to_array(), kind: LIGHT_POINT, power: intensity.to_array(), disc: 0.0 }
             }
         }
     }

@@ -84,7 +84,7 @@ fn struct_layouts_match_the_rust_mirrors() {
     assert_eq!((members[4].1, members[5].1), (rmembers[4].1, rmembers[4].1 + 4));
 
     let (size, members) = layout(&module, "Light");
-    let (rsize, rmembers) = rust_layout!(GpuLight; vector, kind, power, _pad);
+    let (rsize, rmembers) = rust_layout!(GpuLight; vector, kind, power, disc);
     assert_eq!((size, &members), (rsize, &rmembers));
     assert_eq!(size, 32);
 

@@ -49,9 +49,6 @@ pub fn render_reference_gpu(
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    if params.lights.iter().any(nimbus_optics::Light::has_disc) {
-        return Err(MarchError::Param("a sun with angle > 0 is not built for the GPU reference tracer yet (use --device cpu)".into()));
-    }
     let camera = &params.camera;
     let pixel_count = camera.width() as u64 * camera.height() as u64;
     // Every position on the GPU is relative to the eye.
