@@ -86,7 +86,8 @@ fn plume(dims: IVec3) -> Volume<f32> {
 
 fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
     let (lo, hi) = v.world_bounds().unwrap();
-    CacheParams { environment: None,
+    CacheParams {
+        environment: None,
         medium: Medium { extinction, albedo: Vec3::splat(0.9), g: 0.3 },
         lights: vec![Light::sun(Vec3::new(0.4, 0.3, -1.0).normalize(), Vec3::ONE).unwrap()],
         camera: Camera::default_for_bounds(lo, hi).unwrap(),

@@ -21,7 +21,8 @@ fn block(lo: IVec3, hi: IVec3, value: impl Fn(IVec3) -> f32) -> Volume<f32> {
 }
 
 fn params(camera: Camera) -> CacheParams {
-    CacheParams { environment: None,
+    CacheParams {
+        environment: None,
         medium: Medium { extinction: 3.0, albedo: Vec3::splat(0.8), g: 0.3 },
         lights: vec![Light::sun(Vec3::NEG_Z, Vec3::new(1.0, 2.0, 3.0)).unwrap()],
         camera,

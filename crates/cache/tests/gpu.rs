@@ -29,7 +29,8 @@ fn lumpy_ball() -> Volume<f32> {
 fn params(v: &Volume<f32>) -> CacheParams {
     let (lo, hi) = v.world_bounds().unwrap();
     let centre = 0.5 * (lo + hi);
-    CacheParams { environment: None,
+    CacheParams {
+        environment: None,
         medium: Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.3 },
         lights: vec![
             Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),

@@ -58,7 +58,9 @@ fn load(name: &'static str, path: &Path) -> Scene {
     let meta = PipelineMeta::of(&file);
     let camera = meta.camera().ok().flatten().expect("the cache records its camera");
     let voxel = density.transform().voxel_size();
-    let base = MarchParams { environment: None, environment_visible: false,
+    let base = MarchParams {
+        environment: None,
+        environment_visible: false,
         medium: meta.medium().ok().flatten().expect("the cache records its medium"),
         camera,
         // vdbmarch's defaults.

@@ -48,7 +48,9 @@ fn main() {
     let meta = PipelineMeta::of(&file);
     let camera = meta.camera().ok().flatten().expect("the cache records its camera");
     let voxel = density.transform().voxel_size();
-    let base = MarchParams { environment: None, environment_visible: false,
+    let base = MarchParams {
+        environment: None,
+        environment_visible: false,
         medium: meta.medium().ok().flatten().expect("the cache records its medium"),
         camera: camera.clone(),
         step: voxel.length() / 3.0 * env("STEP_SCALE", 1.0),

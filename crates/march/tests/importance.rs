@@ -76,7 +76,8 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
     let medium = Medium { extinction: 1.5, albedo: Vec3::ONE, g: 0.0 };
     // Four density voxels a cache voxel: far coarser than the field's fall-off.
     let plan = CachePlan::new(&density, &majorant, &cam, 4.0);
-    let cache_params = CacheParams { environment: None,
+    let cache_params = CacheParams {
+        environment: None,
         medium,
         lights: vec![nimbus_optics::Light::default_sun()],
         camera: cam.clone(),

@@ -57,7 +57,8 @@ fn single_scattering_matches_the_cached_chain() {
     let medium = Medium { extinction: 2.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.4 };
     let sun = Light::sun(Vec3::new(0.4, 0.2, -0.9).normalize(), Vec3::splat(3.0)).unwrap();
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
-    let cache_params = CacheParams { environment: None,
+    let cache_params = CacheParams {
+        environment: None,
         medium,
         lights: vec![sun],
         camera,
@@ -73,7 +74,9 @@ fn single_scattering_matches_the_cached_chain() {
         shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams { environment: None, environment_visible: false,
+    let march = MarchParams {
+        environment: None,
+        environment_visible: false,
         medium,
         camera,
         step: VOXEL / 4.0,

@@ -27,7 +27,9 @@ fn constant_cache(density: &Volume<f32>, li: Vec3) -> IlluminationCache {
 }
 
 fn params(camera: Camera, step: f64) -> MarchParams {
-    MarchParams { environment: None, environment_visible: false,
+    MarchParams {
+        environment: None,
+        environment_visible: false,
         medium: Medium { extinction: 4.0, albedo: Vec3::new(0.9, 0.5, 0.2), g: 0.0 },
         camera,
         step,

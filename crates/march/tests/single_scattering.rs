@@ -24,7 +24,8 @@ fn single_scattering_chain_matches_a_brute_force_render() {
     let sun_dir = Vec3::new(0.4, 0.2, -0.9).normalize();
     let sun = Light::sun(sun_dir, Vec3::splat(3.0)).unwrap();
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
-    let cache_params = CacheParams { environment: None,
+    let cache_params = CacheParams {
+        environment: None,
         medium,
         lights: vec![sun],
         camera: camera.clone(),
@@ -40,7 +41,9 @@ fn single_scattering_chain_matches_a_brute_force_render() {
         shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams { environment: None, environment_visible: false,
+    let march = MarchParams {
+        environment: None,
+        environment_visible: false,
         medium,
         camera: camera.clone(),
         step: VOXEL / 4.0,

@@ -33,7 +33,8 @@ impl Sphere {
     /// default camera.
     fn multiple_only(&self, density: &Volume<f32>, cache_scale: f64, gather: Gather, estimator: MultipleEstimator, seed: u64) -> CacheParams {
         let (lo, hi) = density.world_bounds().unwrap();
-        CacheParams { environment: None,
+        CacheParams {
+            environment: None,
             medium: self.medium(),
             lights: vec![Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()],
             camera: Camera::default_for_bounds(lo, hi).unwrap(),

@@ -84,7 +84,9 @@ mod tests {
     fn the_reference_renders_an_emitting_slab_to_its_closed_form() {
         let (slab, emission, expect) = emitting_slab();
         let field = EmissionField { grid: Some(&slab), temperature: None, params: &emission };
-        let params = ReferenceParams { environment: None, environment_visible: false,
+        let params = ReferenceParams {
+            environment: None,
+            environment_visible: false,
             medium: Medium { extinction: 3.0, albedo: Vec3::ZERO, g: 0.0 },
             lights: vec![],
             camera: slab_camera(),

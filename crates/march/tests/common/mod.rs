@@ -130,7 +130,9 @@ pub fn camera(centre: DVec3, width: u32, height: u32) -> Camera {
 }
 
 pub fn params(camera: Camera) -> MarchParams {
-    MarchParams { environment: None, environment_visible: false,
+    MarchParams {
+        environment: None,
+        environment_visible: false,
         medium: Medium { extinction: 1.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.0 },
         camera,
         step: 0.5 * VOXEL,
