@@ -46,6 +46,9 @@ struct PixelOut {
     multiple: vec3<f32>,
     // Distance to the first sample where opacity passed 1%; negative for none.
     depth: f32,
+    // The environment map seen through the volume, T L_env(dir) (RayResult::behind).
+    behind: vec3<f32>,
+    _pad: f32,
 }
 
 const MARCH_DOMAIN: u32 = 0x4d415243u;
@@ -65,6 +68,13 @@ const FLAG_MULTIPLE: u32 = 2u;
 // Per majorant cell its step factor (MarchParams::step_factor), 0 where empty.
 @group(1) @binding(9) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(10) var<storage, read_write> pixels: array<PixelOut>;
+// The map seen behind the volume (Environment::gpu_words of it; kind 0 where there is none),
+// read by environment.wgsl.
+@group(1) @binding(11) var<storage, read> environment: array<f32>;
+
+fn env_word(i: u32) -> f32 {
+    return environment[i];
+}
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -105,7 +115,7 @@ fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
     let dt = params.step;
     let m = params.medium;
     let jitter = params.offset_noise > 0.0;
-    var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0);
+    var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
     var tr = 1.0;
     // Groups tile the lattice across adjacent non-empty segments: the next segment starts
     // with the first point no group took (next) rather than recomputing it from t_start,
@@ -199,7 +209,8 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let py = f32(index / params.width);
     var rng = rng_new(params.seed, vec2<u32>(index, 0u), MARCH_DOMAIN);
     var members = rng_new(params.seed, vec2<u32>(index, 0u), GROUP_DOMAIN);
-    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0);
+    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
+    let map_behind = env_kind() == 2u;
     for (var s = 0u; s < params.spp; s = s + 1u) {
         var j = vec2<f32>(0.5);
         if (params.spp != 1u) {
@@ -214,10 +225,13 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         sum.single = sum.single + r.single;
         sum.multiple = sum.multiple + r.multiple;
         sum.transmittance = sum.transmittance + r.transmittance;
+        if (map_behind) {
+            sum.behind = sum.behind + env_radiance(dir) * r.transmittance;
+        }
         if (r.depth >= 0.0 && (sum.depth < 0.0 || r.depth < sum.depth)) {
             sum.depth = r.depth;
         }
     }
     let inv = 1.0 / f32(params.spp);
-    pixels[local] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth);
+    pixels[local] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth, sum.behind * inv, 0.0);
 }

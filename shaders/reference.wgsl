@@ -31,7 +31,9 @@ struct ReferenceUniforms {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    _pad0: u32,
+    // Camera rays that leave the volume see the environment map (a uniform sky is added on
+    // the host as the constant background).
+    map_visible: u32,
     _pad1: u32,
     _pad2: u32,
 }
@@ -41,6 +43,9 @@ struct PixelOut {
     transmittance: f32,
     multiple: vec3<f32>,
     depth: f32,
+    // The environment map seen through the volume (RayResult::behind).
+    behind: vec3<f32>,
+    _pad: f32,
 }
 
 const REFERENCE_DOMAIN: u32 = 0x52454650u;
@@ -76,7 +81,7 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
     let index = params.first_pixel + local;
     let px = f32(index % params.width);
     let py = f32(index / params.width);
-    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0);
+    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
     if (params.first_sample > 0u) {
         sum = pixels[local];
     }
@@ -86,15 +91,19 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         let j = vec2<f32>(rng_next_f64_as_f32(&rng), rng_next_f64_as_f32(&rng));
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
         let m = params.medium;
-        sum.transmittance = sum.transmittance + track_transmittance_ratio(path_track_ray(params.camera.eye, dir, m.extinction),
-                                                                          params.grid, TRACK_FAR, RATIO_ROULETTE, &rng);
+        let tr = track_transmittance_ratio(path_track_ray(params.camera.eye, dir, m.extinction), params.grid, TRACK_FAR,
+                                           RATIO_ROULETTE, &rng);
+        sum.transmittance = sum.transmittance + tr;
+        if (params.map_visible != 0u) {
+            sum.behind = sum.behind + env_radiance(dir) * tr;
+        }
         let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, -1.0, &rng);
         sum.single = sum.single + path.single;
         sum.multiple = sum.multiple + path.multiple;
     }
     if (end == params.spp) {
         let inv = 1.0 / f32(params.spp);
-        sum = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, -1.0);
+        sum = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, -1.0, sum.behind * inv, 0.0);
     }
     pixels[local] = sum;
     loop_guard_check();

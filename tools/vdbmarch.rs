@@ -247,8 +247,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let map_behind = matches!(params.visible_environment(), Some(nimbus_optics::Environment::Map { .. }));
-    let device = args.common.device_for(&[(emission.is_some(), "emission"), (map_behind, "an environment map behind the volume")], log)?;
+    let device = args.common.device_for(&[(emission.is_some(), "emission")], log)?;
     scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(

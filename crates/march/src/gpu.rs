@@ -4,7 +4,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
-use nimbus_optics::{split_u64, GpuCamera, GpuMedium, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Transform, Volume};
 
@@ -93,6 +93,9 @@ pub(crate) struct GpuPixel {
     transmittance: f32,
     multiple: [f32; 3],
     depth: f32,
+    /// The environment map seen through the volume (RayResult::behind).
+    behind: [f32; 3],
+    _pad: f32,
 }
 
 /// `p / scale` split into a wrapping u32 lattice point and an f32 remainder, as noise.wgsl
@@ -130,9 +133,6 @@ pub fn render_gpu_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    if crate::visible_map(params.visible_environment()).is_some() {
-        return Err(MarchError::Param("an environment map behind the volume is not built for the GPU march yet (use --device cpu, or --background)".into()));
-    }
     let majorant = crate::cpu::march_majorant(density, params);
     if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
@@ -194,11 +194,11 @@ fn march_pixels(
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
     let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
     entries.extend(GpuVolume::layout_entries(4, filterable));
-    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false)]);
+    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
     let source = ctx.compose_shader(&format!(
-        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}"
+        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}"
     ));
     let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout])?;
 
@@ -236,6 +236,8 @@ fn march_pixels(
     // same groups.
     let factors: Vec<f32> = majorant.values().iter().map(|&m| cell_factor(params, m)).collect();
     let majorant_buffer = if factors.is_empty() { ctx.storage_buffer("step factors", &[0f32])? } else { ctx.storage_buffer("step factors", &factors)? };
+    // A map behind the volume (a uniform one is the constant background, added on the host).
+    let behind = ctx.storage_buffer("march environment", &Environment::gpu_words(crate::visible_map(params.visible_environment())))?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
@@ -247,6 +249,7 @@ fn march_pixels(
             wgpu::BindGroupEntry { binding: 8, resource: uniform_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 11, resource: behind.as_entire_binding() },
         ]);
         ctx.bind_group("march", &layout, &group_entries)
     })
@@ -295,7 +298,7 @@ impl PixelTiles<'_> {
                 transmittance: p.transmittance,
                 depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
                 emission: Vec3::ZERO,
-                behind: Vec3::ZERO,
+                behind: Vec3::from(p.behind),
             }));
             progress(count);
             first += count;
@@ -312,7 +315,7 @@ mod tests {
     #[test]
     fn layouts_match_the_wgsl_structs() {
         assert_eq!(size_of::<GpuMarchParams>(), 224);
-        assert_eq!(size_of::<GpuPixel>(), 32);
+        assert_eq!(size_of::<GpuPixel>(), 48);
     }
 
     #[test]

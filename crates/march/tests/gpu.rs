@@ -193,6 +193,29 @@ fn an_empty_scene_is_the_background() {
     assert_eq!(image, render_cpu(&v, &Default::default(), &p).unwrap());
 }
 
+/// An environment map behind the volume: each sample's T L_env(dir) through
+/// environment.wgsl on the GPU, as the CPU adds it (the same sample directions and
+/// transmittance), and the uniform sky as the constant background.
+#[test]
+fn an_environment_behind_the_volume_renders_alike() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    let texels = (0..32 * 16).map(|i| if i % 32 == 9 && i / 32 == 5 { Vec3::new(9.0, 8.0, 7.0) } else { Vec3::new(0.1 + 0.02 * (i % 32) as f32, 0.3, 0.5 + 0.03 * (i / 32) as f32) }).collect();
+    let map = nimbus_optics::EnvironmentMap::new(32, 16, texels).unwrap();
+    p.spp = 4;
+    for environment in [nimbus_optics::Environment::map(map, "test.exr", 2.0, 40.0).unwrap(), nimbus_optics::Environment::uniform(Vec3::new(0.2, 0.3, 0.6)).unwrap()] {
+        p.environment = Some(environment);
+        p.environment_visible = true;
+        let cpu = render_cpu(&v, &cache, &p).unwrap();
+        let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+        let worst = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| ((c.truncate() - g.truncate()).abs() / c.truncate().abs().max(Vec3::splat(1e-3))).max_element()).fold(0.0f32, f32::max);
+        let clear = cpu.rgba.iter().filter(|c| c.w < 0.01).count();
+        eprintln!("behind the volume: worst relative pixel difference {worst:.2e}, {clear} clear pixels");
+        assert!(clear > 50, "the camera does not see past the cloud");
+        assert!(worst < 2e-3, "{worst}");
+    }
+}
+
 /// Runs `noise.wgsl` on the GPU: per point, perlin3 (seed 5), fbm3_vec (4 octaves, seed 9)
 /// and the lattice hash of the point's cell.
 fn gpu_noise(ctx: &GpuContext, points: &[[f32; 4]]) -> Vec<[f32; 4]> {

@@ -30,7 +30,8 @@ struct GpuReferenceParams {
     tile_pixels: u32,
     first_sample: u32,
     sample_count: u32,
-    _pad: [u32; 3],
+    map_visible: u32,
+    _pad: [u32; 2],
 }
 
 /// Samples per pixel per dispatch (see reference.wgsl: lavapipe's loop limit).
@@ -89,7 +90,8 @@ pub fn render_reference_gpu(
         tile_pixels: 0,
         first_sample: 0,
         sample_count: SAMPLES_PER_DISPATCH,
-        _pad: [0; 3],
+        map_visible: u32::from(crate::visible_map(params.environment.as_ref().filter(|_| params.environment_visible)).is_some()),
+        _pad: [0; 2],
     };
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
