@@ -83,6 +83,16 @@ const END_TRUNCATED: u32 = 2u;
 @group(1) @binding(5) var<storage, read_write> path_out: array<vec2<u32>>;
 // Every light's marked emission cells, (column, row).
 @group(1) @binding(6) var<storage, read> emission_cells: array<vec2<u32>>;
+// The environment photons leave (Environment::gpu_words), read by environment.wgsl.
+@group(1) @binding(7) var<storage, read> environment: array<f32>;
+
+fn env_word(i: u32) -> f32 {
+    return environment[i];
+}
+
+// A PhotonLight that is the environment: origin the bounding sphere's centre, cell its radius,
+// weight (total power / the source's) in every channel.
+const LIGHT_ENVIRONMENT: u32 = 2u;
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -151,14 +161,28 @@ fn trace_path(path: u32) {
     let light = lights[li];
     var x: vec3<f32>;
     var w: vec3<f32>;
+    var power = light.weight;
     if (light.kind == LIGHT_SUN) {
         x = emission_point(light, &rng);
         w = light.normal;
+    } else if (light.kind == LIGHT_ENVIRONMENT) {
+        // batch.rs EnvironmentEmission::sample: a direction from the environment, a point on
+        // the disc of radius `cell` about `origin` facing it; the flux L pi R^2 / pdf over
+        // the source's share (the weight's factor).
+        let s = env_sample(rng_next_vec2(&rng));
+        let disc = sample_uniform_disk_concentric(rng_next_vec2(&rng)) * light.cell;
+        let frame = orthonormal_basis(s.toward);
+        x = light.origin + s.toward * (2.0 * light.cell) + frame[0] * disc.x + frame[1] * disc.y;
+        w = -normalize(s.toward);
+        if (s.pdf > 0.0) {
+            power = light.weight * s.radiance * (OPTICS_PI * light.cell * light.cell / s.pdf);
+        } else {
+            power = vec3<f32>(0.0);
+        }
     } else {
         x = light.origin;
         w = emission_direction(light, &rng);
     }
-    var power = light.weight;
 
     let m = params.medium;
     let survival = m.albedo_mean;
@@ -178,7 +202,8 @@ fn trace_path(path: u32) {
             return;
         }
         x = x + w * t;
-        if (interaction > 0u) {
+        // Environment photons are stored from their first interaction (batch.rs store_first).
+        if (interaction > 0u || light.kind == LIGHT_ENVIRONMENT) {
             let slot = atomicAdd(&record_count, 1u);
             if (slot < params.capacity) {
                 records[slot] = PhotonRecord(x, path, power * m.albedo, interaction, w, 0u);

@@ -214,11 +214,4 @@ fn a_missing_or_bad_map_is_a_clear_error() {
     // --sky and --environment together, and a negative sky, are refused.
     assert_eq!(run_on_file("vdbcache", &input, &["--sky", "1", "--environment", map.to_str().unwrap()]).status.code(), Some(2));
     assert_eq!(run_on_file("vdbcache", &input, &["--sky=-1"]).status.code(), Some(2));
-    // Photons from a map have no GPU twin yet: an explicit --device gpu is refused rather
-    // than ignored.
-    let good = dir.join("grey.exr");
-    exr::prelude::write_rgb_file(&good, 4, 2, |_, _| (1.0f32, 1.0, 1.0)).unwrap();
-    let out = run_on_file("vdbphoton", &input, &["--environment", good.to_str().unwrap(), "--device", "gpu"]);
-    assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("GPU"), "{}", String::from_utf8_lossy(&out.stderr));
 }

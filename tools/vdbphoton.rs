@@ -97,7 +97,6 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let device = args.common.device_for(
         &[
             (emission.is_some(), "emission"),
-            (params.environment.as_ref().is_some_and(|e| !e.is_black()), "the environment's light"),
         ],
         &log,
     )?;

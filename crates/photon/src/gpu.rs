@@ -6,7 +6,7 @@ use std::ops::Range;
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, GpuMedium, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::Volume;
 
@@ -21,7 +21,10 @@ const WORKGROUP_SIZE: u32 = 64;
 const MAX_CHUNK: u64 = 1 << 18;
 const RECORD_BYTES: u64 = size_of::<GpuRecord>() as u64;
 /// Group 1 binding of the [`LoopGuard`] flag, after the stage's buffers.
-const GUARD_BINDING: u32 = 7;
+const GUARD_BINDING: u32 = 8;
+/// WGSL `LIGHT_ENVIRONMENT`: a `PhotonLight` that is the environment (after LIGHT_SUN and
+/// LIGHT_POINT).
+const LIGHT_ENVIRONMENT: u32 = 2;
 
 /// WGSL `PhotonUniforms`.
 #[repr(C)]
@@ -82,6 +85,8 @@ struct GpuTracer<'a> {
     uniform_buffer: wgpu::Buffer,
     lights: wgpu::Buffer,
     emission_cells: wgpu::Buffer,
+    /// The environment environment photons leave (Environment::gpu_words).
+    environment: wgpu::Buffer,
     majorant: wgpu::Buffer,
     counter: wgpu::Buffer,
     paths: wgpu::Buffer,
@@ -111,10 +116,11 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(4, false),
                 storage_entry(5, false),
                 storage_entry(6, true),
+                storage_entry(7, true),
                 guard.layout_entry(),
             ],
         )?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1)));
+        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1)));
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
@@ -147,10 +153,16 @@ impl<'a> GpuTracer<'a> {
                         l.cell_count = point.cells.len() as u32;
                         cells.extend_from_slice(&point.cells);
                     }
+                    Source::Environment(sky) => {
+                        l.kind = LIGHT_ENVIRONMENT;
+                        l.origin = rel(sky.centre, origin);
+                        l.cell = sky.radius as f32;
+                        // The flux is the shader's; this its share's reciprocal (Emitter::emit).
+                        l.weight = [e.weight[i].element_sum() / e.power[i].element_sum(); 3];
+                    }
                     // Not reached: trace_gpu prepares without the medium's emission (vdbphoton
-                    // keeps an emitting scene on the CPU) and refuses an environment; a
-                    // zero-weight light emits nothing.
-                    Source::Medium(_) | Source::Environment(_) => l.weight = [0.0; 3],
+                    // keeps an emitting scene on the CPU); a zero-weight light emits nothing.
+                    Source::Medium(_) => l.weight = [0.0; 3],
                 }
                 l
             })
@@ -187,6 +199,7 @@ impl<'a> GpuTracer<'a> {
             uniform_buffer: ctx.uniform_buffer("photon params", &uniforms)?,
             lights: ctx.storage_buffer("photon lights", &lights)?,
             emission_cells: ctx.storage_buffer("photon emission cells", &cells)?,
+            environment: ctx.storage_buffer("photon environment", &Environment::gpu_words(params.environment.as_ref()))?,
             majorant: majorant_buffer(ctx, &setup.majorant)?,
             counter: ctx.storage_buffer("photon count", &[0u32])?,
             paths: ctx.storage_buffer_zeroed("photon paths", chunk * 8)?,
@@ -222,7 +235,7 @@ impl<'a> GpuTracer<'a> {
             ctx,
             "photon",
             &self.layout,
-            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells],
+            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells, &self.environment],
         )?;
         ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
         self.guard.check(ctx, format_args!("tracing photon paths {first}..{}", first + count), "")?;
@@ -312,9 +325,6 @@ pub(crate) fn read_prefix<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes
 /// `params.max_emitted` have left the lights): the same emission, free paths, roulette and
 /// stopping rule as [`crate::trace_cpu`], in f32.
 pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
-    if params.environment.as_ref().is_some_and(|e| !e.is_black()) {
-        return Err(PhotonError::Param("photons from the environment are not built for the GPU yet (use --device cpu)".into()));
-    }
     let setup = match prepare(density, params, None)? {
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),
@@ -337,6 +347,11 @@ mod tests {
 
     /// The shader's cell index against `index_from_words`, bit for bit, on words where the
     /// low product's carry decides the result (rare among random words: about n / 2^32).
+    #[test]
+    fn the_shader_knows_the_environment_light_kind() {
+        assert!(PHOTON_WGSL.contains(&format!("const LIGHT_ENVIRONMENT: u32 = {LIGHT_ENVIRONMENT}u;")));
+    }
+
     #[test]
     fn the_shader_picks_the_same_emission_cell() {
         let Some(ctx) = nimbus_gpu::test_context() else { return };

@@ -147,6 +147,22 @@ fn point_and_sun_lights_agree() {
     }
 }
 
+/// Photons from a sky and from a map (with a sun beside it): the same directions, disc
+/// points and fluxes from the same draws on both backends, stored from their first
+/// interaction.
+#[test]
+fn environment_photons_agree() {
+    let Some(ctx) = gpu() else { return };
+    let v = cloud(24, 6.0);
+    let texels = (0..16 * 8).map(|i| if i % 16 == 3 && i / 16 == 2 { Vec3::new(15.0, 14.0, 12.0) } else { Vec3::new(0.2, 0.3, 0.4 + 0.05 * (i / 16) as f32) }).collect();
+    let map = nimbus_optics::Environment::map(nimbus_optics::EnvironmentMap::new(16, 8, texels).unwrap(), "test.exr", 1.5, 25.0).unwrap();
+    let sky = nimbus_optics::Environment::uniform(Vec3::new(0.3, 0.4, 0.6)).unwrap();
+    let sun = Light::sun(Vec3::new(0.3, -0.2, -1.0), Vec3::new(1.0, 0.9, 0.8)).unwrap();
+    for (name, environment, lights) in [("sky", sky, vec![]), ("map + sun", map, vec![sun])] {
+        agree_photon_for_photon(ctx, name, &v, &PhotonParams { lights, environment: Some(environment), ..params(DistanceSampling::Delta, 3000) });
+    }
+}
+
 #[test]
 fn albedo_one_conserves_power_and_survives_record_overflow() {
     // Dense and white: many stored photons per path, more than the first record buffer
