@@ -82,7 +82,7 @@ impl EnvironmentArgs {
             }
         };
         if let (Some(what), true) = (consistency, self.given()) {
-            if describe(environment.as_ref()) != recorded.as_ref().map_or("none".into(), record_text) {
+            if environment.as_ref().map(Environment::record) != recorded {
                 log.warn(format!("the environment ({}) differs from the one {what}", describe(environment.as_ref())));
             }
         }
@@ -98,9 +98,3 @@ pub fn describe(environment: Option<&Environment>) -> String {
     environment.map_or("none".into(), Environment::describe)
 }
 
-fn record_text(r: &EnvironmentRecord) -> String {
-    match r {
-        EnvironmentRecord::Uniform(c) => Environment::Uniform(*c).describe(),
-        EnvironmentRecord::Map { path, strength, rotation } => format!("map={path},strength={strength},rotation={rotation}"),
-    }
-}

@@ -315,14 +315,6 @@ impl Environment {
         Ok(Environment::Map { map: Arc::new(map), path: path.into(), strength, rotation })
     }
 
-    /// The radiance of a uniform sky; None for a map.
-    pub fn as_uniform(&self) -> Option<Vec3> {
-        match self {
-            Environment::Uniform(c) => Some(*c),
-            Environment::Map { .. } => None,
-        }
-    }
-
     /// Whether next-event estimation toward it pays: not for a uniform sky, whose radiance
     /// the phase function's own sampling follows as well as any draw can (the integrand is
     /// p T with L constant), so its light enters only where phase-sampled flights escape; a
@@ -330,11 +322,6 @@ impl Environment {
     /// paths' time on the bundled plume (1.33% against 1.29%, 63 against 28 CPU s).
     pub fn wants_next_event(&self) -> bool {
         matches!(self, Environment::Map { .. })
-    }
-
-    /// Whether it is a map that sends light: what the GPU backends do not take yet.
-    pub fn is_lit_map(&self) -> bool {
-        matches!(self, Environment::Map { .. }) && !self.is_black()
     }
 
     /// Whether it sends no light at all (then no stage spends anything on it).
@@ -351,14 +338,24 @@ impl Environment {
         (c, s)
     }
 
+    /// A world direction in the map's frame: `R_z(rotation) d` (a Mapping node's Z rotation).
+    fn to_map_frame(rotation: f32, d: Vec3) -> Vec3 {
+        let (c, s) = Self::turn(rotation);
+        Vec3::new(c * d.x - s * d.y, s * d.x + c * d.y, d.z)
+    }
+
+    /// [`Environment::to_map_frame`]'s inverse.
+    fn from_map_frame(rotation: f32, d: Vec3) -> Vec3 {
+        let (c, s) = Self::turn(rotation);
+        Vec3::new(c * d.x + s * d.y, -s * d.x + c * d.y, d.z)
+    }
+
     /// Radiance arriving at any point from direction `toward` (unit, world).
     pub fn radiance(&self, toward: Vec3) -> Vec3 {
         match self {
             Environment::Uniform(c) => *c,
             Environment::Map { map, strength, rotation, .. } => {
-                let (c, s) = Self::turn(*rotation);
-                let d = Vec3::new(c * toward.x - s * toward.y, s * toward.x + c * toward.y, toward.z);
-                let st = direction_to_image(d);
+                let st = direction_to_image(Self::to_map_frame(*rotation, toward));
                 map.lookup(st.x, st.y) * *strength
             }
         }
@@ -378,9 +375,7 @@ impl Environment {
                     return EnvironmentSample { toward: Vec3::Z, radiance: Vec3::ZERO, pdf: 0.0 };
                 }
                 let pdf = pdf_row * pdf_col / (2.0 * PI * PI * sin_theta);
-                let (c, sn) = Self::turn(*rotation);
-                // The inverse of radiance()'s turn.
-                let toward = Vec3::new(c * d.x + sn * d.y, -sn * d.x + c * d.y, d.z);
+                let toward = Self::from_map_frame(*rotation, d);
                 EnvironmentSample { toward, radiance: map.lookup(s, t) * *strength, pdf }
             }
         }
@@ -391,8 +386,7 @@ impl Environment {
         match self {
             Environment::Uniform(_) => 1.0 / (4.0 * PI),
             Environment::Map { map, rotation, .. } => {
-                let (c, s) = Self::turn(*rotation);
-                let d = Vec3::new(c * toward.x - s * toward.y, s * toward.x + c * toward.y, toward.z);
+                let d = Self::to_map_frame(*rotation, toward);
                 let st = direction_to_image(d);
                 let sin_theta = (1.0 - d.z * d.z).max(0.0).sqrt();
                 if sin_theta <= 0.0 {
@@ -411,6 +405,14 @@ impl Environment {
         match self {
             Environment::Uniform(c) => *c,
             Environment::Map { map, strength, .. } => map.mean() * *strength,
+        }
+    }
+
+    /// What metadata records of it ([`Environment::parse_record`] reads it back).
+    pub fn record(&self) -> EnvironmentRecord {
+        match self {
+            Environment::Uniform(c) => EnvironmentRecord::Uniform(*c),
+            Environment::Map { path, strength, rotation, .. } => EnvironmentRecord::Map { path: path.clone(), strength: *strength, rotation: *rotation },
         }
     }
 

@@ -142,6 +142,12 @@ impl<'a> Emitter<'a> {
         Some(Emitter { sources, power, weight, cdf })
     }
 
+    /// Source `i`'s share of the total power: the probability of choosing it (weight[i] sums
+    /// to the total).
+    pub fn share(&self, i: usize) -> f32 {
+        self.power[i].element_sum() / self.weight[i].element_sum()
+    }
+
     /// Which light photon with first draw `u` leaves from (mirrored in photon.wgsl).
     pub fn choose(&self, u: f32) -> usize {
         self.cdf.iter().position(|&c| u < c).unwrap_or(self.sources.len() - 1)
@@ -156,8 +162,7 @@ impl<'a> Emitter<'a> {
                 // weight[i] sums to the total power: the flux over this source's share of it
                 // (the probability of choosing it).
                 let (origin, dir, flux) = sky.sample(rng);
-                let share = self.power[i].element_sum() / self.weight[i].element_sum();
-                Emission { origin, dir, weight: flux / share, store_first: true }
+                Emission { origin, dir, weight: flux / self.share(i), store_first: true }
             }
             Source::Medium(emission) => {
                 // weight[i] sums to the total power over all sources; the cell's importance

@@ -158,7 +158,7 @@ impl<'a> GpuTracer<'a> {
                         l.origin = rel(sky.centre, origin);
                         l.cell = sky.radius as f32;
                         // The flux is the shader's; this its share's reciprocal (Emitter::emit).
-                        l.weight = [e.weight[i].element_sum() / e.power[i].element_sum(); 3];
+                        l.weight = [1.0 / e.share(i); 3];
                     }
                     // Not reached: trace_gpu prepares without the medium's emission (vdbphoton
                     // keeps an emitting scene on the CPU); a zero-weight light emits nothing.

@@ -14,7 +14,7 @@ fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Op
     let w = camera.width() as u64;
     let (px, py) = ((index % w) as f64, (index / w) as f64);
     let mut sum = RayResult::default();
-    let map = crate::visible_map(params.environment.as_ref().filter(|_| params.environment_visible));
+    let map = crate::visible_map(params.visible_environment());
     for sample in 0..params.spp {
         let mut rng = Rng::with_domain(params.seed, sample_stream(index, sample), REFERENCE_DOMAIN);
         let (jx, jy) = (rng.next_f64(), rng.next_f64());
@@ -69,7 +69,7 @@ pub fn render_reference_cpu_emitting(
             row_pixels
         })
         .collect();
-    let background = crate::constant_background(params.background, params.environment.as_ref().filter(|_| params.environment_visible));
+    let background = crate::constant_background(params.background, params.visible_environment());
     Ok(Image::from_rays(params.camera.width(), params.camera.height(), &pixels, background, params.aovs))
 }
 

@@ -90,7 +90,7 @@ pub fn render_reference_gpu(
         tile_pixels: 0,
         first_sample: 0,
         sample_count: SAMPLES_PER_DISPATCH,
-        map_visible: u32::from(crate::visible_map(params.environment.as_ref().filter(|_| params.environment_visible)).is_some()),
+        map_visible: u32::from(crate::visible_map(params.visible_environment()).is_some()),
         _pad: [0; 2],
     };
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
@@ -101,7 +101,7 @@ pub fn render_reference_gpu(
         guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out, &environment])
     })?;
     guard.check(ctx, "a pixel's paths", "")?;
-    let background = crate::constant_background(params.background, params.environment.as_ref().filter(|_| params.environment_visible));
+    let background = crate::constant_background(params.background, params.visible_environment());
     Ok(Image::from_rays(camera.width(), camera.height(), &pixels, background, params.aovs))
 }
 

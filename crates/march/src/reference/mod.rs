@@ -69,6 +69,11 @@ pub struct ReferenceParams {
 }
 
 impl ReferenceParams {
+    /// The environment escaping camera rays see, if any (as [`crate::MarchParams`]'s).
+    pub fn visible_environment(&self) -> Option<&Environment> {
+        self.environment.as_ref().filter(|_| self.environment_visible)
+    }
+
     /// vdbmarch's `--max-depth` default.
     pub const DEFAULT_MAX_DEPTH: u32 = 512;
 
