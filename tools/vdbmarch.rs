@@ -15,8 +15,8 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure,
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_march::{render_cpu_emitting, render_reference_cpu_emitting};
-use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
+use nimbus_march::{render_cpu_emitting, render_gpu_emitting, render_reference_cpu_emitting, render_reference_gpu_emitting};
+use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_reference_cpu, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -194,19 +194,14 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(
-        &[
-            (emission.is_some(), "emission"),
-        ],
-        log,
-    )?;
+    let device = args.common.compute_device(log)?;
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "path trace",
         || match device.gpu() {
-            Some(ctx) => render_reference_gpu(ctx, density, &params, reference_tile_pixels(), &|n| bar.inc(n)),
+            Some(ctx) => render_reference_gpu_emitting(ctx, density, &params, field.as_ref(), reference_tile_pixels(), &|n| bar.inc(n)),
             None if field.is_some() => render_reference_cpu_emitting(density, &params, field.as_ref(), &|n| bar.inc(n)),
             None => render_reference_cpu(density, &params, &|n| bar.inc(n)),
         },
@@ -247,13 +242,13 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(&[(emission.is_some(), "emission")], log)?;
+    let device = args.common.compute_device(log)?;
     scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "march",
         || match device.gpu() {
-            Some(ctx) => render_gpu(ctx, density, &cache, &params),
+            Some(ctx) => render_gpu_emitting(ctx, density, &cache, &params, field.as_ref()),
             None if field.is_some() => render_cpu_emitting(density, &cache, &params, field.as_ref()),
             None => render_cpu(density, &cache, &params),
         },

@@ -13,7 +13,7 @@
 //!   one tool records, the next takes as its defaults; a flag overrides, with a warning
 //!   where that makes earlier work inconsistent.
 //! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
-//!   vdbphoton, vdbcache and vdbmarch ([`CommonArgs::device_for`]: emission stays on the CPU).
+//!   vdbphoton, vdbcache and vdbmarch.
 
 mod args;
 mod environment;
