@@ -6,7 +6,7 @@ use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{emission_wgsl, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
-use nimbus_volume::{MajorantGrid, Transform, Volume};
+use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
 
@@ -203,17 +203,8 @@ fn march_pixels(
     let mut density_gpu = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     density_gpu.set_world_origin(ctx, origin);
     // An absent cache grid is bound as an empty volume and never read (flags).
-    let empty = || Volume::new(Transform::uniform(1.0, DVec3::ZERO), Vec3::ZERO);
-    let upload = |v: Option<&Volume<Vec3>>| -> Result<GpuVolume, GpuError> {
-        let mut g = match v {
-            Some(v) => GpuVolume::upload(ctx, v, &GpuVolumeOptions::default())?,
-            None => GpuVolume::upload(ctx, &empty(), &GpuVolumeOptions::default())?,
-        };
-        g.set_world_origin(ctx, origin);
-        Ok(g)
-    };
-    let single = upload(cache.li_single.as_ref())?;
-    let multiple = upload(cache.li_multiple.as_ref())?;
+    let single = GpuVolume::upload_or_empty(ctx, cache.li_single.as_ref(), origin)?;
+    let multiple = GpuVolume::upload_or_empty(ctx, cache.li_multiple.as_ref(), origin)?;
 
     let filterable = ctx.float32_filterable();
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;

@@ -8,9 +8,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard};
 use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, OPTICS_WGSL};
-use nimbus_volume::{MajorantGrid, Transform, Volume, BRICK_LOG2, BRICK_VOXELS};
+use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
 use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume};
 
@@ -360,22 +360,13 @@ impl GpuEmission {
     /// as the stage's other volumes are.
     pub fn upload(ctx: &GpuContext, field: Option<&crate::EmissionField>, origin: DVec3) -> Result<GpuEmission, GpuError> {
         let field = field.filter(|f| f.params.is_active());
-        let empty = || Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0f32);
-        let upload = |v: Option<&Volume<f32>>| -> Result<GpuVolume, GpuError> {
-            let mut g = match v {
-                Some(v) => GpuVolume::upload(ctx, v, &GpuVolumeOptions::default())?,
-                None => GpuVolume::upload(ctx, &empty(), &GpuVolumeOptions::default())?,
-            };
-            g.set_world_origin(ctx, origin);
-            Ok(g)
-        };
         // An absent grid reads 0 on both sides (EmissionField::at; an empty volume's background).
         let info = field.map_or_else(GpuEmissionInfo::none, |f| GpuEmissionInfo::new(f.params));
         let (table, _, _) = blackbody_table();
         let texels: Vec<[f32; 4]> = table.iter().map(|c| c.extend(0.0).to_array()).collect();
         Ok(GpuEmission {
-            grid: upload(field.and_then(|f| f.grid))?,
-            temperature: upload(field.and_then(|f| f.temperature))?,
+            grid: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.grid), origin)?,
+            temperature: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.temperature), origin)?,
             info: ctx.uniform_buffer("emission info", &info)?,
             table: ctx.storage_buffer("blackbody table", &texels)?,
             active: info.flags != 0,
