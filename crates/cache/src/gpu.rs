@@ -163,7 +163,7 @@ pub fn bake_gpu_emitting(
             Ok(volume)
         })
         .transpose()?;
-    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     // Read back at once (which waits for the build): the transmittance grids need them.
     let (tables, depths) = stats.time("light tables", || -> Result<_, GpuError> {
         Ok(match (lattice, &volume) {

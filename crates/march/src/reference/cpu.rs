@@ -59,7 +59,7 @@ pub fn render_reference_cpu_emitting(
 ) -> Result<Image, MarchError> {
     params.validate()?;
     let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
-    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let (w, h) = (params.camera.width() as u64, params.camera.height() as u64);
     let pixels: Vec<RayResult> = (0..h)
         .into_par_iter()
