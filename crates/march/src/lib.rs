@@ -87,13 +87,13 @@ mod samples;
 mod simd;
 mod view;
 
-pub use cpu::{march_ray, march_ray_emitting, render_cpu, render_cpu_emitting, RayResult};
-pub use nimbus_tracking::EmissionField;
+pub use cpu::{march_ray, march_ray_emitting, march_ray_moving, render_cpu, render_cpu_emitting, render_cpu_moving, RayResult, MOTION_DOMAIN};
+pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};
-pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_gpu, render_reference_gpu_emitting, ReferenceParams, REFERENCE_WGSL};
+pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_cpu_moving, render_reference_gpu, render_reference_gpu_emitting, ReferenceParams, REFERENCE_WGSL};
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.
