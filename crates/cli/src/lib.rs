@@ -14,6 +14,7 @@
 //!   where that makes earlier work inconsistent.
 //! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
 //!   vdbphoton, vdbcache and vdbmarch.
+//! - [`MotionArgs`]: vdbmarch's motion blur flags and the velocity grid they find.
 
 mod args;
 mod environment;
@@ -22,6 +23,7 @@ mod failure;
 mod io;
 mod log;
 pub mod meta;
+mod motion;
 mod vdbio;
 
 pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
@@ -31,4 +33,5 @@ pub use failure::{run, Failure, ResultExt};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
+pub use motion::{MotionArgs, Velocity, VELOCITY_GRIDS};
 pub use vdbio::{read_density, read_vdb, read_vec3_grid, write_vdb};
