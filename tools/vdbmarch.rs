@@ -15,7 +15,7 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, MotionArgs, Velocity,
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_march::{render_cpu_moving, render_gpu_emitting, render_reference_cpu_moving, render_reference_gpu_emitting};
+use nimbus_march::{render_cpu_moving, render_gpu_moving, render_reference_cpu_moving, render_reference_gpu_emitting};
 use nimbus_march::{default_spp, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
@@ -247,14 +247,14 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(&[(velocity.is_some(), "motion blur")], log)?;
+    let device = args.common.compute_device(log)?;
     let blur = velocity.map(Velocity::blur);
     scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "march",
         || match device.gpu() {
-            Some(ctx) => render_gpu_emitting(ctx, density, &cache, &params, field.as_ref()),
+            Some(ctx) => render_gpu_moving(ctx, density, &cache, &params, field.as_ref(), blur.as_ref()),
             None => render_cpu_moving(density, &cache, &params, field.as_ref(), blur.as_ref()),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),

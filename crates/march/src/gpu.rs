@@ -5,7 +5,7 @@ use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_tracking::{emission_wgsl, EmissionField, GpuEmission, GpuMajorantInfo, MotionBlur, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
@@ -85,7 +85,8 @@ struct GpuMarchParams {
     first_pixel: u32,
     /// Pixels in this tile.
     tile_pixels: u32,
-    _pad: u32,
+    /// Seconds the shutter is open (motion blur).
+    shutter: f32,
 }
 
 /// WGSL `PixelOut` (march.wgsl and reference.wgsl).
@@ -156,14 +157,44 @@ pub fn render_gpu_emitting_with(
     emission: Option<&EmissionField>,
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
+    render_gpu_moving_with(ctx, density, cache, params, emission, None, options)
+}
+
+/// [`render_gpu_emitting`] with motion blur, the twin of [`crate::render_cpu_moving`]: each
+/// sample's time in the shutter from the same stream, the same lookups at `x - t v(x)` (the
+/// velocity grid at group 3), over the same dilated majorant.
+pub fn render_gpu_moving(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+) -> Result<Image, MarchError> {
+    render_gpu_moving_with(ctx, density, cache, params, emission, motion, &GpuMarchOptions::default())
+}
+
+/// [`render_gpu_moving`] with [`GpuMarchOptions`].
+pub fn render_gpu_moving_with(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+    options: &GpuMarchOptions,
+) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = crate::cpu::march_majorant(density, params);
+    let mut majorant = crate::cpu::march_majorant(density, params);
+    if let Some(m) = motion {
+        majorant = majorant.dilated(m.majorant_radius(density));
+    }
     if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
         let work = format!("a pixel's march of up to {steps} steps ({} spp)", params.spp);
         ctx.check_loop_bound(steps.saturating_mul(ITERATIONS_PER_STEP), work, "or a longer --step")?;
     }
-    let pixels = march_pixels(ctx, density, &majorant, cache, params, emission, options)?;
+    let pixels = march_pixels(ctx, density, &majorant, cache, params, emission, motion, options)?;
     Ok(assemble(params, &pixels))
 }
 
@@ -193,6 +224,7 @@ fn march_pixels(
     cache: &IlluminationCache,
     params: &MarchParams,
     emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
     options: &GpuMarchOptions,
 ) -> Result<Vec<RayResult>, GpuError> {
     let camera = &params.camera;
@@ -218,9 +250,12 @@ fn march_pixels(
         emission_wgsl(EMISSION_GROUP)
     ));
     let emission_layout = GpuEmission::layout(ctx)?;
-    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout])?;
+    let velocity_layout = ctx.bind_group_layout("velocity", &GpuVolume::layout_entries(0, filterable))?;
+    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &velocity_layout])?;
     let emission = GpuEmission::upload(ctx, emission, origin)?;
     let emission_group = emission.bind_group(ctx, &emission_layout)?;
+    let velocity = GpuVolume::upload_or_empty(ctx, motion.map(|m| m.velocity), origin)?;
+    let velocity_group = ctx.bind_group("velocity", &velocity_layout, &velocity.bind_group_entries(0))?;
 
     let (noise_base, noise_offset) =
         if params.offset_noise > 0.0 { noise_split(origin, params.noise_scale) } else { ([0; 3], [0.0; 3]) };
@@ -239,7 +274,7 @@ fn march_pixels(
         noise_seed: params.seed as u32,
         offset_noise: params.offset_noise as f32,
         min_transmittance: params.min_transmittance as f32,
-        flags: u32::from(cache.li_single.is_some()) | (u32::from(cache.li_multiple.is_some()) << 1),
+        flags: u32::from(cache.li_single.is_some()) | (u32::from(cache.li_multiple.is_some()) << 1) | (u32::from(motion.is_some()) << 2),
         width: camera.width(),
         pixel_count: u32::try_from(pixel_count).map_err(|_| GpuError::TooLarge {
             what: "the image".into(),
@@ -249,7 +284,7 @@ fn march_pixels(
         })?,
         first_pixel: 0,
         tile_pixels: 0,
-        _pad: 0,
+        shutter: motion.map_or(0.0, |m| m.shutter as f32),
     };
     // The march reads its cells' step factors where the walk reads bounds (0: empty, as a
     // zero bound is): `MarchParams::step_factor` once per cell, so both backends take the
@@ -259,7 +294,7 @@ fn march_pixels(
     // A map behind the volume (a uniform one is the constant background, added on the host).
     let behind = ctx.storage_buffer("march environment", &Environment::gpu_words(crate::visible_map(params.visible_environment())))?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &velocity_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
         let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
@@ -346,6 +381,7 @@ mod tests {
     fn the_shader_uses_the_cpu_random_domains() {
         assert!(MARCH_WGSL.contains(&format!("MARCH_DOMAIN: u32 = 0x{MARCH_DOMAIN:08x}u")));
         assert!(MARCH_WGSL.contains(&format!("GROUP_DOMAIN: u32 = 0x{:08x}u", crate::GROUP_DOMAIN)));
+        assert!(MARCH_WGSL.contains(&format!("MOTION_DOMAIN: u32 = 0x{:08x}u", crate::MOTION_DOMAIN)));
     }
 
     #[test]

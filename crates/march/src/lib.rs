@@ -89,7 +89,7 @@ mod view;
 
 pub use cpu::{march_ray, march_ray_emitting, march_ray_moving, render_cpu, render_cpu_emitting, render_cpu_moving, RayResult, MOTION_DOMAIN};
 pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
-pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
+pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_gpu_moving, render_gpu_moving_with, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};

@@ -334,3 +334,34 @@ fn emission_along_camera_rays_renders_alike() {
         }
     }
 }
+
+/// Motion blur on both backends: each sample's time from the same stream, the lookups at
+/// x - t v(x) with a velocity grid that varies (a swirl on its own lattice), over the same
+/// dilated majorant, with emission and the cache: agreement to f32 rounding.
+#[test]
+fn motion_blur_renders_alike() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    let (flame, temperature, emission) = common::fire(DVec3::ZERO);
+    let field = EmissionField { grid: Some(&flame), temperature: Some(&temperature), params: &emission };
+    let mut velocity = nimbus_volume::Volume::new(nimbus_volume::Transform::uniform(0.12, DVec3::new(0.03, 0.0, -0.05)), Vec3::new(0.5, 0.0, 0.0));
+    for x in -14..14 {
+        for y in -14..14 {
+            for z in -14..14 {
+                let c = glam::IVec3::new(x, y, z).as_vec3();
+                velocity.set(glam::IVec3::new(x, y, z), Vec3::new(-c.y, c.x, 0.3 * c.z) * 0.15 + Vec3::new(0.5, 0.0, 0.0));
+            }
+        }
+    }
+    let blur = nimbus_march::MotionBlur { velocity: &velocity, shutter: 0.2 };
+    p.spp = 4;
+    let cpu = nimbus_march::render_cpu_moving(&v, &cache, &p, Some(&field), Some(&blur)).unwrap();
+    let gpu = nimbus_march::render_gpu_moving_with(ctx, &v, &cache, &p, Some(&field), Some(&blur), &EXACT).unwrap();
+    let sharp = nimbus_march::render_cpu_moving(&v, &cache, &p, Some(&field), None).unwrap();
+    let brightest = cpu.rgba.iter().map(|c| c.truncate().max_element()).fold(0.0, f32::max);
+    let worst = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| rel(g.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);
+    let moved = cpu.rgba.iter().zip(&sharp.rgba).map(|(c, s)| rel(s.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);
+    eprintln!("motion blur: worst relative difference GPU - CPU {worst:.2e}; blurred against sharp {moved:.2e}");
+    assert!(moved > 0.1, "the blur changes the image ({moved})");
+    assert!(worst < 5e-4, "{worst}");
+}
