@@ -141,6 +141,7 @@
 //! brute-force reference to float tolerance (tests/reference.rs).
 
 pub mod analytic;
+mod attributes;
 mod cpu;
 mod gpu;
 pub mod kernel;
@@ -152,13 +153,16 @@ use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_gpu::{GpuContext, GpuError};
-use nimbus_volume::{brick_local, brick_offset, BrickMask, Volume, BRICK_DIM, BRICK_VOXELS};
+use nimbus_volume::{brick_local, brick_offset, BrickMask, Transform, Volume, Voxel, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
 pub use nimbus_optics::noise;
 pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_H_MIN_VOXELS, DEFAULT_NEIGHBOURS, H0};
-pub use particles::{read_particles, read_path, write_ply, Format, ParticleSet, ReadError, ReadReport};
+pub use attributes::{AttributeOutput, AttributeVolume};
+pub use particles::{
+    attribute_aliases, available_attributes, find_attribute, read_particles, read_particles_with, read_path, write_ply, Attribute, Format, ParticleSet, ReadError, ReadReport,
+};
 pub use setup::{auto_h0, bin, plan_grid, prepare, CellGrid, Grid, Prepared, AUTO_H0_PERCENTILE};
 
 #[derive(Debug, thiserror::Error)]
@@ -171,6 +175,8 @@ pub enum DensityError {
     TooManyVoxels { dims: [f64; 3], max: u64 },
     #[error("cannot choose h0 automatically: the particles span no volume (give h0 or a voxel size)")]
     H0Undetermined,
+    #[error("no particle attribute `{name}` (available: {available})")]
+    UnknownAttribute { name: String, available: String },
     #[error(transparent)]
     Gpu(#[from] GpuError),
 }
@@ -251,11 +257,14 @@ pub struct Timings {
     pub estimate: Duration,
     /// Noise, threshold, building the volumes, statistics.
     pub finish: Duration,
+    /// The attribute pass (density at the particles, the splat, normalisation; its volumes
+    /// are built in `finish`).
+    pub attributes: Duration,
 }
 
 impl Timings {
     pub fn total(&self) -> Duration {
-        self.prepare + self.estimate + self.finish
+        self.prepare + self.estimate + self.attributes + self.finish
     }
 }
 
@@ -287,6 +296,8 @@ pub struct DensityOutput {
     pub smoothing_length: Option<Volume<f32>>,
     /// Particles used per active voxel.
     pub neighbour_count: Option<Volume<f32>>,
+    /// The requested attributes ([`DensityParams::attributes`]), in request order.
+    pub attributes: Vec<AttributeOutput>,
     pub grid: Grid,
     pub stats: DensityStats,
 }
@@ -312,6 +323,7 @@ fn estimate_with(
     passes: impl FnOnce(&Prepared, &PointParams, &Keep) -> Result<Vec<BrickResult>, DensityError>,
 ) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
+    let wanted = attributes::check(particles, &params.attributes)?;
     let prep = prepare(particles, params)?;
     if prep.positions.is_empty() {
         return Err(DensityError::NoParticles);
@@ -319,10 +331,17 @@ fn estimate_with(
     let keep = Keep::new(&prep, params);
     let t1 = Instant::now();
     let pp = PointParams::new(&prep.grid, params);
-    let bricks = passes(&prep, &pp, &keep)?;
+    let mut bricks = passes(&prep, &pp, &keep)?;
     let t2 = Instant::now();
-    let mut out = finish(&prep, params, bricks);
-    out.stats.timings = Timings { prepare: t1 - t0, estimate: t2 - t1, finish: t2.elapsed() };
+    // The attribute pass is CPU code whichever backend ran the density (design.md section 8).
+    let skipped = if wanted.is_empty() { Vec::new() } else { attributes::interpolate(&prep, &wanted, &mut bricks) };
+    let t3 = Instant::now();
+    let widths: Vec<usize> = wanted.iter().map(|a| a.width()).collect();
+    let mut out = finish(&prep, params, bricks, &widths);
+    for (a, skipped) in out.attributes.iter_mut().zip(skipped) {
+        a.skipped_nonfinite = skipped;
+    }
+    out.stats.timings = Timings { prepare: t1 - t0, estimate: t2 - t1, attributes: t3 - t2, finish: t3.elapsed() };
     Ok(out)
 }
 
@@ -338,6 +357,9 @@ pub(crate) struct BrickResult {
     /// at least one particle (the paper's Table 2 population).
     pub used_stats: (u64, f64, f64),
     pub max_rho: f32,
+    /// The attribute pass's normalised values: one array per component of each requested
+    /// attribute, in request order (empty without attributes).
+    pub attributes: Vec<Box<[f32; BRICK_VOXELS]>>,
 }
 
 /// What the results keep of each brick's per-voxel sums. Most runs write the density alone,
@@ -352,7 +374,8 @@ pub(crate) struct Keep {
 
 impl Keep {
     fn new(prep: &Prepared, params: &DensityParams) -> Keep {
-        Keep { occupied: occupancy(prep), h: params.smoothing_length, used: params.neighbour_count }
+        // The attribute pass reads each voxel's final length.
+        Keep { occupied: occupancy(prep), h: params.smoothing_length || !params.attributes.is_empty(), used: params.neighbour_count }
     }
 
     /// From a backend's raw sums for proposed brick `index`, `rho[v] = sum m * m4_shape(r /
@@ -392,6 +415,7 @@ impl Keep {
             used: self.used.then_some(used),
             used_stats,
             max_rho,
+            attributes: Vec::new(),
         })
     }
 }
@@ -431,8 +455,9 @@ fn occupancy(prep: &Prepared) -> Vec<BrickMask> {
     occupied
 }
 
-/// Noise, activity threshold, volumes and statistics from per-brick results.
-fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>) -> DensityOutput {
+/// Noise, activity threshold, volumes and statistics from per-brick results (`widths`: the
+/// components of each requested attribute).
+fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>, widths: &[usize]) -> DensityOutput {
     let grid = prep.grid;
     let noise = params.noise;
     if noise.amplitude != 0.0 {
@@ -451,29 +476,29 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>)
 
     let max_density = bricks.iter().map(|b| b.max_rho).fold(0.0f32, f32::max);
     let threshold = params.active_tolerance * max_density;
-    let active = |b: &BrickResult| -> BrickMask {
-        let mut mask: BrickMask = [0; 8];
-        for v in 0..BRICK_VOXELS {
-            mask[v >> 6] |= ((b.rho[v] > threshold) as u64) << (v & 63);
-        }
-        mask
-    };
-    // Bricks come out in proposal order, sorted by (z, y, x): found again by binary search.
-    let origins: Vec<IVec3> = bricks.iter().map(|b| b.origin).collect();
-    let find = |o: IVec3| &bricks[origins.binary_search_by_key(&(o.z, o.y, o.x), |b| (b.z, b.y, b.x)).unwrap()];
-    let volume = |value: &(dyn Fn(&BrickResult, usize) -> f32 + Sync)| {
-        Volume::from_brick_fn(grid.transform, 0.0f32, &origins, |origin, values| {
-            let b = find(origin);
-            let mask = active(b);
-            for (v, out) in values.iter_mut().enumerate() {
-                *out = if mask[v >> 6] & (1 << (v & 63)) != 0 { value(b, v) } else { 0.0 };
-            }
-            mask
-        })
-    };
+    let volume = |value: &(dyn Fn(&BrickResult, usize) -> f32 + Sync)| masked_volume(grid.transform, &bricks, threshold, value);
     let density = volume(&|b, v| b.rho[v]);
     let smoothing = params.smoothing_length.then(|| volume(&|b, v| (b.h.as_ref().expect("kept")[v] as f64 * grid.voxel_size) as f32));
     let counts = params.neighbour_count.then(|| volume(&|b, v| b.used.as_ref().expect("kept")[v] as f32));
+    // Attribute grids: their components' arrays follow one another in each brick.
+    let mut first = 0;
+    let attributes: Vec<AttributeOutput> = params
+        .attributes
+        .iter()
+        .zip(widths)
+        .map(|(name, &width)| {
+            let at = first;
+            first += width;
+            let volume = if width == 3 {
+                AttributeVolume::Vec3(masked_volume(grid.transform, &bricks, threshold, &|b, v| {
+                    Vec3::new(b.attributes[at][v], b.attributes[at + 1][v], b.attributes[at + 2][v])
+                }))
+            } else {
+                AttributeVolume::Float(volume(&|b, v| b.attributes[at][v]))
+            };
+            AttributeOutput { name: name.clone(), volume, skipped_nonfinite: 0 }
+        })
+        .collect();
 
     // (points, sum, sum of squares) of the particles used at occupied voxels; active mass.
     let (used_n, used_sum, used_sq, grid_mass) = bricks
@@ -505,7 +530,32 @@ fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>)
         grid_mass: grid_mass * grid.transform.voxel_volume(),
         timings: Timings::default(),
     };
-    DensityOutput { density, smoothing_length: smoothing, neighbour_count: counts, grid, stats }
+    DensityOutput { density, smoothing_length: smoothing, neighbour_count: counts, attributes, grid, stats }
+}
+
+/// A brick's active voxels: density above the threshold.
+fn active_mask(b: &BrickResult, threshold: f32) -> BrickMask {
+    let mut mask: BrickMask = [0; 8];
+    for v in 0..BRICK_VOXELS {
+        mask[v >> 6] |= ((b.rho[v] > threshold) as u64) << (v & 63);
+    }
+    mask
+}
+
+/// A volume over the bricks' active voxels (density above `threshold`) with `value` there:
+/// the density grid and every grid beside it share these masks.
+fn masked_volume<T: Voxel>(transform: Transform, bricks: &[BrickResult], threshold: f32, value: &(dyn Fn(&BrickResult, usize) -> T + Sync)) -> Volume<T> {
+    // Bricks come out in proposal order, sorted by (z, y, x): found again by binary search.
+    let origins: Vec<IVec3> = bricks.iter().map(|b| b.origin).collect();
+    let find = |o: IVec3| &bricks[origins.binary_search_by_key(&(o.z, o.y, o.x), |b| (b.z, b.y, b.x)).unwrap()];
+    Volume::from_brick_fn(transform, T::default(), &origins, |origin, values| {
+        let b = find(origin);
+        let mask = active_mask(b, threshold);
+        for (v, out) in values.iter_mut().enumerate() {
+            *out = if mask[v >> 6] & (1 << (v & 63)) != 0 { value(b, v) } else { T::default() };
+        }
+        mask
+    })
 }
 
 /// World position of voxel `ijk` of `grid` (convenience for tests and tools).
