@@ -107,7 +107,8 @@ fn attribute_grids_carry_their_names_classes_and_vector_types() {
     assert_eq!(find("v").metadata.get("vector_type"), Some(&MetaValue::String("contravariant relative".into())));
     assert_eq!(find("color").metadata.get("vector_type"), Some(&MetaValue::String("invariant".into())));
     assert_eq!(find("v").active_voxel_count, find("density").active_voxel_count);
-    assert_eq!(file.metadata().get("nimbus:particles2vdb:attributes").and_then(|m| m.as_str()), Some("v:v,Cd:color,temperature:temperature,vx:speed_x"));
+    let record = file.metadata().get("nimbus:particles2vdb").and_then(|m| m.as_str()).unwrap().to_string();
+    assert!(record.split(',').any(|kv| kv == "attributes=v:v;Cd:color;temperature:temperature;vx:speed_x"), "{record}");
 
     // A constant colour is that constant wherever the density is; the linear velocity is
     // reproduced inside the ball to the kernel's error.
@@ -161,21 +162,24 @@ fn houdini_points_with_fixed_point_positions_and_a_group_are_read() {
     let read = back.read_points("points").unwrap();
     assert_eq!(read.len(), points.len());
     assert!(read.float("temperature").is_some() && read.vec3("v").is_some(), "{:?}", read.attributes.keys());
-    let mut sorted: Vec<[f64; 3]> = read.positions.iter().map(|p| p.to_array()).collect();
-    let mut truth: Vec<[f64; 3]> = points.iter().map(|p| p.to_array()).collect();
-    let key = |a: &[f64; 3], b: &[f64; 3]| a.partial_cmp(b).unwrap();
-    sorted.sort_by(key);
-    truth.sort_by(key);
-    let worst = sorted.iter().zip(&truth).map(|(a, b)| (DVec3::from(*a) - DVec3::from(*b)).abs().max_element()).fold(0.0, f64::max);
+    // Points come back in storage order: match each to its nearest original.
+    let worst = read
+        .positions
+        .iter()
+        .map(|&p| points.iter().map(|&q| (p - q).abs().max_element()).fold(f64::MAX, f64::min))
+        .fold(0.0, f64::max);
     assert!(worst < 0.1 / 65536.0 * 1.01, "fixed-point positions off by {worst}");
 
-    // Through particles2vdb: the same grids as from the PLY of the same particles.
+    // Through particles2vdb: the same grids as from the PLY of the same particles (a uniform
+    // kernel of a given length: the adaptive lengths count neighbours, and a count can change
+    // when a point moves by its 1e-6 of rounding).
+    let usl = ["--method", "usl", "--h0", "0.15", "--attribute", "v", "--attribute", "temperature", "-o"];
     let from_vdb = dir.join("from_vdb.vdb");
-    run(Command::new(bin("particles2vdb")).arg(&houdini).args(GRID).args(["--attribute", "v", "--attribute", "temperature", "-o"]).arg(&from_vdb));
+    run(Command::new(bin("particles2vdb")).arg(&houdini).args(GRID).args(usl).arg(&from_vdb));
     let ply = dir.join("ball.ply");
     write_ply(&ply, &points, None);
     let from_ply = dir.join("from_ply.vdb");
-    run(Command::new(bin("particles2vdb")).arg(&ply).args(GRID).args(["--attribute", "v", "--attribute", "temperature", "-o"]).arg(&from_ply));
+    run(Command::new(bin("particles2vdb")).arg(&ply).args(GRID).args(usl).arg(&from_ply));
     let (a, b) = (VdbFile::open(&from_vdb).unwrap(), VdbFile::open(&from_ply).unwrap());
     let (va, vb) = (a.read_vec3("v").unwrap(), b.read_vec3("v").unwrap());
     let (ta, tb) = (a.read_float("temperature").unwrap(), b.read_float("temperature").unwrap());
@@ -192,7 +196,8 @@ fn houdini_points_with_fixed_point_positions_and_a_group_are_read() {
         }
     }
     // v is stored as half floats (1e-3 relative at |v| ~ 2.5); positions to 1.5e-6.
-    assert!(dv < 5e-3 && dt < 0.05 && dd < 1e-3, "Houdini file against the PLY: v {dv}, temperature {dt}, density {dd}");
+    eprintln!("Houdini file against the PLY: v {dv}, temperature {dt}, density {dd} of its maximum");
+    assert!(dv < 5e-3 && dt < 0.05 && dd < 1e-4, "Houdini file against the PLY: v {dv}, temperature {dt}, density {dd}");
     assert_eq!(a.grid("v").unwrap().metadata.get("vector_type"), Some(&MetaValue::String("contravariant relative".into())));
 }
 
@@ -203,20 +208,21 @@ fn bad_attribute_input_is_refused_or_counted() {
     write_ply(&ply, &ball(2000), Some(17));
     let text = std::fs::read(&ply).unwrap();
 
+    let tool = |args: &[&str]| Command::new(bin("particles2vdb")).arg(&ply).args(args).args(["-o"]).arg(dir.join("out.vdb")).output().unwrap();
     // An attribute the file lacks: exit 2, naming what it has.
-    let out = pipe_output("particles2vdb", &["--format", "ply", "--attribute", "heat"], &text);
+    let out = tool(&["--attribute", "heat"]);
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.starts_with("error: ") && err.contains("`heat`") && err.contains("available: vx, vy, vz, Cd_x, Cd_y, Cd_z, temperature, v, Cd"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
 
     // The GPU has no attribute pass yet: an explicit --device gpu is refused, exit 2.
-    let out = pipe_output("particles2vdb", &["--format", "ply", "--attribute", "v", "--device", "gpu"], &text);
+    let out = tool(&["--attribute", "v", "--device", "gpu"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).starts_with("error: --attribute is not built for the GPU"), "{}", String::from_utf8_lossy(&out.stderr));
 
     // Two attributes onto one grid.
-    let out = pipe_output("particles2vdb", &["--format", "ply", "--attribute", "v", "--attribute", "vel"], &text);
+    let out = tool(&["--attribute", "v", "--attribute", "vel"]);
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
 
     // A non-finite temperature: left out of its grid and counted in a warning.

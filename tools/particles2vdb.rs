@@ -336,7 +336,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         ("grid_mass", format!("{}", s.grid_mass)),
         ("used_mean", format!("{:.3}", s.used_mean)),
         ("used_std", format!("{:.3}", s.used_std)),
-        ("attributes", attribute_record.join(",")),
+        ("attributes", attribute_record.join(";")),
     ];
     MetaWriter::new(&mut file).density_grid("density")?.seed(args.seed)?.tool("particles2vdb", &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
