@@ -9,8 +9,11 @@
 //! estimate_cpu | estimate_gpu       rayon splat per brick | wgpu gather per   cpu.rs, gpu.rs
 //!        |                          voxel (shaders/density.wgsl)
 //!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
+//! attributes (when asked)           rho at the particles, then an SPH       attributes.rs, cpu.rs
+//!        |                          splat of every requested attribute with the voxels' h
 //! finish                            noise, threshold, volumes, stats        lib.rs, optics::noise
-//!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?, stats }
+//!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?,
+//!                           attributes (float or vec3 volumes), stats }
 //! ```
 //!
 //! # The mathematics (design.md section 8)
@@ -36,6 +39,22 @@
 //!   dropped voxel loses at most tolerance * max * voxel volume of mass.
 //! - Noise: `rho * max(0, 1 + amp * fbm(x / L))` at the world position x, so the pattern stays
 //!   fixed in the world when bounds change between frames.
+//! - Attributes ([`DensityParams::attributes`], [`AttributeOutput`], issue #20): a float or
+//!   vec3 per-particle attribute A becomes
+//!   `A(x) = sum_q V_q A_q W(|x - x_q|, h(x)) / sum_q V_q W(|x - x_q|, h(x))`, V_q = m_q / rho_q,
+//!   with each voxel's final h(x) and rho_q the density grid (before noise and threshold)
+//!   read trilinearly at the particle. Normalised (Shepard) wherever the kernel sum is
+//!   positive, i.e. wherever the density is: a constant stays that constant out to the rim,
+//!   values never leave the particles' range, and where the density is 0 the attribute is 0
+//!   and inactive. Non-finite values are left out of their attribute's sums and counted.
+//!   Measured (tests/attributes.rs): against a direct f64 sum over all particles within 2e-5
+//!   relative; a linear field on a jittered lattice within 0.076 |grad v| h inside and 0.40
+//!   |grad v| h in the one-sided rim. The pass runs on the CPU whatever the backend (the
+//!   GPU backend has no twin yet): one kernel evaluation per (particle, voxel) for every
+//!   channel (1 + the components, per attribute), 0.45-0.75 s for v, Cd and temperature on
+//!   the bundled plume beside 0.3-0.8 s for the density's passes. The readers' naming rule
+//!   (vec3 from `vx vy vz`, `v_x ..`, `v.x ..`, `v[0] ..`; aliases `vel`, `Cd`/`color`) is in
+//!   [`available_attributes`] and [`find_attribute`].
 //! - Stats ([`DensityStats`]): over grid points whose voxel footprint holds at least one
 //!   particle, mean and std of the particles used (within kappa*h) — the paper's Table 2.
 //!
