@@ -1200,6 +1200,44 @@ int nimbus_points_read_attribute(const nimbus_grid* grid, const char* name, nimb
     });
 }
 
+int nimbus_points_group_names(const nimbus_grid* grid, char** names)
+{
+    return guarded([&] {
+        require(grid, "grid");
+        require(names, "output pointer");
+        const PointDataGrid& points = as_points(*grid->grid);
+        std::vector<std::pair<size_t, std::string>> groups;
+        if (auto leaf = points.tree().cbeginLeaf()) {
+            for (const auto& [name, index] : leaf->attributeSet().descriptor().groupMap())
+                groups.emplace_back(index, name);
+        }
+        std::sort(groups.begin(), groups.end());
+        std::string text;
+        for (const auto& g : groups) text += g.second + "\n";
+        *names = dup_string(text);
+    });
+}
+
+int nimbus_points_read_group(const nimbus_grid* grid, const char* name, uint8_t* out, size_t count)
+{
+    return guarded([&] {
+        require(grid, "grid");
+        require(name, "group name");
+        if (!out && count) fail("null output");
+        const PointDataGrid& points = as_points(*grid->grid);
+        const std::string label = grid_label(points) + " group '" + name + "'";
+        size_t i = 0;
+        for (auto leaf = points.tree().cbeginLeaf(); leaf; ++leaf) {
+            if (!leaf->attributeSet().descriptor().hasGroup(name)) fail(label + " does not exist");
+            const vdb::points::GroupHandle h = leaf->groupHandle(name);
+            const size_t n = leaf->pointCount();
+            if (i + n > count) fail(label + ": more points than the caller expected");
+            for (size_t k = 0; k < n; ++k, ++i) out[i] = h.get(vdb::Index(k)) ? 1 : 0;
+        }
+        if (i != count) fail(label + ": fewer points than the caller expected");
+    });
+}
+
 // ---- reference sampling and test fixtures -------------------------------------------
 
 int nimbus_sample_box(const nimbus_grid* grid, nimbus_value_kind kind, const double* points,

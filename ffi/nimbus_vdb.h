@@ -226,6 +226,12 @@ int nimbus_points_read_positions(const nimbus_grid *grid, double *out, size_t co
 int nimbus_points_read_attribute(const nimbus_grid *grid, const char *name,
                                  nimbus_value_kind kind, float *out, size_t count);
 
+/* Names of the grid's point groups in descriptor order, each followed by '\n', as one
+ * malloc'd string (empty when there are none). */
+int nimbus_points_group_names(const nimbus_grid *grid, char **names);
+/* Membership of group `name` per point (1 or 0), in the order of nimbus_points_read_positions. */
+int nimbus_points_read_group(const nimbus_grid *grid, const char *name, uint8_t *out, size_t count);
+
 /* ---- reference sampling (tests) ------------------------------------------------- */
 
 /* openvdb::tools::BoxSampler on a float or vec3f grid at `count` points (xyz doubles),

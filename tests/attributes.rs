@@ -199,6 +199,30 @@ fn houdini_points_with_fixed_point_positions_and_a_group_are_read() {
     eprintln!("Houdini file against the PLY: v {dv}, temperature {dt}, density {dd} of its maximum");
     assert!(dv < 5e-3 && dt < 0.05 && dd < 1e-4, "Houdini file against the PLY: v {dv}, temperature {dt}, density {dd}");
     assert_eq!(a.grid("v").unwrap().metadata.get("vector_type"), Some(&MetaValue::String("contravariant relative".into())));
+
+    // --group: only the group's points, as a PLY of just those gives.
+    assert_eq!(back.point_groups("points").unwrap(), ["upper"]);
+    let grouped = dir.join("grouped.vdb");
+    run(Command::new(bin("particles2vdb")).arg(&houdini).args(GRID).args(["--group", "upper"]).args(usl).arg(&grouped));
+    let upper_ply = dir.join("upper.ply");
+    let upper_points: Vec<DVec3> = points.iter().copied().filter(|p| p.z > 0.0).collect();
+    write_ply(&upper_ply, &upper_points, None);
+    let from_upper = dir.join("from_upper.vdb");
+    run(Command::new(bin("particles2vdb")).arg(&upper_ply).args(GRID).args(usl).arg(&from_upper));
+    let (g, u) = (VdbFile::open(&grouped).unwrap().read_float("density").unwrap(), VdbFile::open(&from_upper).unwrap().read_float("density").unwrap());
+    assert_eq!(g.active_voxel_count(), u.active_voxel_count());
+    assert_eq!(g.active_index_bbox(), u.active_index_bbox());
+    let umax = u.bricks().flat_map(|b| b.values.iter().copied()).fold(0.0f32, f32::max);
+    for brick in u.bricks() {
+        for (i, &want) in brick.values.iter().enumerate() {
+            let got = g.get(brick.origin + nimbus_volume::brick_local(i));
+            assert!((got - want).abs() < 1e-4 * umax, "grouped density {got} against {want}");
+        }
+    }
+    // A group the file lacks: exit 2, naming the ones it has.
+    let out = Command::new(bin("particles2vdb")).arg(&houdini).args(["--group", "lower", "-o"]).arg(dir.join("x.vdb")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no point group `lower` in points grid 'points' (groups: upper)"), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
 #[test]

@@ -85,6 +85,10 @@ struct Args {
     /// `colour`) the grid `color`; other names keep theirs (`temperature`, `heat`). CPU only.
     #[arg(long = "attribute", value_name = "NAME[:GRID]")]
     attributes: Vec<String>,
+    /// OpenVDB points input only: read just the points of this point group (Houdini's groups;
+    /// without it every point is read, whatever its groups).
+    #[arg(long)]
+    group: Option<String>,
     #[command(flatten)]
     common: CommonArgs,
 }
@@ -159,7 +163,7 @@ impl AttributeSpec {
 
 /// Particles from a VDB's points grid (Houdini's `P` and optional `mass`), and the requested
 /// float and vec3 point attributes (any codec) under the names asked for.
-fn particles_from_vdb(bytes: &[u8], label: &str, requested: &[String]) -> Result<ParticleSet, Failure> {
+fn particles_from_vdb(bytes: &[u8], label: &str, requested: &[String], group: Option<&str>) -> Result<ParticleSet, Failure> {
     let file = VdbFile::from_bytes(bytes, label).map_err(|e| Failure::input(e, label))?;
     let grid = file
         .grids()
@@ -184,7 +188,39 @@ fn particles_from_vdb(bytes: &[u8], label: &str, requested: &[String]) -> Result
         attributes.insert(want.clone(), values);
     }
     points.attributes.clear();
-    Ok(ParticleSet { positions: points.positions, masses, attributes })
+    let mut set = ParticleSet { positions: points.positions, masses, attributes };
+    if let Some(group) = group {
+        let groups = file.point_groups(&grid.name).map_err(|e| Failure::input(e, label))?;
+        if !groups.iter().any(|g| g == group) {
+            let list = if groups.is_empty() { "none".to_string() } else { groups.join(", ") };
+            return Err(Failure::input(format!("no point group `{group}` in points grid '{}' (groups: {list})", grid.name), label));
+        }
+        let member = file.read_point_group(&grid.name, group).map_err(|e| Failure::input(e, label))?;
+        set = keep_members(set, &member);
+    }
+    Ok(set)
+}
+
+/// The particles whose `member` entry is true, with their masses and attributes.
+fn keep_members(set: ParticleSet, member: &[bool]) -> ParticleSet {
+    fn keep<T: Copy>(values: &[T], member: &[bool]) -> Vec<T> {
+        values.iter().zip(member).filter(|(_, &m)| m).map(|(v, _)| *v).collect()
+    }
+    ParticleSet {
+        positions: keep(&set.positions, member),
+        masses: set.masses.as_deref().map(|m| keep(m, member)),
+        attributes: set
+            .attributes
+            .iter()
+            .map(|(name, a)| {
+                let a = match a {
+                    Attribute::Float(v) => Attribute::Float(keep(v, member)),
+                    Attribute::Vec3(v) => Attribute::Vec3(keep(v, member)),
+                };
+                (name.clone(), a)
+            })
+            .collect(),
+    }
 }
 
 fn particles2vdb(args: Args) -> Result<(), Failure> {
@@ -237,7 +273,8 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         "read",
         || -> Result<ParticleSet, Failure> {
             match format {
-                None => particles_from_vdb(&input.read_all()?, &input.name(), &requested),
+                None => particles_from_vdb(&input.read_all()?, &input.name(), &requested, args.group.as_deref()),
+                Some(_) if args.group.is_some() => Err(Failure::usage("--group selects OpenVDB point groups: the input is not a VDB")),
                 Some(format) => {
                     let (set, report) = read_particles_with(input.open()?, format, &requested).map_err(|e| Failure::input(e, input.name()))?;
                     if report.skipped_nonfinite > 0 {

@@ -255,3 +255,24 @@ fn readers_find_attributes_by_the_naming_rule() {
     let err = read_particles_with(csv.as_bytes(), Format::Csv, &want(&["density"])).unwrap_err().to_string();
     assert!(err.contains("`density`") && err.contains("available: vx, vy, vz, Cd_x, Cd_y, Cd_z, temperature, name, v, Cd"), "{err}");
 }
+
+/// The library's GPU backend runs the density on the GPU and the attribute pass on the CPU
+/// with the GPU's lengths (the tool keeps `--attribute` on the CPU until the pass has a GPU
+/// twin): the grids agree with the CPU backend's to the lengths' rounding. Small: lavapipe
+/// runs on two cores.
+#[test]
+fn attributes_after_the_gpu_density_agree_with_the_cpu() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let n = 1500;
+    let particles = random_clumpy(n, 13).with_attribute("heat", Attribute::Float((0..n).map(|i| (i % 11) as f32).collect()));
+    let params = DensityParams { neighbours: 20, resolution: Resolution::Longest(24), ..params(Method::Asl3, &["heat"]) };
+    let cpu = estimate_cpu(&particles, &params).unwrap();
+    let gpu = estimate_gpu(ctx, &particles, &params).unwrap();
+    let (a, b) = (float_grid(&cpu, 0), float_grid(&gpu, 0));
+    let (mut worst, mut count) = (0.0f32, 0);
+    each_active(&cpu.density, |ijk| {
+        worst = worst.max((a.get(ijk) - b.get(ijk)).abs());
+        count += 1;
+    });
+    assert!(count > 1000 && worst < 1e-3, "worst {worst} over {count} voxels (values 0..10)");
+}
