@@ -105,60 +105,89 @@ pub(crate) fn particle_density(prep: &Prepared, bricks: &[BrickResult]) -> Vec<f
         .collect()
 }
 
-/// Per particle (`Prepared` order), the channels the attribute pass sums: for each attribute
-/// its weight V_q and V_q times each component; all zero where the value is not finite or the
-/// particle has no weight. Also the count of non-finite values per attribute.
-pub(crate) fn channel_values(prep: &Prepared, attributes: &[&Attribute], rho: &[f32]) -> (Vec<f32>, usize, Vec<u64>) {
-    let channels: usize = attributes.iter().map(|a| 1 + a.width()).sum();
+/// Where each attribute's sums go among the channels: channel 0 is the kernel sum of every
+/// particle with a weight, shared by the attributes whose values are all finite; an attribute
+/// with non-finite values (left out per particle) has a weight channel of its own. Then
+/// each attribute's components.
+struct Layout {
+    channels: usize,
+    /// Per attribute: (its weight channel, its first component channel, its width).
+    at: Vec<(usize, usize, usize)>,
+}
+
+impl Layout {
+    fn new(attributes: &[&Attribute], skipped: &[u64]) -> Layout {
+        let mut channels = 1;
+        let at = attributes
+            .iter()
+            .zip(skipped)
+            .map(|(a, &skipped)| {
+                let weight = if skipped > 0 {
+                    channels += 1;
+                    channels - 1
+                } else {
+                    0
+                };
+                let first = channels;
+                channels += a.width();
+                (weight, first, a.width())
+            })
+            .collect();
+        Layout { channels, at }
+    }
+}
+
+/// Per particle (`Prepared` order), the channels the attribute pass sums ([`Layout`]): the
+/// weight V_q and V_q times each component; zero where the value is not finite (its own
+/// weight channel too) or the particle has no weight.
+fn channel_values(prep: &Prepared, attributes: &[&Attribute], layout: &Layout, rho: &[f32]) -> Vec<f32> {
+    let channels = layout.channels;
     let mut values = vec![0.0f32; prep.positions.len() * channels];
-    values.par_chunks_mut(channels.max(1)).enumerate().for_each(|(q, out)| {
+    values.par_chunks_mut(channels).enumerate().for_each(|(q, out)| {
         let rho_q = rho[q];
         let weight = if rho_q > 0.0 && rho_q.is_finite() { prep.masses[q] / rho_q } else { 0.0 };
         if !(weight > 0.0 && weight.is_finite()) {
             return;
         }
         let src = prep.source[q] as usize;
-        let mut at = 0;
-        for a in attributes {
-            let k = a.width();
+        out[0] = weight;
+        for (a, &(w, first, k)) in attributes.iter().zip(&layout.at) {
             let value = a.get(src);
             if value[..k].iter().all(|x| x.is_finite()) {
-                out[at] = weight;
+                out[w] = weight;
                 for c in 0..k {
-                    out[at + 1 + c] = weight * value[c];
+                    out[first + c] = weight * value[c];
                 }
             }
-            at += 1 + k;
         }
     });
-    let skipped = attributes
-        .iter()
-        .map(|a| prep.source.par_iter().filter(|&&src| !a.get(src as usize)[..a.width()].iter().all(|x| x.is_finite())).count() as u64)
-        .collect();
-    (values, channels, skipped)
+    values
 }
 
 /// Runs the attribute pass over every brick with density and stores each brick's
 /// normalised components (attribute by attribute, component by component) in
-/// `BrickResult::attributes`. The bricks must hold their lengths (`Keep::h`).
+/// `BrickResult::attributes`; returns each attribute's count of particles left out for a
+/// non-finite value. The bricks must hold their lengths (`Keep::h`).
 pub(crate) fn interpolate(prep: &Prepared, attributes: &[&Attribute], bricks: &mut [BrickResult]) -> Vec<u64> {
+    let skipped: Vec<u64> = attributes
+        .iter()
+        .map(|a| prep.source.par_iter().filter(|&&src| !a.get(src as usize)[..a.width()].iter().all(|x| x.is_finite())).count() as u64)
+        .collect();
+    let layout = Layout::new(attributes, &skipped);
     let rho = particle_density(prep, bricks);
-    let (values, channels, skipped) = channel_values(prep, attributes, &rho);
+    let values = channel_values(prep, attributes, &layout, &rho);
     drop(rho);
-    let widths: Vec<usize> = attributes.iter().map(|a| a.width()).collect();
     bricks.par_iter_mut().for_each(|b| {
         let h = b.h.as_ref().expect("lengths kept for the attribute pass");
         let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| b.rho[v] > 0.0);
-        let sums = crate::cpu::splat_attributes(prep, b.origin, h, &reached, &values, channels);
-        let mut out = Vec::with_capacity(channels);
-        let mut at = 0;
-        for &k in &widths {
-            let weight = &sums[at];
+        let sums = crate::cpu::splat_attributes(prep, b.origin, h, &reached, &values, layout.channels);
+        let mut out = Vec::with_capacity(layout.channels);
+        for &(w, first, k) in &layout.at {
+            let weight = &sums[w];
             for c in 0..k {
-                let sum = &sums[at + 1 + c];
+                let sum = &sums[first + c];
                 out.push(Box::new(std::array::from_fn(|v| if weight[v] > 0.0 { sum[v] / weight[v] } else { 0.0 })));
             }
-            at += 1 + k;
         }
         b.attributes = out;
     });

@@ -197,12 +197,23 @@ fn non_finite_attribute_values_are_left_out_of_their_grid_and_counted() {
     let mut v = vec![Vec3::ONE; n];
     v[5] = Vec3::new(1.0, f32::NAN, 1.0);
     let base = random_clumpy(n, 5);
-    let particles = base.clone().with_attribute("temperature", Attribute::Float(temperature)).with_attribute("v", Attribute::Vec3(v));
-    let out = estimate_cpu(&particles, &params(Method::Asl3, &["temperature", "v"])).unwrap();
+    // heat has no non-finite value: it shares the kernel sum of every particle, the others
+    // have kernel sums of their own without the particles they leave out.
+    let particles = base
+        .clone()
+        .with_attribute("temperature", Attribute::Float(temperature))
+        .with_attribute("v", Attribute::Vec3(v))
+        .with_attribute("heat", Attribute::Float(vec![3.0; n]));
+    let out = estimate_cpu(&particles, &params(Method::Asl3, &["temperature", "heat", "v"])).unwrap();
     assert_eq!(out.attributes[0].skipped_nonfinite, n.div_ceil(97) as u64);
-    assert_eq!(out.attributes[1].skipped_nonfinite, 1);
-    let t = float_grid(&out, 0);
-    each_active(&out.density, |ijk| assert!(t.get(ijk) == 0.0 || (t.get(ijk) - 7.0).abs() < 1e-4, "{ijk}: {}", t.get(ijk)));
+    assert_eq!(out.attributes[1].skipped_nonfinite, 0);
+    assert_eq!(out.attributes[2].skipped_nonfinite, 1);
+    let (t, heat, vg) = (float_grid(&out, 0), float_grid(&out, 1), vec3_grid(&out, 2));
+    each_active(&out.density, |ijk| {
+        assert!(t.get(ijk) == 0.0 || (t.get(ijk) - 7.0).abs() < 1e-4, "{ijk}: {}", t.get(ijk));
+        assert!((heat.get(ijk) - 3.0).abs() < 1e-4, "{ijk}: heat {}", heat.get(ijk));
+        assert!((vg.get(ijk) - Vec3::ONE).abs().max_element() < 1e-4, "{ijk}: v {}", vg.get(ijk));
+    });
     // The particles keep their mass: the density is the one without attributes, bit for bit.
     let plain = estimate_cpu(&base, &params(Method::Asl3, &[])).unwrap();
     assert!(bits(&plain.density) == bits(&out.density));
