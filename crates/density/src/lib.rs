@@ -51,8 +51,9 @@
 //!   relative; a linear field on a jittered lattice within 0.076 |grad v| h inside and 0.40
 //!   |grad v| h in the one-sided rim. The pass runs on the CPU whatever the backend (the
 //!   GPU backend has no twin yet): one kernel evaluation per (particle, voxel) for every
-//!   channel (1 + the components, per attribute), 0.45-0.75 s for v, Cd and temperature on
-//!   the bundled plume beside 0.3-0.8 s for the density's passes. The readers' naming rule
+//!   channel (a kernel sum shared by the attributes without non-finite values, then the
+//!   components), 0.64 s for v, Cd and temperature on the bundled plume beside 0.76 s for
+//!   the density's passes (medians of 5, two loaded cores). The readers' naming rule
 //!   (vec3 from `vx vy vz`, `v_x ..`, `v.x ..`, `v[0] ..`; aliases `vel`, `Cd`/`color`) is in
 //!   [`available_attributes`] and [`find_attribute`].
 //! - Stats ([`DensityStats`]): over grid points whose voxel footprint holds at least one
