@@ -14,6 +14,7 @@
 #include <openvdb/points/PointConversion.h>
 #include <openvdb/points/PointCount.h>
 #include <openvdb/points/PointDataGrid.h>
+#include <openvdb/points/PointGroup.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/PointIndexGrid.h>
 
@@ -1004,6 +1005,18 @@ int nimbus_grid_add_leaf(nimbus_grid* grid, const int32_t origin[3], const float
     });
 }
 
+int nimbus_grid_set_vector_type(nimbus_grid* grid, nimbus_vector_type type)
+{
+    return guarded([&] {
+        require(grid, "grid");
+        GridBase& g = *grid->grid;
+        if (!(g.isType<vdb::Vec3SGrid>() || g.isType<vdb::Vec3DGrid>()))
+            fail(grid_label(g) + ": a vector type is for vec3 grids, not " + g.type());
+        if (int(type) < 0 || int(type) >= vdb::NUM_VEC_TYPES) fail(grid_label(g) + ": unknown vector type");
+        g.setVectorType(vdb::VecType(type));
+    });
+}
+
 struct nimbus_leaf_iter {
     std::unique_ptr<LeafSource> source;
 };
@@ -1187,6 +1200,44 @@ int nimbus_points_read_attribute(const nimbus_grid* grid, const char* name, nimb
     });
 }
 
+int nimbus_points_group_names(const nimbus_grid* grid, char** names)
+{
+    return guarded([&] {
+        require(grid, "grid");
+        require(names, "output pointer");
+        const PointDataGrid& points = as_points(*grid->grid);
+        std::vector<std::pair<size_t, std::string>> groups;
+        if (auto leaf = points.tree().cbeginLeaf()) {
+            for (const auto& [name, index] : leaf->attributeSet().descriptor().groupMap())
+                groups.emplace_back(index, name);
+        }
+        std::sort(groups.begin(), groups.end());
+        std::string text;
+        for (const auto& g : groups) text += g.second + "\n";
+        *names = dup_string(text);
+    });
+}
+
+int nimbus_points_read_group(const nimbus_grid* grid, const char* name, uint8_t* out, size_t count)
+{
+    return guarded([&] {
+        require(grid, "grid");
+        require(name, "group name");
+        if (!out && count) fail("null output");
+        const PointDataGrid& points = as_points(*grid->grid);
+        const std::string label = grid_label(points) + " group '" + name + "'";
+        size_t i = 0;
+        for (auto leaf = points.tree().cbeginLeaf(); leaf; ++leaf) {
+            if (!leaf->attributeSet().descriptor().hasGroup(name)) fail(label + " does not exist");
+            const vdb::points::GroupHandle h = leaf->groupHandle(name);
+            const size_t n = leaf->pointCount();
+            if (i + n > count) fail(label + ": more points than the caller expected");
+            for (size_t k = 0; k < n; ++k, ++i) out[i] = h.get(vdb::Index(k)) ? 1 : 0;
+        }
+        if (i != count) fail(label + ": fewer points than the caller expected");
+    });
+}
+
 // ---- reference sampling and test fixtures -------------------------------------------
 
 int nimbus_sample_box(const nimbus_grid* grid, nimbus_value_kind kind, const double* points,
@@ -1218,6 +1269,44 @@ int nimbus_test_frustum_grid(const char* name, nimbus_grid** out)
         grid->tree().setValue(vdb::Coord(1, 2, 3), 1.0f);
         auto h = std::make_unique<nimbus_grid>();
         h->grid = grid;
+        *out = h.release();
+    });
+}
+
+int nimbus_test_houdini_points(const char* name, const double* positions, const float* v,
+    const float* temperature, const uint8_t* in_group, size_t count, double voxel_size,
+    const char* group, nimbus_grid** out)
+{
+    return guarded([&] {
+        require(name, "grid name");
+        require(group, "group name");
+        require(out, "output pointer");
+        if ((!positions || !v || !temperature || !in_group) && count) fail("null input");
+        std::vector<vdb::Vec3d> p(count);
+        std::vector<vdb::Vec3f> vel(count);
+        std::vector<float> temp(temperature, temperature + count);
+        std::vector<short> member(count);
+        for (size_t i = 0; i < count; ++i) {
+            p[i] = vdb::Vec3d(positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]);
+            vel[i] = vdb::Vec3f(v[3 * i], v[3 * i + 1], v[3 * i + 2]);
+            member[i] = in_group[i] ? 1 : 0;
+        }
+        const vdb::points::PointAttributeVector<vdb::Vec3d> wrapper(p);
+        auto xform = vdb::math::Transform::createLinearTransform(voxel_size);
+        auto index = vdb::tools::createPointIndexGrid<vdb::tools::PointIndexGrid>(wrapper, *xform);
+        using Fixed16 = vdb::points::FixedPointCodec</*OneByte=*/false, vdb::points::PositionRange>;
+        auto grid = vdb::points::createPointDataGrid<Fixed16, PointDataGrid>(*index, wrapper, *xform);
+        auto& tree = grid->tree();
+        vdb::points::appendAttribute<vdb::Vec3f, vdb::points::TruncateCodec>(tree, "v");
+        vdb::points::populateAttribute(tree, index->tree(), "v", vdb::points::PointAttributeVector<vdb::Vec3f>(vel));
+        vdb::points::appendAttribute<float>(tree, "temperature");
+        vdb::points::populateAttribute(tree, index->tree(), "temperature", vdb::points::PointAttributeVector<float>(temp));
+        vdb::points::appendGroup(tree, group);
+        vdb::points::setGroup(tree, index->tree(), member, group);
+        grid->setName(name);
+        auto h = std::make_unique<nimbus_grid>();
+        h->grid = grid;
+        h->point_count = count;
         *out = h.release();
     });
 }

@@ -55,6 +55,15 @@ typedef enum nimbus_grid_class {
     NIMBUS_CLASS_STAGGERED = 3
 } nimbus_grid_class;
 
+/* openvdb::VecType values, in the same order (the `vector_type` grid metadata). */
+typedef enum nimbus_vector_type {
+    NIMBUS_VEC_INVARIANT = 0,
+    NIMBUS_VEC_COVARIANT = 1,
+    NIMBUS_VEC_COVARIANT_NORMALIZE = 2,
+    NIMBUS_VEC_CONTRAVARIANT_RELATIVE = 3,
+    NIMBUS_VEC_CONTRAVARIANT_ABSOLUTE = 4
+} nimbus_vector_type;
+
 typedef enum nimbus_compression {
     NIMBUS_COMPRESS_ZIP = 0,
     NIMBUS_COMPRESS_BLOSC = 1,
@@ -177,6 +186,10 @@ int nimbus_grid_new(nimbus_value_kind kind, const char *name, nimbus_grid_class 
 int nimbus_grid_add_leaf(nimbus_grid *grid, const int32_t origin[3], const float *values,
                          const uint64_t mask[8]);
 
+/* Sets a vec3 grid's vector type (GridBase::setVectorType: how a transform acts on its
+ * values; velocity is contravariant relative, as Houdini and Blender write it). */
+int nimbus_grid_set_vector_type(nimbus_grid *grid, nimbus_vector_type type);
+
 /* Iterates the leaves of a float or vec3f grid (converting double grids, and voxelizing
  * active tiles so every active value arrives in a leaf). `background` receives `kind`
  * floats. The iterator keeps what it needs alive and may outlive the file. */
@@ -213,6 +226,12 @@ int nimbus_points_read_positions(const nimbus_grid *grid, double *out, size_t co
 int nimbus_points_read_attribute(const nimbus_grid *grid, const char *name,
                                  nimbus_value_kind kind, float *out, size_t count);
 
+/* Names of the grid's point groups in descriptor order, each followed by '\n', as one
+ * malloc'd string (empty when there are none). */
+int nimbus_points_group_names(const nimbus_grid *grid, char **names);
+/* Membership of group `name` per point (1 or 0), in the order of nimbus_points_read_positions. */
+int nimbus_points_read_group(const nimbus_grid *grid, const char *name, uint8_t *out, size_t count);
+
 /* ---- reference sampling (tests) ------------------------------------------------- */
 
 /* openvdb::tools::BoxSampler on a float or vec3f grid at `count` points (xyz doubles),
@@ -223,6 +242,14 @@ int nimbus_sample_box(const nimbus_grid *grid, nimbus_value_kind kind, const dou
 /* A float fog grid with a NonlinearFrustumMap transform and one active voxel, for tests
  * that a non-affine transform is refused. */
 int nimbus_test_frustum_grid(const char *name, nimbus_grid **out);
+
+/* A points grid as Houdini writes it by default, for tests of reading one: positions with
+ * 16-bit fixed-point compression (FixedPointCodec<false, PositionRange>, "ufxpt16"), a vec3f
+ * attribute `v` (half-float TruncateCodec), a float attribute `temperature`, and a point
+ * group `group` holding the points whose in_group entry is non-zero. count of each. */
+int nimbus_test_houdini_points(const char *name, const double *positions, const float *v,
+                               const float *temperature, const uint8_t *in_group, size_t count,
+                               double voxel_size, const char *group, nimbus_grid **out);
 
 /* A double (from float) or vec3d (from vec3s) copy of a grid, same name, transform and
  * metadata, for tests of reading double-precision grids. */

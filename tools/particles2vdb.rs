@@ -7,8 +7,8 @@ use std::process::ExitCode;
 use clap::Parser;
 use glam::DVec3;
 use nimbus_cli::{parse_dvec3, run, CommonArgs, Failure, Input, MetaWriter, VdbOutputArgs};
-use nimbus_density::{estimate_cpu, estimate_gpu, read_particles, DensityParams, Format, HMin, Method, NoiseParams, ParticleSet, Resolution, H0};
-use nimbus_vdb::{GridClass, VdbFile};
+use nimbus_density::{estimate_cpu, estimate_gpu, read_particles_with, Attribute, AttributeVolume, DensityParams, Format, HMin, Method, NoiseParams, ParticleSet, Resolution, H0};
+use nimbus_vdb::{GridClass, PointAttribute, VdbFile, VectorType};
 
 #[derive(Parser, Debug)]
 #[command(name = "particles2vdb", version, about = "Particles -> OpenVDB density grid by adaptive SPH density estimation")]
@@ -78,6 +78,17 @@ struct Args {
     /// Print the paper's Table 2 statistics (particles used per occupied grid point).
     #[arg(long)]
     stats: bool,
+    /// Also write particle attribute NAME as a grid (repeatable; NAME:GRID renames it), by SPH
+    /// interpolation with the density's smoothing lengths, normalised by the kernel sum. A
+    /// vec3 is NAME_x NAME_y NAME_z (or NAMEx.., NAME.x.., NAME[0]..) in PLY and CSV. `v`
+    /// (also found as `vel`, `velocity`) becomes the velocity grid `v`, `Cd` (`color`,
+    /// `colour`) the grid `color`; other names keep theirs (`temperature`, `heat`). CPU only.
+    #[arg(long = "attribute", value_name = "NAME[:GRID]")]
+    attributes: Vec<String>,
+    /// OpenVDB points input only: read just the points of this point group (Houdini's groups;
+    /// without it every point is read, whatever its groups).
+    #[arg(long)]
+    group: Option<String>,
     #[command(flatten)]
     common: CommonArgs,
 }
@@ -114,8 +125,45 @@ fn parse_h_min(text: &str) -> Result<HMin, String> {
     Ok(if voxels { HMin::Voxels(value) } else { HMin::World(value) })
 }
 
-/// Particles from a VDB's points grid (Houdini's `P` and optional `mass`).
-fn particles_from_vdb(bytes: &[u8], label: &str) -> Result<ParticleSet, Failure> {
+/// One `--attribute NAME[:GRID]`: the attribute, the grid it becomes and how.
+struct AttributeSpec {
+    name: String,
+    grid: String,
+    /// Velocity: a vec3 grid is written contravariant relative (Houdini's and Blender's).
+    velocity: bool,
+}
+
+impl AttributeSpec {
+    /// `NAME` or `NAME:GRID`; the default grid of the velocity names is `v`, of the colour
+    /// names `color`, else NAME.
+    fn parse(text: &str) -> Result<AttributeSpec, Failure> {
+        let (name, grid) = match text.split_once(':') {
+            Some((n, g)) => (n, Some(g)),
+            None => (text, None),
+        };
+        let aliases = nimbus_density::attribute_aliases(name);
+        let velocity = aliases.contains(&"v");
+        let default = if velocity {
+            "v"
+        } else if aliases.contains(&"Cd") {
+            "color"
+        } else {
+            name
+        };
+        let grid = grid.unwrap_or(default);
+        if name.is_empty() || grid.is_empty() {
+            return Err(Failure::usage(format!("--attribute expects NAME or NAME:GRID, got '{text}'")));
+        }
+        if matches!(grid, "density" | "smoothing_length" | "neighbour_count") {
+            return Err(Failure::usage(format!("--attribute {text}: the grid name '{grid}' is particles2vdb's own (rename it with NAME:GRID)")));
+        }
+        Ok(AttributeSpec { name: name.to_string(), grid: grid.to_string(), velocity })
+    }
+}
+
+/// Particles from a VDB's points grid (Houdini's `P` and optional `mass`), and the requested
+/// float and vec3 point attributes (any codec) under the names asked for.
+fn particles_from_vdb(bytes: &[u8], label: &str, requested: &[String], group: Option<&str>) -> Result<ParticleSet, Failure> {
     let file = VdbFile::from_bytes(bytes, label).map_err(|e| Failure::input(e, label))?;
     let grid = file
         .grids()
@@ -123,9 +171,56 @@ fn particles_from_vdb(bytes: &[u8], label: &str) -> Result<ParticleSet, Failure>
         .into_iter()
         .find(|g| g.kind == nimbus_vdb::GridKind::Points)
         .ok_or_else(|| Failure::input("no points grid in the VDB", label))?;
-    let points = file.read_points(&grid.name).map_err(|e| Failure::input(e, label))?;
+    let mut points = file.read_points(&grid.name).map_err(|e| Failure::input(e, label))?;
     let masses = points.float("mass").map(|m| m.to_vec());
-    Ok(ParticleSet { positions: points.positions, masses })
+    let names: Vec<String> = points.attributes.keys().cloned().collect();
+    let available: Vec<&str> = names.iter().map(String::as_str).collect();
+    let mut attributes = std::collections::BTreeMap::new();
+    for want in requested {
+        let Some(found) = nimbus_density::find_attribute(&available, want) else {
+            let list = if available.is_empty() { "none".to_string() } else { available.join(", ") };
+            return Err(Failure::input(format!("no particle attribute `{want}` in points grid '{}' (available: {list})", grid.name), label));
+        };
+        let values = match points.attributes.get(found).expect("listed") {
+            PointAttribute::Float(v) => Attribute::Float(v.clone()),
+            PointAttribute::Vec3(v) => Attribute::Vec3(v.clone()),
+        };
+        attributes.insert(want.clone(), values);
+    }
+    points.attributes.clear();
+    let mut set = ParticleSet { positions: points.positions, masses, attributes };
+    if let Some(group) = group {
+        let groups = file.point_groups(&grid.name).map_err(|e| Failure::input(e, label))?;
+        if !groups.iter().any(|g| g == group) {
+            let list = if groups.is_empty() { "none".to_string() } else { groups.join(", ") };
+            return Err(Failure::input(format!("no point group `{group}` in points grid '{}' (groups: {list})", grid.name), label));
+        }
+        let member = file.read_point_group(&grid.name, group).map_err(|e| Failure::input(e, label))?;
+        set = keep_members(set, &member);
+    }
+    Ok(set)
+}
+
+/// The particles whose `member` entry is true, with their masses and attributes.
+fn keep_members(set: ParticleSet, member: &[bool]) -> ParticleSet {
+    fn keep<T: Copy>(values: &[T], member: &[bool]) -> Vec<T> {
+        values.iter().zip(member).filter(|(_, &m)| m).map(|(v, _)| *v).collect()
+    }
+    ParticleSet {
+        positions: keep(&set.positions, member),
+        masses: set.masses.as_deref().map(|m| keep(m, member)),
+        attributes: set
+            .attributes
+            .iter()
+            .map(|(name, a)| {
+                let a = match a {
+                    Attribute::Float(v) => Attribute::Float(keep(v, member)),
+                    Attribute::Vec3(v) => Attribute::Vec3(keep(v, member)),
+                };
+                (name.clone(), a)
+            })
+            .collect(),
+    }
 }
 
 fn particles2vdb(args: Args) -> Result<(), Failure> {
@@ -163,17 +258,25 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         neighbour_count: args.aux,
         ..DensityParams::default()
     };
+    let specs = args.attributes.iter().map(|a| AttributeSpec::parse(a)).collect::<Result<Vec<_>, _>>()?;
+    if let Some(twice) = specs.iter().enumerate().find(|(i, s)| specs[..*i].iter().any(|t| t.grid == s.grid)) {
+        return Err(Failure::usage(format!("--attribute: two attributes would write the grid '{}'", twice.1.grid)));
+    }
+    let requested: Vec<String> = specs.iter().map(|s| s.name.clone()).collect();
+    let params = DensityParams { attributes: requested.clone(), ..params };
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
-    // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe).
-    let device = args.common.compute_device(&log)?;
+    // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe). The
+    // attribute pass has no GPU twin yet: --device gpu refuses it, auto takes the CPU.
+    let device = args.common.device_for(&[(!specs.is_empty(), "--attribute")], &log)?;
 
     let particles = log.stage(
         "read",
         || -> Result<ParticleSet, Failure> {
             match format {
-                None => particles_from_vdb(&input.read_all()?, &input.name()),
+                None => particles_from_vdb(&input.read_all()?, &input.name(), &requested, args.group.as_deref()),
+                Some(_) if args.group.is_some() => Err(Failure::usage("--group selects OpenVDB point groups: the input is not a VDB")),
                 Some(format) => {
-                    let (set, report) = read_particles(input.open()?, format).map_err(|e| Failure::input(e, input.name()))?;
+                    let (set, report) = read_particles_with(input.open()?, format, &requested).map_err(|e| Failure::input(e, input.name()))?;
                     if report.skipped_nonfinite > 0 {
                         log.warn(format!("skipped {} particles with non-finite positions or masses ({})", report.skipped_nonfinite, input.name()));
                     }
@@ -218,6 +321,14 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         s.bricks_proposed,
         t.finish.as_secs_f64()
     ));
+    if !output.attributes.is_empty() {
+        log.verbose(format!("attributes: {:.3} s for {}", t.attributes.as_secs_f64(), requested.join(", ")));
+    }
+    for a in &output.attributes {
+        if a.skipped_nonfinite > 0 {
+            log.warn(format!("left {} particles with non-finite `{}` out of its grid ({})", a.skipped_nonfinite, a.name, input.name()));
+        }
+    }
     if args.stats {
         eprintln!("particles used per occupied grid point: mean {:.2}, std {:.2} over {} points ({})", s.used_mean, s.used_std, s.used_points, method.name());
     }
@@ -230,6 +341,20 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     if let Some(n) = &output.neighbour_count {
         file.insert_volume("neighbour_count", n, GridClass::Unknown).map_err(|e| Failure::runtime(e, "neighbour_count grid"))?;
     }
+    // Float attributes as fog volumes (as Houdini writes temperature and heat), vec3 ones with
+    // no class and their vector type: velocity contravariant relative, others invariant.
+    for (spec, a) in specs.iter().zip(&output.attributes) {
+        let place = format!("{} grid", spec.grid);
+        match &a.volume {
+            AttributeVolume::Float(v) => file.insert_volume(&spec.grid, v, GridClass::FogVolume).map_err(|e| Failure::runtime(e, &place))?,
+            AttributeVolume::Vec3(v) => {
+                file.insert_volume(&spec.grid, v, GridClass::Unknown).map_err(|e| Failure::runtime(e, &place))?;
+                let vector_type = if spec.velocity { VectorType::ContravariantRelative } else { VectorType::Invariant };
+                file.set_vector_type(&spec.grid, vector_type).map_err(|e| Failure::runtime(e, &place))?;
+            }
+        }
+    }
+    let attribute_record: Vec<String> = specs.iter().map(|s| format!("{}:{}", s.name, s.grid)).collect();
     let record = [
         ("method", method.name().to_string()),
         ("h0", format!("{}", output.grid.h0)),
@@ -248,6 +373,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         ("grid_mass", format!("{}", s.grid_mass)),
         ("used_mean", format!("{:.3}", s.used_mean)),
         ("used_std", format!("{:.3}", s.used_std)),
+        ("attributes", attribute_record.join(";")),
     ];
     MetaWriter::new(&mut file).density_grid("density")?.seed(args.seed)?.tool("particles2vdb", &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;

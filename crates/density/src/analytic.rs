@@ -178,7 +178,7 @@ impl Scene {
     pub fn particles(&self, seed: u64) -> ParticleSet {
         let positions = self.density.sample(self.particles, seed);
         let m = (self.total_mass / self.particles as f64) as f32;
-        ParticleSet { masses: Some(vec![m; positions.len()]), positions }
+        ParticleSet { masses: Some(vec![m; positions.len()]), positions, ..Default::default() }
     }
 
     pub fn true_density(&self, p: DVec3) -> f64 {

@@ -96,6 +96,9 @@ pub struct DensityParams {
     /// exactly the particles' mass where h varies steeply (one more kernel pass; see the
     /// crate docs). Off: design.md's gather form.
     pub conserve_mass: bool,
+    /// Particle attributes (names in [`crate::ParticleSet::attributes`]) to interpolate onto
+    /// grids beside the density, with its smoothing lengths ([`crate::AttributeOutput`]).
+    pub attributes: Vec<String>,
 }
 
 /// The floor of the smoothing length (`--h-min`): a world length, or a number of voxels.
@@ -155,6 +158,7 @@ impl Default for DensityParams {
             smoothing_length: false,
             neighbour_count: false,
             conserve_mass: false,
+            attributes: Vec::new(),
         }
     }
 }

@@ -9,22 +9,78 @@
 //! Skipped, not fatal: rows with a non-finite position or mass (counted in [`ReadReport`]).
 //! Fatal, with the place named: a negative mass, a malformed number, a header that promises
 //! more vertices than the file holds, a file without x, y or z.
+//!
+//! Attributes (design.md section 8): the readers also read the per-particle attributes asked
+//! for by name ([`read_particles_with`]), by one naming rule for PLY properties and text
+//! columns ([`available_attributes`], [`find_attribute`]): a column `NAME` is a float
+//! attribute `NAME`; three columns `Px Py Pz`, `P_x P_y P_z`, `P.x P.y P.z` or
+//! `P[0] P[1] P[2]` (any prefix P but the empty one, which is the position) are a vec3
+//! attribute `P` (so `vx vy vz` is `v`, `nx ny nz` is `n`, `Cd_x Cd_y Cd_z` is `Cd`). A
+//! column of the very name asked for wins over a triple. A name not found is looked up under
+//! its aliases ([`attribute_aliases`]: `v`, `vel`, `velocity`; `Cd`, `color`, `colour`).
+//! Attribute values are kept as they are, non-finite ones included: the estimator leaves
+//! those particles out of that attribute's grid and counts them.
 
+use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 
-/// Particles in world space; `masses`, when present, has one entry per position.
+/// One per-particle attribute, one value per position.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Attribute {
+    Float(Vec<f32>),
+    Vec3(Vec<Vec3>),
+}
+
+impl Attribute {
+    pub fn len(&self) -> usize {
+        match self {
+            Attribute::Float(v) => v.len(),
+            Attribute::Vec3(v) => v.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Components per value: 1 or 3.
+    pub fn width(&self) -> usize {
+        match self {
+            Attribute::Float(_) => 1,
+            Attribute::Vec3(_) => 3,
+        }
+    }
+
+    /// Value `i` as its components (the first `width()` entries).
+    #[inline]
+    pub fn get(&self, i: usize) -> [f32; 3] {
+        match self {
+            Attribute::Float(v) => [v[i], 0.0, 0.0],
+            Attribute::Vec3(v) => v[i].to_array(),
+        }
+    }
+}
+
+/// Particles in world space; `masses`, when present, has one entry per position, and so has
+/// each of `attributes` (by name: the name asked for, see [`read_particles_with`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ParticleSet {
     pub positions: Vec<DVec3>,
     pub masses: Option<Vec<f32>>,
+    pub attributes: BTreeMap<String, Attribute>,
 }
 
 impl ParticleSet {
     pub fn new(positions: Vec<DVec3>) -> ParticleSet {
-        ParticleSet { positions, masses: None }
+        ParticleSet { positions, masses: None, attributes: BTreeMap::new() }
+    }
+
+    pub fn with_attribute(mut self, name: &str, values: Attribute) -> ParticleSet {
+        self.attributes.insert(name.to_string(), values);
+        self
     }
 
     pub fn len(&self) -> usize {
@@ -115,12 +171,100 @@ pub enum ReadError {
     NegativeMass { place: String, mass: f64 },
     #[error("empty input: no header line")]
     NoHeader,
+    #[error("no particle attribute `{name}` (available: {available})")]
+    UnknownAttribute { name: String, available: String },
+    #[error("attribute `{0}` is a PLY list property, not a float or a vec3")]
+    ListAttribute(String),
+}
+
+/// Other names an attribute is found under when its own is not in the file: velocity
+/// (`v` Houdini's, `vel` Blender's and Mantaflow's, `velocity`) and colour (`Cd` Houdini's,
+/// `color`, `colour`). Every other name has none.
+pub fn attribute_aliases(name: &str) -> &'static [&'static str] {
+    const VELOCITY: &[&str] = &["v", "vel", "velocity"];
+    const COLOUR: &[&str] = &["Cd", "color", "colour"];
+    [VELOCITY, COLOUR].into_iter().find(|set| set.contains(&name)).unwrap_or(&[])
+}
+
+/// Which of `available` attribute `name` reads: `name` itself, else the first of its
+/// [`attribute_aliases`] that is available.
+pub fn find_attribute<'a>(available: &[&'a str], name: &str) -> Option<&'a str> {
+    std::iter::once(name)
+        .chain(attribute_aliases(name).iter().copied())
+        .find_map(|want| available.iter().copied().find(|&a| a == want))
+}
+
+/// The attributes a header's column (or property) names offer, by the naming rule in the
+/// module docs: (name, the columns of its components), floats then vec3 triples, each in
+/// column order. x, y and z are the position and offer nothing.
+pub fn available_attributes(names: &[String]) -> Vec<(String, Vec<usize>)> {
+    let is_position = |n: &str| ["x", "y", "z"].iter().any(|c| n.eq_ignore_ascii_case(c));
+    let mut out: Vec<(String, Vec<usize>)> =
+        names.iter().enumerate().filter(|(_, n)| !is_position(n)).map(|(i, n)| (n.clone(), vec![i])).collect();
+    // Component suffixes: x y z, _x _y _z, .x .y .z (either case), [0] [1] [2].
+    let triple = |n: &str| -> Option<(String, usize)> {
+        if let Some(stem) = n.strip_suffix(']') {
+            let (prefix, k) = stem.rsplit_once('[')?;
+            let k = ["0", "1", "2"].iter().position(|&d| d == k)?;
+            return (!prefix.is_empty()).then(|| (prefix.to_string(), k));
+        }
+        let last = n.chars().last()?;
+        let k = ['x', 'y', 'z'].iter().position(|&c| c == last.to_ascii_lowercase())?;
+        let prefix = &n[..n.len() - 1];
+        let prefix = prefix.strip_suffix(['_', '.']).unwrap_or(prefix);
+        (!prefix.is_empty()).then(|| (prefix.to_string(), k))
+    };
+    let mut groups: Vec<(String, [Option<usize>; 3])> = Vec::new();
+    for (i, n) in names.iter().enumerate() {
+        if let Some((prefix, k)) = triple(n) {
+            match groups.iter_mut().find(|(p, _)| *p == prefix) {
+                Some((_, cols)) => cols[k] = cols[k].or(Some(i)),
+                None => {
+                    let mut cols = [None; 3];
+                    cols[k] = Some(i);
+                    groups.push((prefix, cols));
+                }
+            }
+        }
+    }
+    for (prefix, cols) in groups {
+        if let [Some(a), Some(b), Some(c)] = cols {
+            if !out.iter().any(|(n, _)| *n == prefix) {
+                out.push((prefix, vec![a, b, c]));
+            }
+        }
+    }
+    out
+}
+
+/// The columns of each requested attribute, or the error that lists what is available.
+fn resolve_attributes(names: &[String], requested: &[String]) -> Result<Vec<(String, Vec<usize>)>, ReadError> {
+    let available = available_attributes(names);
+    let list: Vec<&str> = available.iter().map(|(n, _)| n.as_str()).collect();
+    requested
+        .iter()
+        .map(|want| {
+            let found = find_attribute(&list, want).ok_or_else(|| ReadError::UnknownAttribute {
+                name: want.clone(),
+                available: if list.is_empty() { "none".into() } else { list.join(", ") },
+            })?;
+            let cols = available.iter().find(|(n, _)| n == found).expect("listed").1.clone();
+            Ok((want.clone(), cols))
+        })
+        .collect()
 }
 
 /// Reads particles from any reader (a file, stdin) in the given format.
 pub fn read_particles<R: Read>(reader: R, format: Format) -> Result<(ParticleSet, ReadReport), ReadError> {
+    read_particles_with(reader, format, &[])
+}
+
+/// Reads particles and the attributes named in `attributes` (the naming rule and aliases of
+/// the module docs), each stored under the name asked for; an attribute the file lacks is an
+/// error listing the ones it has.
+pub fn read_particles_with<R: Read>(reader: R, format: Format, attributes: &[String]) -> Result<(ParticleSet, ReadReport), ReadError> {
     let mut reader = BufReader::with_capacity(1 << 16, reader);
-    let mut sink = Sink::default();
+    let mut sink = Sink { requested: attributes.to_vec(), ..Sink::default() };
     match format {
         Format::Ply => read_ply(&mut reader, &mut sink)?,
         Format::Csv => read_delimited(&mut reader, None, &mut sink)?,
@@ -165,6 +309,11 @@ pub fn write_ply<W: Write>(writer: W, particles: &ParticleSet) -> std::io::Resul
 struct Sink {
     positions: Vec<DVec3>,
     masses: Option<Vec<f32>>,
+    /// The attributes asked for, and per attribute its components' values, flat.
+    requested: Vec<String>,
+    attributes: Vec<Vec<f32>>,
+    /// Components of each requested attribute (1 or 3), set from the header.
+    widths: Vec<usize>,
     report: ReadReport,
 }
 
@@ -178,13 +327,31 @@ impl Sink {
         }
     }
 
-    fn push(&mut self, p: DVec3, mass: Option<f64>, place: impl FnOnce() -> String) -> Result<(), ReadError> {
+    /// The header's columns are known: one value buffer per requested attribute.
+    fn begin(&mut self, columns: &Columns) {
+        self.widths = columns.attrs.iter().map(|(_, c)| c.len()).collect();
+        self.attributes = vec![Vec::new(); columns.attrs.len()];
+    }
+
+    /// One record's values by the columns found.
+    fn push_record(&mut self, columns: &Columns, values: &[f64], place: impl FnOnce() -> String) -> Result<(), ReadError> {
+        let (p, m) = columns.record(values);
+        if self.push(p, m, place)? {
+            for ((_, cols), out) in columns.attrs.iter().zip(&mut self.attributes) {
+                out.extend(cols.iter().map(|&c| values[c] as f32));
+            }
+        }
+        Ok(())
+    }
+
+    /// Keeps the particle unless it is skipped; returns whether it was kept.
+    fn push(&mut self, p: DVec3, mass: Option<f64>, place: impl FnOnce() -> String) -> Result<bool, ReadError> {
         self.report.rows += 1;
         // Masses are kept as f32: one finite in f64 but beyond f32's range (1e39) would be
         // stored as infinity, so it counts as non-finite too (found by fuzzing).
         if !p.is_finite() || mass.is_some_and(|m| !(m as f32).is_finite()) {
             self.report.skipped_nonfinite += 1;
-            return Ok(());
+            return Ok(false);
         }
         if let Some(m) = mass {
             if m < 0.0 {
@@ -193,25 +360,49 @@ impl Sink {
             self.masses.get_or_insert_with(Vec::new).push(m as f32);
         }
         self.positions.push(p);
-        Ok(())
+        Ok(true)
     }
 
     fn finish(self) -> (ParticleSet, ReadReport) {
-        (ParticleSet { positions: self.positions, masses: self.masses }, self.report)
+        let attributes = self
+            .requested
+            .into_iter()
+            .zip(self.attributes)
+            .zip(self.widths)
+            .map(|((name, flat), width)| {
+                let values = match width {
+                    3 => Attribute::Vec3(flat.chunks_exact(3).map(Vec3::from_slice).collect()),
+                    _ => Attribute::Float(flat),
+                };
+                (name, values)
+            })
+            .collect();
+        (ParticleSet { positions: self.positions, masses: self.masses, attributes }, self.report)
     }
 }
 
-/// Which fields of a record hold x, y, z and the optional mass.
+/// Which fields of a record hold x, y, z, the optional mass and the requested attributes.
 struct Columns {
     xyz: [usize; 3],
     mass: Option<usize>,
+    /// Per requested attribute, its components' fields.
+    attrs: Vec<(String, Vec<usize>)>,
 }
 
 impl Columns {
-    fn find(names: &[String]) -> Result<Columns, ReadError> {
+    fn find(names: &[String], requested: &[String]) -> Result<Columns, ReadError> {
         let find = |want: &[&str]| names.iter().position(|n| want.iter().any(|w| n.eq_ignore_ascii_case(w)));
         let coord = |name: &'static str| find(&[name]).ok_or(ReadError::MissingCoordinate(name));
-        Ok(Columns { xyz: [coord("x")?, coord("y")?, coord("z")?], mass: find(&["mass", "m"]) })
+        Ok(Columns {
+            xyz: [coord("x")?, coord("y")?, coord("z")?],
+            mass: find(&["mass", "m"]),
+            attrs: resolve_attributes(names, requested)?,
+        })
+    }
+
+    /// Every field a record's parse needs.
+    fn used(&self) -> impl Iterator<Item = usize> + '_ {
+        self.xyz.iter().chain(self.mass.iter()).copied().chain(self.attrs.iter().flat_map(|(_, c)| c.iter().copied()))
     }
 
     fn record(&self, values: &[f64]) -> (DVec3, Option<f64>) {
@@ -291,11 +482,12 @@ fn read_delimited<R: BufRead>(reader: &mut R, delimiter: Option<Delimiter>, sink
     let delimiter = delimiter.unwrap_or_else(|| Delimiter::detect(&line));
     let names: Vec<String> =
         delimiter.split(line.trim_end_matches(['\r', '\n'])).map(|f| f.trim_matches('"').to_string()).collect();
-    let columns = Columns::find(&names)?;
+    let columns = Columns::find(&names, &sink.requested)?;
+    sink.begin(&columns);
     sink.reserve(0, columns.mass.is_some());
     // Parse only the columns we use: other columns may hold text (ids, names).
     let mut wanted = vec![false; names.len()];
-    for &c in columns.xyz.iter().chain(columns.mass.iter()) {
+    for c in columns.used() {
         wanted[c] = true;
     }
 
@@ -321,8 +513,7 @@ fn read_delimited<R: BufRead>(reader: &mut R, delimiter: Option<Delimiter>, sink
         if found < names.len() {
             return Err(ReadError::FieldCount { place: place(), expected: names.len(), found });
         }
-        let (p, m) = columns.record(&values);
-        sink.push(p, m, place)?;
+        sink.push_record(&columns, &values, place)?;
     }
 }
 
@@ -583,10 +774,14 @@ fn read_ply_vertices<R: BufRead>(
     sink: &mut Sink,
     line_no: &mut usize,
 ) -> Result<(), ReadError> {
-    let columns = Columns::find(&element.names)?;
+    let columns = Columns::find(&element.names, &sink.requested)?;
     if columns.xyz.iter().chain(columns.mass.iter()).any(|&c| matches!(element.props[c], Property::List(..))) {
         return Err(ReadError::NotPly("vertex x, y, z or mass is a list property".into()));
     }
+    if let Some((name, _)) = columns.attrs.iter().find(|(_, cols)| cols.iter().any(|&c| matches!(element.props[c], Property::List(..)))) {
+        return Err(ReadError::ListAttribute(name.clone()));
+    }
+    sink.begin(&columns);
     sink.reserve(element.count as usize, columns.mass.is_some());
     let mut values = vec![0.0; element.props.len()];
 
@@ -619,8 +814,7 @@ fn read_ply_vertices<R: BufRead>(
             for (value, &(ty, at)) in values.iter_mut().zip(&layout) {
                 *value = ty.decode(&record[at..], big_endian);
             }
-            let (p, m) = columns.record(&values);
-            sink.push(p, m, || format!("vertex {i}"))?;
+            sink.push_record(&columns, &values, || format!("vertex {i}"))?;
         }
         return Ok(());
     }
@@ -630,8 +824,7 @@ fn read_ply_vertices<R: BufRead>(
         if !read_ply_record(reader, encoding, element, &mut values, &mut line, line_no)? {
             return Err(ReadError::Truncated { expected: element.count, found: i });
         }
-        let (p, m) = columns.record(&values);
-        sink.push(p, m, || format!("vertex {i}"))?;
+        sink.push_record(&columns, &values, || format!("vertex {i}"))?;
     }
     Ok(())
 }

@@ -113,6 +113,8 @@ pub struct Prepared {
     pub positions: Vec<Vec3>,
     /// Masses in the same order (the default mass filled in where the set has none).
     pub masses: Vec<f32>,
+    /// Each particle's index in the [`ParticleSet`] it came from (its attributes' index).
+    pub source: Vec<u32>,
     pub cells: CellGrid,
     /// Origins of the bricks holding a voxel within kappa*h0 of some particle, sorted.
     pub bricks: Vec<IVec3>,
@@ -300,6 +302,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
     // One sequential pass: it is memory-bound, and the parallel form (a per-particle verdict,
     // then counts and an unzip) took 35 ms on 500k particles where this takes a few.
     let (mut positions, mut masses) = (Vec::with_capacity(particles.len()), Vec::with_capacity(particles.len()));
+    let mut source = Vec::with_capacity(particles.len());
     let (mut skipped_nonfinite, mut outside) = (0u64, 0u64);
     for (i, &p) in particles.positions.iter().enumerate() {
         let m = particles.mass(i, default_mass);
@@ -314,6 +317,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
         }
         positions.push(q);
         masses.push(m);
+        source.push(i as u32);
     }
 
     // Cells are only used to gather each brick's candidate particles, so their edge follows
@@ -348,6 +352,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
     }
     let sorted_pos: Vec<Vec3> = order.par_iter().map(|&i| positions[i as usize]).collect();
     let sorted_mass: Vec<f32> = order.par_iter().map(|&i| masses[i as usize]).collect();
+    let sorted_source: Vec<u32> = order.par_iter().map(|&i| source[i as usize]).collect();
     cells.start = start;
 
     // Bricks touched by some particle's support box: a dense bit per brick of the grid.
@@ -389,6 +394,7 @@ pub fn bin(particles: &ParticleSet, default_mass: f32, grid: Grid) -> Prepared {
         grid,
         positions: sorted_pos,
         masses: sorted_mass,
+        source: sorted_source,
         cells,
         bricks,
         skipped_nonfinite,
@@ -405,7 +411,7 @@ mod tests {
     #[test]
     fn h_min_in_voxels_follows_the_grid() {
         let positions = (0..1000).map(|i| DVec3::new((i % 10) as f64, ((i / 10) % 10) as f64, (i / 100) as f64) * 0.3).collect();
-        let particles = ParticleSet { positions, masses: None };
+        let particles = ParticleSet::new(positions);
         let plan = |h_min| plan_grid(&particles, &DensityParams { resolution: Resolution::Longest(20), h_min, ..Default::default() }).unwrap();
         let grid = plan(HMin::Voxels(1.5));
         assert!((grid.h_min / grid.voxel_size - 1.5).abs() < 1e-12, "{grid:?}");

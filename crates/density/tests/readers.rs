@@ -232,7 +232,7 @@ fn binary_negative_mass_names_the_vertex() {
 #[test]
 fn write_ply_round_trips() {
     let (positions, masses) = sample();
-    for set in [ParticleSet { positions: positions.clone(), masses: Some(masses.clone()) }, ParticleSet::new(positions.clone())] {
+    for set in [ParticleSet { positions: positions.clone(), masses: Some(masses.clone()), ..Default::default() }, ParticleSet::new(positions.clone())] {
         let mut bytes = Vec::new();
         write_ply(&mut bytes, &set).unwrap();
         let (back, report) = read_particles(&bytes[..], Format::Ply).unwrap();

@@ -123,7 +123,7 @@ fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
         })
         .collect();
     let masses = Some((0..n).map(|i| 0.5 + (i % 7) as f32 * 0.25).collect());
-    ParticleSet { positions, masses }
+    ParticleSet { positions, masses, ..Default::default() }
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -307,7 +307,7 @@ fn gpu_kernel_sums_in_slabs_agree() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
     let mut rng = Rng::new(11, 0);
     let positions = (0..200).map(|_| DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0).collect();
-    let particles = ParticleSet { positions, masses: None };
+    let particles = ParticleSet::new(positions);
     let params = DensityParams { method: Method::Usl, h0: H0::Fixed(3.0), resolution: Resolution::VoxelSize(0.2), conserve_mass: true, ..Default::default() };
     let (cpu, gpu) = (estimate_cpu(&particles, &params).unwrap(), estimate_gpu(ctx, &particles, &params).unwrap());
     let max = cpu.stats.max_density;
@@ -504,7 +504,7 @@ fn gathers_longer_than_a_software_adapter_runs_are_refused() {
             DVec3::new((t * 7.1).sin(), (t * 3.3).cos(), (t * 1.7).sin()) * 0.5
         })
         .collect();
-    let particles = ParticleSet { positions, masses: None };
+    let particles = ParticleSet::new(positions);
     let params = DensityParams { method: Method::Usl, h0: H0::Fixed(1.0), resolution: Resolution::VoxelSize(0.25), ..Default::default() };
     let result = estimate_gpu(ctx, &particles, &params);
     if ctx.info.is_software {

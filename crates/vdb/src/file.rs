@@ -26,6 +26,19 @@ pub enum GridClass {
     Staggered,
 }
 
+/// OpenVDB's vector type of a vec3 grid (the `vector_type` grid metadata): how a change of
+/// transform acts on its values. Velocity is [`VectorType::ContravariantRelative`], as
+/// Houdini and Blender write it; colour is [`VectorType::Invariant`] (OpenVDB's default).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum VectorType {
+    #[default]
+    Invariant,
+    Covariant,
+    CovariantNormalize,
+    ContravariantRelative,
+    ContravariantAbsolute,
+}
+
 /// What a grid can be read as.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum GridKind {
@@ -619,6 +632,21 @@ impl VdbFile {
         let m = self.grid_meta_mut(grid)?;
         // SAFETY: a valid map, exclusively borrowed through &mut self.
         unsafe { meta::remove(m, name) }.map_err(|msg| self.grid_error(grid, msg))
+    }
+
+    /// Sets the vector type of vec3 grid `grid` (OpenVDB's `GridBase::setVectorType`).
+    pub fn set_vector_type(&mut self, grid: &str, vector_type: VectorType) -> Result<()> {
+        let (index, _) = self.find(grid)?;
+        let t = match vector_type {
+            VectorType::Invariant => sys::nimbus_vector_type::NIMBUS_VEC_INVARIANT,
+            VectorType::Covariant => sys::nimbus_vector_type::NIMBUS_VEC_COVARIANT,
+            VectorType::CovariantNormalize => sys::nimbus_vector_type::NIMBUS_VEC_COVARIANT_NORMALIZE,
+            VectorType::ContravariantRelative => sys::nimbus_vector_type::NIMBUS_VEC_CONTRAVARIANT_RELATIVE,
+            VectorType::ContravariantAbsolute => sys::nimbus_vector_type::NIMBUS_VEC_CONTRAVARIANT_ABSOLUTE,
+        };
+        // SAFETY: valid handle and index, exclusively borrowed through &mut self.
+        let status = unsafe { sys::nimbus_grid_set_vector_type(sys::nimbus_file_grid_mut(self.raw.as_ptr(), index), t) };
+        sys::check(status).map_err(|m| self.grid_error(grid, m))
     }
 
     /// Sets the grid class of grid `grid`.

@@ -71,7 +71,7 @@ mod points;
 mod sys;
 
 pub use error::{Result, VdbError};
-pub use file::{has_blosc, Compression, GridClass, GridInfo, GridKind, GridValue, Space, VdbFile, WriteOptions, MAX_READ_VOXELS};
+pub use file::{has_blosc, Compression, GridClass, GridInfo, GridKind, GridValue, Space, VdbFile, VectorType, WriteOptions, MAX_READ_VOXELS};
 pub use meta::{MetaValue, Metadata};
 pub use points::{PointAttribute, PointSet};
 
@@ -88,6 +88,43 @@ pub mod testing {
         let mut out = std::ptr::null_mut();
         // SAFETY: valid C string and out-pointer.
         let status = unsafe { sys::nimbus_test_frustum_grid(cname.as_ptr(), &mut out) };
+        let grid = OwnedGrid::from_status(status, out).map_err(|m| file.error_for(name, m))?;
+        file.insert_owned(grid, name)
+    }
+
+    /// Adds a points grid `name` as Houdini writes it by default: 16-bit fixed-point
+    /// positions ("ufxpt16"), a half-float vec3 `v`, a float `temperature` and a point group
+    /// `group` of the points whose `in_group` is true (see `nimbus_test_houdini_points`).
+    pub fn insert_houdini_points(
+        file: &mut VdbFile,
+        name: &str,
+        positions: &[glam::DVec3],
+        v: &[glam::Vec3],
+        temperature: &[f32],
+        in_group: &[bool],
+        voxel_size: f64,
+        group: &str,
+    ) -> Result<()> {
+        let n = positions.len();
+        assert!(v.len() == n && temperature.len() == n && in_group.len() == n, "one value per point");
+        let cname = std::ffi::CString::new(name).expect("grid name without NUL");
+        let cgroup = std::ffi::CString::new(group).expect("group name without NUL");
+        let member: Vec<u8> = in_group.iter().map(|&b| b as u8).collect();
+        let mut out = std::ptr::null_mut();
+        // SAFETY: n positions (3 doubles), n v (3 floats), n temperatures and n flags.
+        let status = unsafe {
+            sys::nimbus_test_houdini_points(
+                cname.as_ptr(),
+                bytemuck::cast_slice::<glam::DVec3, f64>(positions).as_ptr(),
+                bytemuck::cast_slice::<glam::Vec3, f32>(v).as_ptr(),
+                temperature.as_ptr(),
+                member.as_ptr(),
+                n,
+                voxel_size,
+                cgroup.as_ptr(),
+                &mut out,
+            )
+        };
         let grid = OwnedGrid::from_status(status, out).map_err(|m| file.error_for(name, m))?;
         file.insert_owned(grid, name)
     }

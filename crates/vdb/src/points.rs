@@ -98,6 +98,33 @@ impl VdbFile {
         read_points(grid, &info).map_err(|m| self.error_for(name, m))
     }
 
+    /// The point groups of points grid `name` (Houdini's), in descriptor order.
+    pub fn point_groups(&self, name: &str) -> Result<Vec<String>> {
+        let (grid, info) = self.grid_ptr_by_name(name)?;
+        if info.kind != GridKind::Points {
+            return Err(self.error_for(name, format!("has value type {}, expected an OpenVDB points grid", info.value_type)));
+        }
+        let mut names = ptr::null_mut();
+        // SAFETY: a valid grid and out-pointer; the string is taken (freed) right after.
+        let status = unsafe { sys::nimbus_points_group_names(grid, &mut names) };
+        let text = unsafe { sys::take_string(names) };
+        sys::check(status).map_err(|m| self.error_for(name, m))?;
+        Ok(text.lines().map(str::to_string).collect())
+    }
+
+    /// Membership of each point of grid `name` in point group `group`, in the order of
+    /// [`VdbFile::read_points`].
+    pub fn read_point_group(&self, name: &str, group: &str) -> Result<Vec<bool>> {
+        let (grid, info) = self.grid_ptr_by_name(name)?;
+        let n = usize::try_from(info.point_count).map_err(|_| self.error_for(name, "too many points for this machine".into()))?;
+        let cgroup = c_string(group, "group name").map_err(|m| self.error_for(name, m))?;
+        let mut out = vec![0u8; n];
+        // SAFETY: n bytes out.
+        let status = unsafe { sys::nimbus_points_read_group(grid, cgroup.as_ptr(), out.as_mut_ptr(), n) };
+        sys::check(status).map_err(|m| self.error_for(name, m))?;
+        Ok(out.into_iter().map(|b| b != 0).collect())
+    }
+
     /// Writes `points` as an OpenVDB points grid called `name` (replacing a grid of that
     /// name). `voxel_size` None picks one for about 8 points per voxel.
     pub fn insert_points(&mut self, name: &str, points: &PointSet, voxel_size: Option<f64>) -> Result<()> {
