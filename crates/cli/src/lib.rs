@@ -14,11 +14,14 @@
 //!   where that makes earlier work inconsistent.
 //! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
 //!   vdbphoton, vdbcache and vdbmarch ([`CommonArgs::device_for`]: emission stays on the CPU).
+//! - [`SequenceArgs`] and [`for_each_frame`] ([`frames`]): frame patterns (`####`, `%04d`,
+//!   `$F4`), `--frames` sets, and the per-frame loop every tool runs over a sequence.
 
 mod args;
 mod environment;
 mod emission;
 mod failure;
+pub mod frames;
 mod io;
 mod log;
 pub mod meta;
@@ -28,6 +31,7 @@ pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, Medium
 pub use environment::{read_environment_map, EnvironmentArgs};
 pub use emission::{EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};
+pub use frames::{for_each_frame, FramePattern, FrameSet, SequenceArgs};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
