@@ -133,7 +133,7 @@ fn main() -> ExitCode {
 }
 
 /// The tools of the chain.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Tool {
     Particles2vdb,
     Vdbphoton,
