@@ -304,6 +304,9 @@ fn nimbus_render(args: Args) -> Result<(), Failure> {
         if !input.exists() {
             return Err(Failure::input("no such file", input.display()));
         }
+        if let Some(parent) = output.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|e| Failure::runtime(format!("cannot create the directory: {e}"), parent.display()))?;
+        }
         let is_vdb = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
         let particles = !is_vdb || vdb_is_particles(&input)?;
         let chain: Vec<Tool> = tools.iter().copied().filter(|&t| t != Tool::Particles2vdb || particles).collect();

@@ -65,7 +65,7 @@ impl FramePattern {
                         let digits = &text[i + 1..j];
                         let pad = if digits.is_empty() {
                             0
-                        } else if digits.starts_with('0') || digits.len() == 1 {
+                        } else if digits.starts_with('0') {
                             digits.parse::<usize>().map_err(|_| format!("bad frame pattern in '{text}'"))?
                         } else {
                             // %4d pads with spaces in C; a file name wants zeros.
