@@ -21,7 +21,7 @@ for tool in nimbus-render particles2vdb vdbcache vdbmarch nimbus-compare; do
 done
 python3 scripts/make_moving_particles.py data/plume.ply "$out/plume.####.ply" --frames "$frames" --velocity 1,0,0.5
 flags=(--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5 --sky 0.15,0.24,0.42
-  --eye 10,-330,100 --look-at 10,0,100 --width 240 --height 180 --quality draft -q
+  --eye 10,-420,100 --look-at 10,0,95 --width 240 --height 180 --quality draft -q
   --particles2vdb "--voxel-size 2")
 seconds() { python3 -c "import sys; print(f'{float(sys.argv[2]) - float(sys.argv[1]):.2f}')" "$@"; }
 peak_mb() { awk -F': ' '/Maximum resident set size/ {printf "%.0f", $2 / 1024}' "$1"; }
