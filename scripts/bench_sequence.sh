@@ -42,14 +42,21 @@ if [ "$(id -u)" -eq 0 ] && command -v slurmctld >/dev/null; then
   scripts/farm/slurm-local.sh start "$cluster" 2
   trap 'scripts/farm/slurm-local.sh stop "$cluster"' EXIT
   export SLURM_CONF=$cluster/slurm.conf
+  # Each task's peak memory: nimbus-render under /usr/bin/time (Slurm keeps no accounting here).
+  timed=$out/nimbus-render-timed
+  printf '#!/bin/sh\nexec /usr/bin/time -v -o "%s/slurm-time.${SLURM_ARRAY_TASK_ID:-submit}" %q "$@"\n' "$out" "$bin/nimbus-render" > "$timed"
+  chmod +x "$timed"
+  rm -f "$out"/slurm-time.*
   t0=$(date +%s.%N)
-  NIMBUS_RENDER=$bin/nimbus-render scripts/farm/slurm-submit.sh "$out/plume.####.ply" -o "$out/slurm/plume.####.exr" \
-    --frames "1-$frames" --chunk 4 --max-running 2 --log-dir "$out/slurm-logs" --wait \
-    -- "${flags[@]}" >/dev/null 2>&1 || true
+  NIMBUS_RENDER=$timed scripts/farm/slurm-submit.sh "$out/plume.####.ply" -o "$out/slurm/plume.####.exr" \
+    --frames "1-$frames" --chunk 4 --max-running 2 --log-dir "$out/slurm-logs" \
+    -- "${flags[@]}" > "$out/slurm.job"
+  # Poll (sbatch --wait polls at growing intervals, which would add seconds to the wall time).
+  while [ -n "$(squeue -h -j "$(cat "$out/slurm.job")")" ]; do sleep 0.2; done
   t1=$(date +%s.%N)
   done_frames=$(ls "$out/slurm" | wc -l)
   wall=$(seconds "$t0" "$t1")
-  echo "| Slurm, one node, 2 tasks at a time (chunks of 4) | $done_frames | $wall | $(python3 -c "print(f'{$wall / $frames:.2f}')") | not measured (no accounting) |"
+  echo "| Slurm, one node, 2 tasks at a time (chunks of 4) | $done_frames | $wall | $(python3 -c "print(f'{$wall / $frames:.2f}')") | $(cat "$out"/slurm-time.[0-9]* | awk -F': ' '/Maximum resident set size/ {if ($2 > m) m = $2} END {printf "%.0f", m / 1024}') MB a task |"
   for f in $(seq 1 "$frames"); do
     n=$(printf '%04d' "$f")
     cmp -s "$out/local/plume.$n.exr" "$out/slurm/plume.$n.exr" || echo "(frame $f differs between the local and the Slurm run)"
