@@ -228,6 +228,37 @@ mod tests {
         fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// A run killed by SIGTERM mid-write (a farm cancelling a task) leaves neither the target
+    /// nor the temporary file: the test runs itself again as a child that signals itself
+    /// half-way through a write.
+    #[test]
+    fn a_terminating_signal_removes_the_temporary_file() {
+        const NAME: &str = "io::tests::a_terminating_signal_removes_the_temporary_file";
+        if let Ok(dir) = std::env::var("NIMBUS_SIGNAL_TEST_DIR") {
+            let _ = write_atomic(&Path::new(&dir).join("out.exr"), |w| {
+                w.write_all(&[7u8; 1 << 16])?;
+                w.flush()?;
+                // SAFETY: raising a signal is always sound; the handler ends the process.
+                unsafe { libc::raise(libc::SIGTERM) };
+                Ok(())
+            });
+            std::process::exit(3);
+        }
+        use std::os::unix::process::ExitStatusExt;
+        let dir = std::env::temp_dir().join(format!("nimbus-cli-signal-{}", std::process::id()));
+        fs::create_dir_all(&dir).unwrap();
+        let status = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([NAME, "--exact", "--test-threads=1"])
+            .env("NIMBUS_SIGNAL_TEST_DIR", &dir)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .unwrap();
+        assert_eq!(status.signal(), Some(libc::SIGTERM), "the child died of the signal it raised ({status})");
+        let left: Vec<_> = fs::read_dir(&dir).unwrap().flatten().map(|e| e.file_name()).collect();
+        assert!(left.is_empty(), "nothing left behind: {left:?}");
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn dash_means_the_standard_streams() {
         assert_eq!(Input::from_arg(Some(Path::new("-"))).unwrap(), Input::Stdin);
