@@ -11,7 +11,8 @@
 //! The flags several tools take are given once here and passed to the first tool that uses
 //! them; the tools record them in the file's metadata for the next (design.md section 6):
 //! lights, sky, environment and medium to vdbphoton or else vdbcache, the camera to
-//! vdbcache, the seed to the first tool; `--quality`, `--device`, `-q`, `-v` to every tool
+//! vdbcache, the seed to the first tool (and to vdbmarch after a vdbcache that starts the
+//! chain, as vdbcache does not record it); `--quality`, `--device`, `-q`, `-v` to every tool
 //! that takes them. Anything else goes through `--<tool> 'ARGS'`.
 //!
 //! Exit code 0 when every frame was done (or skipped with `--skip-existing`), 1 when any
@@ -375,8 +376,11 @@ fn flags_for(args: &Args, chain: &[Tool], index: usize, extra: Option<&Vec<Strin
             push("height", v.to_string());
         }
     }
-    // The first tool records the seed (nimbus:seed) and the rest take it from the file.
-    if let (0, Some(seed)) = (index, args.seed) {
+    // particles2vdb and vdbphoton record the seed (nimbus:seed) and the rest take it from the
+    // file; vdbcache does not record it, so where the chain starts at vdbcache (a density
+    // input, no photons) vdbmarch gets it too.
+    let first_records = matches!(chain[0], Tool::Particles2vdb | Tool::Vdbphoton);
+    if let (true, Some(seed)) = (index == 0 || (tool == Tool::Vdbmarch && !first_records), args.seed) {
         push("seed", seed.to_string());
     }
     if let (Some(q), true) = (args.quality, tool != Tool::Particles2vdb) {
@@ -462,7 +466,30 @@ fn render_frame(stages: &[Stage], input: &Path, output: &Path, keep: Option<&Pat
 
 #[cfg(test)]
 mod tests {
-    use super::shell_words;
+    use super::{flags_for, shell_words, Args, Tool};
+    use clap::Parser;
+
+    fn flags(args: &[&str], chain: &[Tool]) -> Vec<String> {
+        let args = Args::parse_from([&["nimbus-render", "in.ply", "-o", "out.exr"], args].concat());
+        chain.iter().enumerate().map(|(i, _)| flags_for(&args, chain, i, None).iter().map(|f| f.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ")).collect()
+    }
+
+    #[test]
+    fn shared_flags_go_where_metadata_does_not_carry_them() {
+        let shared = ["--sun", "dir=0,0,-1,irradiance=2", "--eye", "0,-5,0", "--seed", "7", "--quality", "draft", "--albedo", "0.5", "-v"];
+        let chain = [Tool::Particles2vdb, Tool::Vdbcache, Tool::Vdbmarch];
+        let f = flags(&shared, &chain);
+        assert_eq!(f[0], "--seed 7 --device auto -v", "particles2vdb records the seed");
+        assert_eq!(f[1], "--sun dir=0,0,-1,irradiance=2 --albedo 0.5 --eye 0,-5,0 --quality draft --device auto -v");
+        assert_eq!(f[2], "--quality draft --device auto -v", "vdbmarch reads lights, medium, camera and seed from the cache");
+        // With photons, vdbphoton lights the volume and records the medium and the seed.
+        let f = flags(&shared, &[Tool::Particles2vdb, Tool::Vdbphoton, Tool::Vdbcache, Tool::Vdbmarch]);
+        assert!(f[1].starts_with("--sun ") && f[1].contains("--albedo 0.5") && !f[1].contains("--seed"), "{}", f[1]);
+        assert!(!f[2].contains("--sun") && f[2].contains("--eye 0,-5,0"), "{}", f[2]);
+        // A density input starts at vdbcache, which does not record the seed: vdbmarch gets it.
+        let f = flags(&shared, &[Tool::Vdbcache, Tool::Vdbmarch]);
+        assert!(f[0].contains("--seed 7") && f[1].contains("--seed 7"), "{f:?}");
+    }
 
     #[test]
     fn shell_words_split_as_a_shell_does() {
