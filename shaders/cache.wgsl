@@ -422,7 +422,7 @@ fn continue_paths(v: u32) {
         let first = hg_sample(params.medium.g, axis, rng_next_vec2(&rng));
         let dir = normalize(first.w_out);
         let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
-        sum = sum + (path.single + path.multiple);
+        sum = sum + (path.single + path.multiple + path.emission);
     }
     if (end == n) {
         sum = sum / f32(n);

@@ -1,7 +1,8 @@
 // vdbmarch's GPU backend: one invocation per pixel (nimbus_march::render_gpu).
 //
 // Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,
-// sampled exactly) + optics.wgsl + tracking.wgsl (majorant DDA) + noise.wgsl + this file.
+// sampled exactly) + optics.wgsl + environment.wgsl + emission.wgsl (group 2) + tracking.wgsl
+// (majorant DDA) + noise.wgsl + this file.
 // Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
 // draws in the same order (jitter x, y when spp > 1, stratified as pixel_jitter, then the
 // lattice offset xi, per sample; the group member offset u from its own stream
@@ -49,6 +50,9 @@ struct PixelOut {
     // The environment map seen through the volume, T L_env(dir) (RayResult::behind).
     behind: vec3<f32>,
     _pad: f32,
+    // The medium's own emission, attenuated (RayResult::emission; emission.wgsl).
+    emission: vec3<f32>,
+    _pad1: f32,
 }
 
 const MARCH_DOMAIN: u32 = 0x4d415243u;
@@ -115,8 +119,9 @@ fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
     let dt = params.step;
     let m = params.medium;
     let jitter = params.offset_noise > 0.0;
-    var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
+    var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
     var tr = 1.0;
+    let emits = emission_active();
     // Groups tile the lattice across adjacent non-empty segments: the next segment starts
     // with the first point no group took (next) rather than recomputing it from t_start,
     // which in f32 can skip or repeat a point lying on the boundary within rounding. After
@@ -157,6 +162,10 @@ fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
             }
             let absorbed = one_minus_exp_neg(sigma_t * step);
             let weight = tr * absorbed;
+            // T e(x) (1 - exp(-sigma_t dt)) / sigma_t (cpu.rs march_ray_emitting).
+            if (emits) {
+                r.emission = r.emission + emission_at(x) * (weight / sigma_t);
+            }
             if ((params.flags & FLAG_SINGLE) != 0u) {
                 r.single = r.single + weight * m.albedo * li_single(x);
             }
@@ -209,7 +218,7 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let py = f32(index / params.width);
     var rng = rng_new(params.seed, vec2<u32>(index, 0u), MARCH_DOMAIN);
     var members = rng_new(params.seed, vec2<u32>(index, 0u), GROUP_DOMAIN);
-    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
+    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
     let map_behind = env_kind() == 2u;
     for (var s = 0u; s < params.spp; s = s + 1u) {
         var j = vec2<f32>(0.5);
@@ -225,6 +234,7 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         sum.single = sum.single + r.single;
         sum.multiple = sum.multiple + r.multiple;
         sum.transmittance = sum.transmittance + r.transmittance;
+        sum.emission = sum.emission + r.emission;
         if (map_behind) {
             sum.behind = sum.behind + env_radiance(dir) * r.transmittance;
         }
@@ -233,5 +243,6 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         }
     }
     let inv = 1.0 / f32(params.spp);
-    pixels[local] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth, sum.behind * inv, 0.0);
+    pixels[local] = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, sum.depth, sum.behind * inv, 0.0,
+                             sum.emission * inv, 0.0);
 }

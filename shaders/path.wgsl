@@ -3,7 +3,8 @@
 // path-traced multiple scattering (shaders/cache.wgsl: paths from a cache voxel).
 //
 // Composed after volume.wgsl (the density is the default volume at group 0), optics.wgsl and
-// tracking.wgsl and environment.wgsl. The stage shader provides, besides tracking.wgsl's
+// tracking.wgsl, environment.wgsl and emission.wgsl (nimbus_tracking::emission_wgsl, at
+// the stage's free group; nothing emits where emission_active() is false). The stage shader provides, besides tracking.wgsl's
 // majorant_fetch and environment.wgsl's env_word,
 //     fn path_light(index: u32) -> Light
 // returning light `index` of the scene (usually from a storage buffer), and
@@ -26,10 +27,11 @@ const ROULETTE_FROM_DEPTH: u32 = 3u;
 const RATIO_ROULETTE: f32 = 0.05;
 
 // One path's light, split by the collision it was scattered at: the first (single) and every
-// later one (multiple).
+// later one (multiple), and the medium's own emission (from every collision).
 struct PathLight {
     single: vec3<f32>,
     multiple: vec3<f32>,
+    emission: vec3<f32>,
 }
 
 // The ray from world point x along unit world direction w, in index space.
@@ -88,7 +90,8 @@ fn environment_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGrid
 // escape is the caller's background.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
               first_pdf: f32, rng: ptr<function, Rng>) -> PathLight {
-    var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0));
+    var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    let emits = emission_active();
     var x = origin;
     var w = dir;
     var beta = vec3<f32>(1.0);
@@ -112,6 +115,13 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             break;
         }
         x = x + w * t;
+        // The collision estimator of emission (trace_path): beta e(x) / sigma_t(x).
+        if (emits) {
+            let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(x)), 0.0);
+            if (sigma_t > 0.0) {
+                out.emission = out.emission + beta * emission_at(x) * (1.0 / sigma_t);
+            }
+        }
         beta = beta * m.albedo;
         var direct = vec3<f32>(0.0);
         for (var i = 0u; i < light_count; i = i + 1u) {

@@ -1,7 +1,8 @@
 // vdbphoton's GPU backend: one invocation per photon path (nimbus_photon::trace_gpu).
 //
-// Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl
-// + this file. Mirrors crates/photon/src/cpu.rs's trace_path draw for draw: photon i's
+// Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + environment.wgsl
+// + emission.wgsl (group 2: the medium's emission, LIGHT_MEDIUM) + tracking.wgsl + this file.
+// Mirrors crates/photon/src/cpu.rs's trace_path draw for draw: photon i's
 // Rng is (seed, i, PHOTON_DOMAIN); emission (light by power CDF, a sun's marked lattice cell
 // or a point light's marked direction cell), free path by the chosen mode, store after the first interaction, Russian roulette
 // with probability mean(albedo), HG scattering. Positions are f32 relative to the host's
@@ -93,6 +94,56 @@ fn env_word(i: u32) -> f32 {
 // A PhotonLight that is the environment: origin the bounding sphere's centre, cell its radius,
 // weight (total power / the source's) in every channel.
 const LIGHT_ENVIRONMENT: u32 = 2u;
+// A PhotonLight that is the medium's emission (medium.rs MediumEmission): origin, tangent,
+// bitangent and normal the density's index-to-world map (origin-relative), cell_count its
+// emitting cells in medium_cells, weight the emitter's total power in every channel.
+const LIGHT_MEDIUM: u32 = 3u;
+
+// An emitting lattice cell (MediumEmission::gpu_cells): its lower corner (density index), its
+// weight w_c, and its cumulative weight as the integer ceil(cdf 2^53) in bits 26.. and 0..26.
+struct MediumCell {
+    cell: vec3<i32>,
+    weight: f32,
+    threshold: vec2<u32>,
+    _pad: vec2<u32>,
+}
+
+@group(1) @binding(9) var<storage, read> medium_cells: array<MediumCell>;
+
+// MediumEmission::sample: a cell by the CDF (the 53 bits of an f64 draw compared exactly with
+// the thresholds: partition_point(cdf <= u)), a point uniform in it, a direction uniform on
+// the sphere; the power factor e(x) [density(x) > 0] / w_c. Returns the point, and sets
+// *dir and *ratio.
+fn medium_emission_sample(light: PhotonLight, rng: ptr<function, Rng>, dir: ptr<function, vec3<f32>>,
+                          ratio: ptr<function, vec3<f32>>) -> vec3<f32> {
+    let hi = rng_next_u32(rng) >> 5u;
+    let lo = rng_next_u32(rng) >> 6u;
+    var first = 0u;
+    var last = light.cell_count;
+    loop {
+        if (first >= last) {
+            break;
+        }
+        let mid = (first + last) / 2u;
+        let t = medium_cells[mid].threshold;
+        if (hi > t.x || (hi == t.x && lo >= t.y)) {
+            first = mid + 1u;
+        } else {
+            last = mid;
+        }
+    }
+    let c = medium_cells[min(first, light.cell_count - 1u)];
+    let offset = vec3<f32>(rng_next_f64_as_f32(rng), rng_next_f64_as_f32(rng), rng_next_f64_as_f32(rng));
+    let index = vec3<f32>(c.cell) + offset;
+    let x = light.origin + index.x * light.tangent + index.y * light.bitangent + index.z * light.normal;
+    *dir = normalize(sample_uniform_sphere(rng_next_vec2(rng)));
+    if (volume_sample_index(index) > 0.0) {
+        *ratio = emission_at(x) / c.weight;
+    } else {
+        *ratio = vec3<f32>(0.0);
+    }
+    return x;
+}
 
 fn majorant_fetch(index: u32) -> f32 {
     return majorant_values[index];
@@ -179,6 +230,10 @@ fn trace_path(path: u32) {
         } else {
             power = vec3<f32>(0.0);
         }
+    } else if (light.kind == LIGHT_MEDIUM) {
+        var ratio = vec3<f32>(0.0);
+        x = medium_emission_sample(light, &rng, &w, &ratio);
+        power = light.weight * ratio;
     } else {
         x = light.origin;
         w = emission_direction(light, &rng);
@@ -202,8 +257,9 @@ fn trace_path(path: u32) {
             return;
         }
         x = x + w * t;
-        // Environment photons are stored from their first interaction (batch.rs store_first).
-        if (interaction > 0u || light.kind == LIGHT_ENVIRONMENT) {
+        // Environment and medium photons are stored from their first interaction (batch.rs
+        // store_first).
+        if (interaction > 0u || light.kind == LIGHT_ENVIRONMENT || light.kind == LIGHT_MEDIUM) {
             let slot = atomicAdd(&record_count, 1u);
             if (slot < params.capacity) {
                 records[slot] = PhotonRecord(x, path, power * m.albedo, interaction, w, 0u);

@@ -1,7 +1,7 @@
 // vdbmarch --reference on the GPU: one invocation per pixel (nimbus_march::render_reference_gpu).
 //
-// Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + tracking.wgsl +
-// path.wgsl + this file. Mirrors crates/march/src/reference/cpu.rs draw for draw: sample s of
+// Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + environment.wgsl
+// + emission.wgsl (group 2) + tracking.wgsl + path.wgsl + this file. Mirrors crates/march/src/reference/cpu.rs draw for draw: sample s of
 // pixel i draws from the Rng (seed, (i, s), REFERENCE_DOMAIN); per sample the pixel jitter,
 // the camera ray's transmittance by ratio tracking, then the path from the eye (path.wgsl's
 // trace_path, the twin of nimbus_tracking::trace_path). Positions are f32 relative to the
@@ -46,6 +46,9 @@ struct PixelOut {
     // The environment map seen through the volume (RayResult::behind).
     behind: vec3<f32>,
     _pad: f32,
+    // The medium's own emission (RayResult::emission; path.wgsl's collision estimator).
+    emission: vec3<f32>,
+    _pad1: f32,
 }
 
 const REFERENCE_DOMAIN: u32 = 0x52454650u;
@@ -81,7 +84,7 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
     let index = params.first_pixel + local;
     let px = f32(index % params.width);
     let py = f32(index / params.width);
-    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0);
+    var sum = PixelOut(vec3<f32>(0.0), 0.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
     if (params.first_sample > 0u) {
         sum = pixels[local];
     }
@@ -100,10 +103,12 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
         let path = trace_path(params.camera.eye, dir, m, params.grid, params.max_depth, params.light_count, -1.0, &rng);
         sum.single = sum.single + path.single;
         sum.multiple = sum.multiple + path.multiple;
+        sum.emission = sum.emission + path.emission;
     }
     if (end == params.spp) {
         let inv = 1.0 / f32(params.spp);
-        sum = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, -1.0, sum.behind * inv, 0.0);
+        sum = PixelOut(sum.single * inv, sum.transmittance * inv, sum.multiple * inv, -1.0, sum.behind * inv, 0.0,
+                       sum.emission * inv, 0.0);
     }
     pixels[local] = sum;
     loop_guard_check();

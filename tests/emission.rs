@@ -106,10 +106,13 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
     eprintln!("reference: mean {mean:?} against {:?}: {rel:.2e}", closed_form());
     assert!(rel < 0.01, "reference: {rel}");
 
-    // The GPU backends have no emission yet: an explicit --device gpu is refused, exit 2.
-    let gpu = pipe_output("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
-    assert_eq!(gpu.status.code(), Some(2), "{}", String::from_utf8_lossy(&gpu.stderr));
-    assert!(String::from_utf8_lossy(&gpu.stderr).starts_with("error: emission is not built for the GPU"));
+    // The GPU march (emission.wgsl) to its closed form too, and to the CPU's pixels.
+    let gpu = ok("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
+    let (gpu_pixels, cpu_pixels) = (rgba(&gpu.stdout), rgba(&march.stdout));
+    let gpu_err = worst(&gpu_pixels, closed_form());
+    let apart = gpu_pixels.iter().zip(&cpu_pixels).flat_map(|(g, c)| (0..3).map(move |k| ((g[k] - c[k]) / c[k]).abs())).fold(0.0f32, f32::max);
+    eprintln!("GPU march: worst relative error {gpu_err:.2e}, {apart:.2e} from the CPU's pixels");
+    assert!(gpu_err < 5e-3 && apart < 1e-4, "GPU march: {gpu_err}, {apart} from the CPU");
 }
 
 #[test]
@@ -254,10 +257,13 @@ fn a_glowing_cube_lights_its_own_smoke_through_the_chain() {
     // glow's light scattered (the cache without it gave a tenth of the reference).
     assert!(unscattered[0] < 0.3 * reference[0], "the scattered emission is a large share: {unscattered:?} against {reference:?}");
 
-    // Emission has no GPU backend yet: an explicit --device gpu is refused, exit 2.
-    let gpu = pipe_output("vdbcache", &[GLOWING, emit, &["--device", "gpu"]].concat(), &vdb);
-    assert_eq!(gpu.status.code(), Some(2), "{}", String::from_utf8_lossy(&gpu.stderr));
-    assert!(String::from_utf8_lossy(&gpu.stderr).starts_with("error: emission is not built for the GPU"));
+    // The GPU cache's paths gather the same emission (the same streams: means within
+    // 1%), and the GPU march adds the same glow.
+    let gpu_cache = ok("vdbcache", &[GLOWING, emit, &["--device", "gpu"]].concat(), &vdb).stdout;
+    let gpu_chain = mean_rgb(&ok("vdbmarch", &[emit, &["--device", "gpu"]].concat(), &gpu_cache).stdout);
+    let apart = gpu_chain[0] / chain[0] - 1.0;
+    eprintln!("glowing cube on the GPU: chain {gpu_chain:?} ({apart:+.2e} from the CPU's)");
+    assert!(apart.abs() < 0.01, "GPU chain {gpu_chain:?} against the CPU's {chain:?}");
 }
 
 /// vdbphoton with an emitting volume and no light (a sun of irradiance 0): the photons leave
@@ -284,7 +290,13 @@ fn vdbphoton_traces_photons_from_an_emitting_volume_without_lights() {
     eprintln!("photons from the glow: power {total} against {expected}");
     assert!((total / expected - 1.0).abs() < 0.02, "{total} against {expected}");
 
-    // The GPU photon tracer has no emission yet.
-    let gpu = pipe_output("vdbphoton", &[args, &["--device", "gpu"]].concat(), &vdb);
-    assert_eq!(gpu.status.code(), Some(2), "{}", String::from_utf8_lossy(&gpu.stderr));
+    // The GPU photon tracer: the same photons from the glow, the same power.
+    let gpu = VdbFile::from_bytes(&ok("vdbphoton", &[args, &["--device", "gpu"]].concat(), &vdb).stdout, "photons").unwrap();
+    let gpu_record = gpu.metadata().get("nimbus:vdbphoton").and_then(|v| v.as_str()).unwrap().to_string();
+    let gpu_emitted: f64 = gpu_record.split(',').find_map(|kv| kv.strip_prefix("emitted=")).unwrap().parse().unwrap();
+    let gpu_points = gpu.read_points("photons").unwrap();
+    assert_eq!(gpu_points.positions.len(), 20_000);
+    let gpu_total: f64 = gpu_points.vec3("power").unwrap().iter().map(|p| p.x as f64).sum::<f64>() * gpu_emitted / 20_000.0;
+    eprintln!("GPU photons from the glow: power {gpu_total} against {expected}");
+    assert!((gpu_total / total - 1.0).abs() < 1e-3, "GPU {gpu_total} against the CPU's {total}");
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
 use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::{
     read_density, read_vdb, run, CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta,
@@ -206,21 +206,13 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             ));
         }
     }
-    // Only the paths read the emission, and only in a medium that scatters; the photon
-    // gather runs on any device.
-    let reads_emission = paths && params.multiple && !params.medium.is_non_scattering();
-    let device = args.common.device_for(
-        &[
-            (emission.is_some() && reads_emission, "emission"),
-        ],
-        &log,
-    )?;
+    let device = args.common.compute_device(&log)?;
     let field = emission.as_ref().map(|e| e.field());
     let (cache, stats) = log
         .stage(
             "bake",
             || match device.gpu() {
-                Some(ctx) => bake_gpu(ctx, &density, &photons, &params),
+                Some(ctx) => bake_gpu_emitting(ctx, &density, &photons, &params, field.as_ref()),
                 None => bake_cpu_emitting(&density, &photons, &params, field.as_ref()),
             },
             |r| {

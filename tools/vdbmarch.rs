@@ -13,11 +13,11 @@ use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
 use nimbus_cli::{
-    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure,
+    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, MotionArgs, Velocity,
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_march::{render_cpu_emitting, render_reference_cpu_emitting};
-use nimbus_march::{default_spp, reference_tile_pixels, render_cpu, render_gpu, render_reference_cpu, render_reference_gpu, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
+use nimbus_march::{render_cpu_moving, render_gpu_emitting, render_reference_cpu_moving, render_reference_gpu_emitting};
+use nimbus_march::{default_spp, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -122,6 +122,8 @@ struct Args {
     #[command(flatten)]
     emission: EmissionArgs,
     #[command(flatten)]
+    motion: MotionArgs,
+    #[command(flatten)]
     sequence: SequenceArgs,
     #[command(flatten)]
     common: CommonArgs,
@@ -150,7 +152,10 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     }
     let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
     let (_, density) = read_density(&file, args.grid.as_deref())?;
-    let (mut image, emission) = if args.reference { reference(&args, &file, &density, &log)? } else { march(&args, &file, &density, &log)? };
+    let velocity = args.motion.resolve(&file, &log)?;
+    let (mut image, emission) =
+        if args.reference { reference(&args, &file, &density, velocity.as_ref(), &log)? } else { march(&args, &file, &density, velocity.as_ref(), &log)? };
+    image.metadata.push(("nimbus:motion_blur".into(), velocity.as_ref().map_or("none".into(), Velocity::describe)));
     // What emission the image holds, as the pipeline records its parameters (design.md
     // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
     image.metadata.push(("nimbus:emission".into(), emission.as_ref().map_or("none".into(), |e| e.params.describe())));
@@ -175,7 +180,7 @@ fn march_failure(e: MarchError, what: &str) -> Failure {
 }
 
 /// The path-traced ground truth: medium, lights and camera from flags, else the file.
-fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
+fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&Velocity>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
     let meta = PipelineMeta::of(file);
     let march_only = [
         (args.step.is_some(), "--step"),
@@ -204,21 +209,16 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(
-        &[
-            (emission.is_some(), "emission"),
-        ],
-        log,
-    )?;
+    let device = args.common.device_for(&[(velocity.is_some(), "motion blur in the reference path tracer")], log)?;
+    let blur = velocity.map(Velocity::blur);
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "path trace",
         || match device.gpu() {
-            Some(ctx) => render_reference_gpu(ctx, density, &params, reference_tile_pixels(), &|n| bar.inc(n)),
-            None if field.is_some() => render_reference_cpu_emitting(density, &params, field.as_ref(), &|n| bar.inc(n)),
-            None => render_reference_cpu(density, &params, &|n| bar.inc(n)),
+            Some(ctx) => render_reference_gpu_emitting(ctx, density, &params, field.as_ref(), reference_tile_pixels(), &|n| bar.inc(n)),
+            None => render_reference_cpu_moving(density, &params, field.as_ref(), blur.as_ref(), &|n| bar.inc(n)),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     );
@@ -227,7 +227,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> R
 }
 
 /// The marched image from the illumination cache.
-fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
+fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&Velocity>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
     if args.lights.given().is_some() {
         log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
     }
@@ -257,15 +257,15 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, log: &Log) -> Resul
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(&[(emission.is_some(), "emission")], log)?;
+    let device = args.common.device_for(&[(velocity.is_some(), "motion blur")], log)?;
+    let blur = velocity.map(Velocity::blur);
     scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let image = log.stage(
         "march",
         || match device.gpu() {
-            Some(ctx) => render_gpu(ctx, density, &cache, &params),
-            None if field.is_some() => render_cpu_emitting(density, &cache, &params, field.as_ref()),
-            None => render_cpu(density, &cache, &params),
+            Some(ctx) => render_gpu_emitting(ctx, density, &cache, &params, field.as_ref()),
+            None => render_cpu_moving(density, &cache, &params, field.as_ref(), blur.as_ref()),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     )

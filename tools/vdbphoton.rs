@@ -11,7 +11,7 @@ use nimbus_cli::{
     read_density, read_vdb, run, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
     VdbOutputArgs,
 };
-use nimbus_photon::{trace_cpu_emitting, trace_gpu, DistanceSampling, PhotonError, PhotonParams};
+use nimbus_photon::{trace_cpu_emitting, trace_gpu_emitting, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
 #[derive(Parser, Debug, Clone)]
@@ -28,8 +28,7 @@ struct Args {
     medium: MediumArgs,
     #[command(flatten)]
     lights: LightArgs,
-    /// The sky or environment map: photons also leave it, stored from their first interaction
-    /// (CPU only so far).
+    /// The sky or environment map: photons also leave it, stored from their first interaction.
     #[command(flatten)]
     environment: EnvironmentArgs,
     /// Free-path sampling: delta (delta tracking, unbiased; the default: 1.4-2.1x more
@@ -104,17 +103,12 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     };
     params.validate().map_err(|e| Failure::usage(e))?;
     let emission = args.emission.resolve(&file, &log)?;
-    let device = args.common.device_for(
-        &[
-            (emission.is_some(), "emission"),
-        ],
-        &log,
-    )?;
+    let device = args.common.compute_device(&log)?;
     let field = emission.as_ref().map(|e| e.field());
     let traced = log.stage(
         "trace",
         || match device.gpu() {
-            Some(ctx) => trace_gpu(ctx, &density, &params),
+            Some(ctx) => trace_gpu_emitting(ctx, &density, &params, field.as_ref()),
             None => trace_cpu_emitting(&density, &params, field.as_ref()),
         },
         |r| {

@@ -210,7 +210,7 @@ fn paths_rows() {
         ..params(&v, 60.0)
     };
     let tracking = MajorantGrid::for_tracking(&v, p.medium.extinction);
-    let medium = DensityMedium { density: &v, majorant: &tracking, extinction: p.medium.extinction };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &tracking, extinction: p.medium.extinction };
     let part = format!("multiple (paths {per_voxel}; ref 256 paths)");
     rows(3, "plume 48x48x96", &part, &v, &PhotonMap::default(), &p, |c| c.li_multiple.as_ref().unwrap(), &|x, w_out| {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
@@ -240,7 +240,7 @@ fn main() {
         let none = PhotonMap::default();
         let single = CacheParams { single: true, multiple: false, ..base.clone() };
         let majorant = MajorantGrid::build(&v);
-        let medium = DensityMedium { density: &v, majorant: &majorant, extinction };
+        let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction };
         let fine_step = single.single_step(&v) / 4.0;
         rows(runs, name, "single (step 1 voxel; ref step/4)", &v, &none, &single, |c| c.li_single.as_ref().unwrap(), &|x, w_out| {
             li_single(medium, &single.medium, &single.lights, &LightDepths::default(), x, w_out, fine_step, single.min_transmittance)

@@ -261,7 +261,7 @@ pub fn bake_cpu_emitting(
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     stats.stages.push(("plan", start.elapsed().as_millis() as u64));
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
-    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let step = params.single_step(density);
     let camera = &params.camera;
     let depths = stats.time("light tables", || params.light_depths(medium, photons, emits));

@@ -9,7 +9,7 @@ use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{light_tables_wgsl, majorant_buffer, DensityMedium, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{emission_wgsl, light_tables_wgsl, majorant_buffer, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
@@ -27,6 +27,10 @@ pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
 pub const GPU_MAX_NEIGHBOURS: u32 = 256;
 
 const WORKGROUP_SIZE: u32 = 64;
+/// The bind group `shaders/emission.wgsl` sits at (after the density's, the stage's own and
+/// the lights' tables).
+const EMISSION_GROUP: u32 = 3;
+
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
 /// Group 1 binding of the [`LoopGuard`] flag (after the 11 buffers).
@@ -95,12 +99,27 @@ fn constants_wgsl() -> String {
 }
 
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
-/// paths and estimators as [`crate::bake_cpu`], in f32. The medium's emission is CPU-only so
-/// far ([`crate::bake_cpu_emitting`]; vdbcache keeps an emitting scene on the CPU).
+/// paths and estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
+    bake_gpu_emitting(ctx, density, photons, params, None)
+}
+
+/// [`bake_gpu`] with the medium's emission, the twin of [`crate::bake_cpu_emitting`]: the
+/// paths gather it at every collision (path.wgsl with `shaders/emission.wgsl` at group 3).
+pub fn bake_gpu_emitting(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    photons: &PhotonMap,
+    params: &CacheParams,
+    emission: Option<&EmissionField>,
+) -> Result<(IlluminationCache, BakeStats), CacheError> {
     params.validate()?;
+    let emission = emission.filter(|e| e.params.is_active());
+    // Only the paths read the field: the photon estimator's emission came with the photons.
+    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
+    let emission = emission.filter(|_| emits);
     let single = params.bakes_single();
-    let multiple = params.bakes_multiple(photons, false);
+    let multiple = params.bakes_multiple(photons, emits);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
     if let Gather::Neighbours { k, .. } = params.gather {
         if gathers && k > GPU_MAX_NEIGHBOURS {
@@ -111,7 +130,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     }
     let majorant = MajorantGrid::build(density);
     let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, false);
+    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
     let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
@@ -134,7 +153,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
         None => Kernel::Photons,
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
-    let lattice = params.light_lattice(photons, false);
+    let lattice = params.light_lattice(photons, emits);
     // The CPU tables the lights whenever something reads them, baked voxels or not (the
     // transmittance grids are view-independent): so does this.
     let volume = (work || lattice.is_some())
@@ -144,7 +163,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
             Ok(volume)
         })
         .transpose()?;
-    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     // Read back at once (which waits for the build): the transmittance grids need them.
     let (tables, depths) = stats.time("light tables", || -> Result<_, GpuError> {
         Ok(match (lattice, &volume) {
@@ -158,7 +177,7 @@ pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, pa
     })?;
     stats.light_table_nodes = tables.nodes();
     let baker = match &volume {
-        Some(volume) if work => Some(GpuBaker::new(ctx, density, volume, &majorant, photons, bins.as_ref(), &tables, params, origin)?),
+        Some(volume) if work => Some(GpuBaker::new(ctx, density, volume, &majorant, photons, bins.as_ref(), &tables, emission, params, origin)?),
         _ => None,
     };
 
@@ -224,6 +243,9 @@ struct GpuBaker<'a> {
     /// The lights' tables at group 2.
     tables_layout: wgpu::BindGroupLayout,
     tables_group: wgpu::BindGroup,
+    /// The medium's emission at group 3 ([`EMISSION_GROUP`]).
+    emission_layout: wgpu::BindGroupLayout,
+    emission_group: wgpu::BindGroup,
     guard: LoopGuard,
 }
 
@@ -237,6 +259,7 @@ impl<'a> GpuBaker<'a> {
         photons: &PhotonMap,
         bins: Option<&PhotonBins>,
         tables: &GpuLightTables,
+        emission: Option<&EmissionField>,
         params: &CacheParams,
         origin: DVec3,
     ) -> Result<Self, GpuError> {
@@ -262,8 +285,11 @@ impl<'a> GpuBaker<'a> {
         )?;
         let tables_layout = GpuLightTables::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
+        let emission_layout = GpuEmission::layout(ctx)?;
+        let emission_group = GpuEmission::upload(ctx, emission, origin)?.bind_group(ctx, &emission_layout)?;
         let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            emission_wgsl(EMISSION_GROUP),
             light_tables_wgsl(),
             constants_wgsl(),
             guard.wgsl(1)
@@ -316,7 +342,7 @@ impl<'a> GpuBaker<'a> {
             _pad: [0; 5],
         };
         let tracking = match params.estimator {
-            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, false) => {
+            MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, emission.is_some()) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
                 Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background())))
             }
@@ -337,6 +363,8 @@ impl<'a> GpuBaker<'a> {
             tracking,
             tables_layout,
             tables_group,
+            emission_layout,
+            emission_group,
             guard,
         })
     }
@@ -386,7 +414,7 @@ impl<'a> GpuBaker<'a> {
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
         for &(entry, first_path) in &passes {
             if !pipelines.iter().any(|(e, _)| *e == entry) {
-                pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout, &self.tables_layout])?));
+                pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout, &self.tables_layout, &self.emission_layout])?));
             }
             let pipeline = &pipelines.iter().find(|(e, _)| *e == entry).expect("compiled above").1;
             let mut first = 0;
@@ -401,7 +429,7 @@ impl<'a> GpuBaker<'a> {
                     &self.layout,
                     &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment],
                 )?;
-                ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group], count, WORKGROUP_SIZE)?;
+                ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
                 first += count;
             }
         }

@@ -19,7 +19,7 @@
 //!   had darkened the bundled cloud 2.1-2.4% at 4 voxels, 8% at 8; origin-averaged values
 //!   keep its mean within 0.5%). Voxels no camera ray reads, nor a neighbour, get no paths.
 //!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission
-//!   ([`bake_cpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
+//!   ([`bake_cpu_emitting`], [`bake_gpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
 //!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
 //!   along camera rays itself), with or without lights.
 //! - Or the paper's estimator ([`MultipleEstimator::Photons`]):
@@ -58,7 +58,7 @@ mod plan;
 
 pub use bins::PhotonBins;
 pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
-pub use gpu::{bake_gpu, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
+pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;

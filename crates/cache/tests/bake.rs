@@ -238,7 +238,7 @@ fn a_sun_with_a_disc_casts_a_soft_shadow() {
     // The plate: x < 0, z from 1 to 1.2, opaque (optical depth 2000 through it).
     let plate = block(IVec3::new(-30, -10, 10), IVec3::new(-1, 10, 12), |_| 1000.0);
     let majorant = nimbus_volume::MajorantGrid::build(&plate);
-    let medium = nimbus_tracking::DensityMedium { density: &plate, majorant: &majorant, extinction: 1.0 };
+    let medium = nimbus_tracking::DensityMedium { motion: None, density: &plate, majorant: &majorant, extinction: 1.0 };
     let optics = Medium { extinction: 1.0, albedo: Vec3::ONE, g: 0.0 };
     let w_out = Vec3::X;
     let at = |light: &Light, x: f64| {

@@ -60,7 +60,7 @@ fn deep_inside_a_uniform_emitting_medium_li_is_emission_over_absorption() {
     let emission = glow();
     let field = EmissionField { grid: Some(&density), temperature: None, params: &emission };
     let majorant = MajorantGrid::for_tracking(&density, optics.extinction);
-    let medium = DensityMedium { density: &density, majorant: &majorant, extinction: optics.extinction };
+    let medium = DensityMedium { motion: None, density: &density, majorant: &majorant, extinction: optics.extinction };
     let centre = DVec3::splat(0.5 * (n - 1) as f64 * voxel);
     // The optical depth to the nearest face is 29: no path gets out.
     let paths = 20_000;

@@ -457,3 +457,55 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         }
     }
 }
+
+/// The medium's emission gathered by the paths on both backends (path.wgsl's collision
+/// estimator with emission.wgsl at group 3): a fire alone (no lights: the paths are planned
+/// for the emission) and with the lights, from the same random streams.
+#[test]
+fn emission_in_the_paths_agrees_with_the_cpu_in_distribution() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    // The emission grid is the density itself; the blackbody from a temperature grid on
+    // another lattice (a coarser copy, shifted).
+    let mut temperature = Volume::new(Transform::uniform(0.15, DVec3::new(1e4 + 0.04, -3e3, 50.0)), 0.0);
+    for c in (-8..=8).flat_map(|x| (-8..=8).flat_map(move |y| (-8..=8).map(move |z| IVec3::new(x, y, z)))) {
+        let r = c.as_vec3().length() / 8.0;
+        if r < 1.0 {
+            temperature.set(c, 1.0 + 1.5 * (1.0 - r));
+        }
+    }
+    let emission = nimbus_optics::Emission {
+        grid: Some("density".into()),
+        strength: 0.3,
+        color: Vec3::new(1.0, 0.5, 0.2),
+        temperature_grid: Some("temperature".into()),
+        temperature_scale: 1000.0,
+        blackbody_intensity: 0.2,
+    };
+    let field = nimbus_tracking::EmissionField { grid: Some(&v), temperature: Some(&temperature), params: &emission };
+    for lights in [vec![], params(&v).lights] {
+        let p = CacheParams {
+            single: false,
+            cache_scale: 1.5,
+            multiple_scale: Some(2.5),
+            estimator: MultipleEstimator::Paths { per_voxel: 8 },
+            lights: lights.clone(),
+            seed: 4,
+            ..params(&v)
+        };
+        let none = PhotonMap::default();
+        let (cpu, cpu_stats) = nimbus_cache::bake_cpu_emitting(&v, &none, &p, Some(&field)).unwrap();
+        let (gpu, gpu_stats) = nimbus_cache::bake_gpu_emitting(ctx, &v, &none, &p, Some(&field)).unwrap();
+        assert_eq!(gpu_stats.nonfinite, 0);
+        assert_eq!(gpu_stats.paths, cpu_stats.paths, "the same path plan");
+        let (n, lit, same, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
+        eprintln!("emission, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
+        assert!(n > 500 && lit > 500 && level > 0.0);
+        assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+        assert!(same as f64 >= 0.5 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
+    }
+    // Without the field and without lights the GPU bakes nothing, as the CPU.
+    let p = CacheParams { single: false, estimator: MultipleEstimator::Paths { per_voxel: 8 }, lights: vec![], ..params(&v) };
+    let (dark, _) = nimbus_cache::bake_gpu_emitting(ctx, &v, &PhotonMap::default(), &p, None).unwrap();
+    assert!(dark.li_multiple.is_none());
+}

@@ -5,7 +5,6 @@
 //!
 //! [`EmissionArgs::resolve`] reads the flags, else recognises Blender's and Houdini's fire
 //! grids (`temperature`, `flame`, `heat`), and says with `-v` which grid and mapping it chose.
-//! [`emission_device`] keeps stages whose emission has no GPU twin on the CPU.
 
 use glam::Vec3;
 use nimbus_optics::{blackbody_rgb, Emission};

@@ -13,7 +13,8 @@
 //!   one tool records, the next takes as its defaults; a flag overrides, with a warning
 //!   where that makes earlier work inconsistent.
 //! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
-//!   vdbphoton, vdbcache and vdbmarch ([`CommonArgs::device_for`]: emission stays on the CPU).
+//!   vdbphoton, vdbcache and vdbmarch.
+//! - [`MotionArgs`]: vdbmarch's motion blur flags and the velocity grid they find.
 //! - [`SequenceArgs`] and [`for_each_frame`] ([`frames`]): frame patterns (`####`, `%04d`,
 //!   `$F4`), `--frames` sets, and the per-frame loop every tool runs over a sequence.
 
@@ -25,6 +26,7 @@ pub mod frames;
 mod io;
 mod log;
 pub mod meta;
+mod motion;
 mod vdbio;
 
 pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
@@ -35,4 +37,5 @@ pub use frames::{for_each_frame, FramePattern, FrameSet, SequenceArgs};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
+pub use motion::{MotionArgs, Velocity, VELOCITY_GRIDS};
 pub use vdbio::{read_density, read_vdb, read_vec3_grid, write_vdb};

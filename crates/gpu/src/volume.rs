@@ -202,6 +202,17 @@ impl GpuVolume {
         self.channels
     }
 
+    /// Uploads `volume`, or an empty one (all background 0) where there is none, for a stage
+    /// that binds a volume it may not read; positions relative to world point `origin`.
+    pub fn upload_or_empty<T: GpuVoxel>(ctx: &GpuContext, volume: Option<&Volume<T>>, origin: DVec3) -> Result<Self, GpuError> {
+        let mut g = match volume {
+            Some(v) => GpuVolume::upload(ctx, v, &GpuVolumeOptions::default())?,
+            None => GpuVolume::upload(ctx, &Volume::new(nimbus_volume::Transform::uniform(1.0, DVec3::ZERO), T::default()), &GpuVolumeOptions::default())?,
+        };
+        g.set_world_origin(ctx, origin);
+        Ok(g)
+    }
+
     /// Makes `info.world_to_index` map `world - origin` to index space. f32 world positions
     /// lose precision far from 0 (a 1e5 offset leaves ~8 mm of resolution), so stages put
     /// the origin near the camera or the volume and pass positions relative to it.

@@ -14,10 +14,12 @@ use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
 use crate::{assemble, Groups, Image, MarchError, MarchParams, GROUP_DOMAIN};
-use nimbus_tracking::EmissionField;
+use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 
 /// Random-number domain of camera samples.
 pub(crate) const MARCH_DOMAIN: u32 = 0x4d41_5243; // "MARC"
+/// The stream of each pixel's (or reference sample's) time in the shutter.
+pub const MOTION_DOMAIN: u32 = 0x4d4f_5445; // "MOTE"
 
 /// What one camera ray gathered.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -67,6 +69,26 @@ pub fn march_ray_emitting(
     u: f64,
     emission: Option<&EmissionField>,
 ) -> RayResult {
+    march_ray_moving(density, majorant, cache, params, origin, dir, xi, u, emission, None)
+}
+
+/// [`march_ray_emitting`] at a time in the shutter (`motion`, Eulerian motion blur): every
+/// lookup, the density, the cache's Li and the emission, at the sample's position moved
+/// back along the velocity ([`Motion::back`]); `majorant` must bound the moved density
+/// ([`MotionBlur::majorant_radius`]).
+#[allow(clippy::too_many_arguments)]
+pub fn march_ray_moving(
+    density: &Volume<f32>,
+    majorant: &MajorantGrid,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    origin: DVec3,
+    dir: DVec3,
+    xi: f64,
+    u: f64,
+    emission: Option<&EmissionField>,
+    motion: Option<Motion>,
+) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
     let extinction = params.medium.extinction;
@@ -78,6 +100,9 @@ pub fn march_ray_emitting(
         let mut x = origin + dir * t;
         if jitter {
             x += offset(params, x);
+        }
+        if let Some(m) = motion {
+            x = m.back(x);
         }
         let sigma_t = extinction as f64 * density.sample_world(x).max(0.0) as f64;
         if sigma_t <= 0.0 {
@@ -186,27 +211,47 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
 /// sparse volumes (the plain march; the layout's fused march does not carry emission yet).
 /// Without emission it is [`render_cpu`].
 pub fn render_cpu_emitting(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, emission: Option<&EmissionField>) -> Result<Image, MarchError> {
-    let Some(emission) = emission.filter(|e| e.params.is_active()) else {
+    render_cpu_moving(density, cache, params, emission, None)
+}
+
+/// [`render_cpu_emitting`] with motion blur: each camera sample takes a time in the shutter
+/// (uniform, from its own stream, [`MOTION_DOMAIN`]) and marches the medium as it is then
+/// ([`march_ray_moving`]), over the majorant dilated by how far it moves. Without motion
+/// and emission it is [`render_cpu`].
+pub fn render_cpu_moving(
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+) -> Result<Image, MarchError> {
+    let emission = emission.filter(|e| e.params.is_active());
+    if emission.is_none() && motion.is_none() {
         return render_cpu(density, cache, params);
-    };
+    }
     params.validate()?;
-    let majorant = march_majorant(density, params);
-    let pixels = render_tiles(params, &Emitting { density, majorant: &majorant, cache, params, emission });
+    let mut majorant = march_majorant(density, params);
+    if let Some(m) = motion {
+        majorant = majorant.dilated(m.majorant_radius(density));
+    }
+    let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied() });
     Ok(assemble(params, &pixels))
 }
 
-/// [`march_ray_emitting`] per sample.
-struct Emitting<'a> {
+/// [`march_ray_moving`] per sample: emission and/or motion blur.
+struct Extras<'a> {
     density: &'a Volume<f32>,
     majorant: &'a MajorantGrid,
     cache: &'a IlluminationCache,
     params: &'a MarchParams,
-    emission: &'a EmissionField<'a>,
+    emission: Option<&'a EmissionField<'a>>,
+    motion: Option<MotionBlur<'a>>,
 }
 
-impl Marcher for Emitting<'_> {
-    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
-        march_ray_emitting(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, Some(self.emission))
+impl Marcher for Extras<'_> {
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult {
+        let motion = self.motion.map(|m| m.at(shutter));
+        march_ray_moving(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion)
     }
 }
 
@@ -223,7 +268,8 @@ const TILE: usize = 8;
 /// [`render_tiles`] runs per sample (a trait rather than a closure so that the march is
 /// inlined into the FMA copy of the tile loop, and compiled for it).
 trait Marcher: Sync {
-    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult;
+    /// `shutter`: the sample's time as a fraction of the shutter (read with motion blur only).
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult;
 }
 
 /// [`march_ray`] itself, where the layout does not apply.
@@ -235,7 +281,7 @@ struct Plain<'a> {
 }
 
 impl Marcher for Plain<'_> {
-    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+    fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
         march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u)
     }
 }
@@ -249,7 +295,7 @@ struct Fast<'a, T: DensityPoint> {
 
 impl<T: DensityPoint> Marcher for Fast<'_, T> {
     #[inline(always)]
-    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+    fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
         match self.majorant {
             Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi, u),
             None => self.volume.march(arith, self.params, origin, dir, xi, u),
@@ -298,6 +344,9 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                 let (px, py) = (x as f64, (y0 + y) as f64);
                 let mut rng = Rng::with_domain(params.seed, index as u64, MARCH_DOMAIN);
                 let mut members = Rng::with_domain(params.seed, index as u64, GROUP_DOMAIN);
+                // The samples' times in the shutter: a stream of their own, so the other draws
+                // stay what they are without motion blur.
+                let mut times = Rng::with_domain(params.seed, index as u64, MOTION_DOMAIN);
                 let mut sum = RayResult::default();
                 let mut depth = f32::INFINITY;
                 for s in 0..spp {
@@ -306,7 +355,7 @@ fn render_band<A: Arith, M: Marcher>(arith: A, params: &MarchParams, march: &M, 
                     let (jx, jy) = if spp == 1 { (0.5, 0.5) } else { pixel_jitter(s, spp, rng.next_f64(), rng.next_f64()) };
                     let (xi, u) = (rng.next_f64(), members.next_f64());
                     let (origin, dir) = camera.ray(px + jx, py + jy);
-                    let r = march.march(arith, origin, dir, xi, u);
+                    let r = march.march(arith, origin, dir, xi, u, times.next_f64());
                     sum.single += r.single;
                     sum.multiple += r.multiple;
                     sum.emission += r.emission;

@@ -5,8 +5,8 @@ use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{GpuMajorantInfo, TRACKING_WGSL};
-use nimbus_volume::{MajorantGrid, Transform, Volume};
+use nimbus_tracking::{emission_wgsl, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
 
@@ -17,6 +17,9 @@ pub const NOISE_WGSL: &str = include_str!("../../../shaders/noise.wgsl");
 pub const MARCH_WGSL: &str = include_str!("../../../shaders/march.wgsl");
 
 pub(crate) const WORKGROUP_SIZE: u32 = 64;
+/// The bind group `shaders/emission.wgsl` sits at in the march and the reference (after the
+/// density's and the stage's own).
+pub(crate) const EMISSION_GROUP: u32 = 2;
 /// Most pixels one dispatch marches (128 MiB of results): large images go in tiles, so the
 /// result buffer stays within every device's storage-binding limit, read-back memory stays
 /// bounded, and no single dispatch runs long enough to trip a desktop GPU's watchdog.
@@ -96,6 +99,9 @@ pub(crate) struct GpuPixel {
     /// The environment map seen through the volume (RayResult::behind).
     behind: [f32; 3],
     _pad: f32,
+    /// The medium's own emission, attenuated (RayResult::emission).
+    emission: [f32; 3],
+    _pad1: f32,
 }
 
 /// `p / scale` split into a wrapping u32 lattice point and an f32 remainder, as noise.wgsl
@@ -132,6 +138,24 @@ pub fn render_gpu_with(
     params: &MarchParams,
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
+    render_gpu_emitting_with(ctx, density, cache, params, None, options)
+}
+
+/// [`render_gpu`] with the medium's emission, the twin of [`crate::render_cpu_emitting`]:
+/// each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t` (`shaders/emission.wgsl`).
+pub fn render_gpu_emitting(ctx: &GpuContext, density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, emission: Option<&EmissionField>) -> Result<Image, MarchError> {
+    render_gpu_emitting_with(ctx, density, cache, params, emission, &GpuMarchOptions::default())
+}
+
+/// [`render_gpu_emitting`] with [`GpuMarchOptions`].
+pub fn render_gpu_emitting_with(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    cache: &IlluminationCache,
+    params: &MarchParams,
+    emission: Option<&EmissionField>,
+    options: &GpuMarchOptions,
+) -> Result<Image, MarchError> {
     params.validate()?;
     let majorant = crate::cpu::march_majorant(density, params);
     if ctx.loop_cap().is_some() {
@@ -139,7 +163,7 @@ pub fn render_gpu_with(
         let work = format!("a pixel's march of up to {steps} steps ({} spp)", params.spp);
         ctx.check_loop_bound(steps.saturating_mul(ITERATIONS_PER_STEP), work, "or a longer --step")?;
     }
-    let pixels = march_pixels(ctx, density, &majorant, cache, params, options)?;
+    let pixels = march_pixels(ctx, density, &majorant, cache, params, emission, options)?;
     Ok(assemble(params, &pixels))
 }
 
@@ -168,6 +192,7 @@ fn march_pixels(
     majorant: &MajorantGrid,
     cache: &IlluminationCache,
     params: &MarchParams,
+    emission: Option<&EmissionField>,
     options: &GpuMarchOptions,
 ) -> Result<Vec<RayResult>, GpuError> {
     let camera = &params.camera;
@@ -178,17 +203,8 @@ fn march_pixels(
     let mut density_gpu = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     density_gpu.set_world_origin(ctx, origin);
     // An absent cache grid is bound as an empty volume and never read (flags).
-    let empty = || Volume::new(Transform::uniform(1.0, DVec3::ZERO), Vec3::ZERO);
-    let upload = |v: Option<&Volume<Vec3>>| -> Result<GpuVolume, GpuError> {
-        let mut g = match v {
-            Some(v) => GpuVolume::upload(ctx, v, &GpuVolumeOptions::default())?,
-            None => GpuVolume::upload(ctx, &empty(), &GpuVolumeOptions::default())?,
-        };
-        g.set_world_origin(ctx, origin);
-        Ok(g)
-    };
-    let single = upload(cache.li_single.as_ref())?;
-    let multiple = upload(cache.li_multiple.as_ref())?;
+    let single = GpuVolume::upload_or_empty(ctx, cache.li_single.as_ref(), origin)?;
+    let multiple = GpuVolume::upload_or_empty(ctx, cache.li_multiple.as_ref(), origin)?;
 
     let filterable = ctx.float32_filterable();
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
@@ -198,9 +214,13 @@ fn march_pixels(
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
     let source = ctx.compose_shader(&format!(
-        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}"
+        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}",
+        emission_wgsl(EMISSION_GROUP)
     ));
-    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout])?;
+    let emission_layout = GpuEmission::layout(ctx)?;
+    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout])?;
+    let emission = GpuEmission::upload(ctx, emission, origin)?;
+    let emission_group = emission.bind_group(ctx, &emission_layout)?;
 
     let (noise_base, noise_offset) =
         if params.offset_noise > 0.0 { noise_split(origin, params.noise_scale) } else { ([0; 3], [0.0; 3]) };
@@ -239,7 +259,7 @@ fn march_pixels(
     // A map behind the volume (a uniform one is the constant background, added on the host).
     let behind = ctx.storage_buffer("march environment", &Environment::gpu_words(crate::visible_map(params.visible_environment())))?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels: options.max_tile_pixels };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
         let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
@@ -263,6 +283,8 @@ pub(crate) struct PixelTiles<'a> {
     pub pipeline: &'a wgpu::ComputePipeline,
     /// Group 0: the density volume.
     pub volume_group: &'a wgpu::BindGroup,
+    /// Groups 2 and up (the emission's).
+    pub later_groups: &'a [&'a wgpu::BindGroup],
     pub pixel_count: u64,
     pub max_tile_pixels: u64,
 }
@@ -289,7 +311,9 @@ impl PixelTiles<'_> {
             let count = tile.min(self.pixel_count - first);
             for pass in 0..passes {
                 let group = group(first as u32, count as u32, pass, &out)?;
-                ctx.dispatch_1d("pixels", self.pipeline, &[self.volume_group, &group], count, WORKGROUP_SIZE)?;
+                let mut groups = vec![self.volume_group, &group];
+                groups.extend_from_slice(self.later_groups);
+                ctx.dispatch_1d("pixels", self.pipeline, &groups, count, WORKGROUP_SIZE)?;
             }
             let pixels: Vec<GpuPixel> = ctx.read_buffer(&out)?;
             result.extend(pixels[..count as usize].iter().map(|p| RayResult {
@@ -297,7 +321,7 @@ impl PixelTiles<'_> {
                 multiple: Vec3::from(p.multiple),
                 transmittance: p.transmittance,
                 depth: if p.depth >= 0.0 { p.depth } else { f32::INFINITY },
-                emission: Vec3::ZERO,
+                emission: Vec3::from(p.emission),
                 behind: Vec3::from(p.behind),
             }));
             progress(count);
@@ -315,7 +339,7 @@ mod tests {
     #[test]
     fn layouts_match_the_wgsl_structs() {
         assert_eq!(size_of::<GpuMarchParams>(), 224);
-        assert_eq!(size_of::<GpuPixel>(), 48);
+        assert_eq!(size_of::<GpuPixel>(), 64);
     }
 
     #[test]

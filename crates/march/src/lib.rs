@@ -32,10 +32,11 @@
 //! [`EmissionField`]): each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t`, e the
 //! emitted radiance per unit length, the exact integral of `T e` over the step for e and
 //! sigma_t constant over it; it goes to [`RayResult::emission`] (the `emission` layer). So
-//! far it runs in the plain march only (f64 over the sparse volumes, about the speed of
-//! [`march_ray`]), not in the layout's fused march nor on the GPU. The reference adds
-//! `beta e / sigma_t` at each real collision ([`render_reference_cpu_emitting`]; not on the
-//! GPU either).
+//! far the CPU runs it in the plain march only (f64 over the sparse volumes, about the speed
+//! of [`march_ray`]), not in the layout's fused march; the GPU's march adds it in the same
+//! samples ([`render_gpu_emitting`], `shaders/emission.wgsl`). The reference adds
+//! `beta e / sigma_t` at each real collision ([`render_reference_cpu_emitting`],
+//! [`render_reference_gpu_emitting`]).
 //! The emission the medium scatters is not the march's: it comes through the cache's Li
 //! (vdbcache's paths gather it, vdbphoton's photons carry it), so the march adds the
 //! unscattered emission only and nothing is counted twice.
@@ -86,13 +87,13 @@ mod samples;
 mod simd;
 mod view;
 
-pub use cpu::{march_ray, march_ray_emitting, render_cpu, render_cpu_emitting, RayResult};
-pub use nimbus_tracking::EmissionField;
-pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
+pub use cpu::{march_ray, march_ray_emitting, march_ray_moving, render_cpu, render_cpu_emitting, render_cpu_moving, RayResult, MOTION_DOMAIN};
+pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
+pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};
-pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_gpu, ReferenceParams, REFERENCE_WGSL};
+pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_cpu_moving, render_reference_gpu, render_reference_gpu_emitting, ReferenceParams, REFERENCE_WGSL};
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.

@@ -7,7 +7,7 @@ mod common;
 use common::{cache_for, camera, cloud, gpu, params};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, GpuContext};
-use nimbus_march::{render_cpu, render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, Image, MarchParams, NOISE_WGSL};
+use nimbus_march::{render_cpu, render_cpu_emitting, render_gpu, render_gpu_emitting_with, render_gpu_with, CacheLookup, EmissionField, GpuMarchOptions, Image, MarchParams, NOISE_WGSL};
 use nimbus_optics::noise::{fbm3_vec, perlin3};
 
 /// Worst relative difference over lit pixels (scattered light above 1e-3 of the brightest pixel) of
@@ -297,6 +297,40 @@ fn marches_longer_than_a_software_adapter_takes_are_refused() {
             assert!(!ctx.info.is_software, "a software adapter should refuse");
             let cpu = render_cpu(&v, &cache, &p).unwrap();
             assert!((cpu.rgba[0] - image.rgba[0]).abs().max_element() <= 1e-3 * cpu.rgba[0].max_element());
+        }
+    }
+}
+
+/// The medium's emission (emission.wgsl): both terms, the emission grid on its own lattice
+/// and the blackbody from a temperature grid, added along the camera ray as the CPU adds
+/// them; agreement to f32 rounding of the same samples.
+#[test]
+fn emission_along_camera_rays_renders_alike() {
+    let Some(ctx) = gpu() else { return };
+    let (v, cache, mut p) = scene(DVec3::ZERO);
+    let (flame, temperature, emission) = common::fire(DVec3::ZERO);
+    p.spp = 2;
+    p.offset_noise = 0.05;
+    for (name, emission) in [
+        ("both terms", emission.clone()),
+        ("grid term", nimbus_optics::Emission { temperature_grid: None, ..emission.clone() }),
+        ("blackbody at B 1", nimbus_optics::Emission { grid: None, blackbody_intensity: 1.0, ..emission.clone() }),
+    ] {
+        let field = EmissionField { grid: Some(&flame), temperature: Some(&temperature), params: &emission };
+        let cpu = render_cpu_emitting(&v, &cache, &p, Some(&field)).unwrap();
+        let gpu = render_gpu_emitting_with(ctx, &v, &cache, &p, Some(&field), &EXACT).unwrap();
+        let (ce, ge) = (&cpu.aovs.as_ref().unwrap().emission, &gpu.aovs.as_ref().unwrap().emission);
+        let brightest = ce.iter().map(|e| e.max_element()).fold(0.0, f32::max);
+        let emitting = ce.iter().filter(|e| e.max_element() > 1e-3 * brightest).count();
+        let worst = ce.iter().zip(ge).map(|(c, g)| rel(*g, *c, 1e-3 * brightest)).fold(0.0f32, f32::max);
+        let rgb = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| rel(g.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);
+        eprintln!("emission, {name}: {emitting} emitting pixels, brightest {brightest:.3e}; worst relative difference emission {worst:.2e}, rgb {rgb:.2e}");
+        assert!(emitting > 64 * 48 / 4, "{name}: the fire should fill a good part of the image ({emitting})");
+        assert!(worst < 2e-4 && rgb < 2e-4, "{name}: emission {worst}, rgb {rgb}");
+        // Without emission the GPU adds none.
+        if name == "both terms" {
+            let dark = render_gpu_emitting_with(ctx, &v, &cache, &p, None, &EXACT).unwrap();
+            assert!(dark.aovs.as_ref().unwrap().emission.iter().all(|e| *e == Vec3::ZERO));
         }
     }
 }

@@ -310,3 +310,31 @@ fn multiple_scattering_matches_chandrasekhars_semi_infinite_reflection() {
         assert!((mean - expected).abs() < tolerance, "{name}: {mean:.6} against Chandrasekhar's {expected:.6} (H(1) = {h1:.5}, tolerance {tolerance:.6})");
     }
 }
+
+/// The medium's emission in the GPU reference (path.wgsl's collision estimator with
+/// emission.wgsl), with a sun: a fire inside the soft ball, both terms. The same streams, so
+/// most pixels agree to f32 rounding and the emission layer's mean within Monte Carlo noise.
+#[test]
+fn emission_renders_alike_on_gpu_and_cpu() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let density = ball();
+    let (flame, temperature, emission) = common::fire(DVec3::ZERO);
+    let field = nimbus_march::EmissionField { grid: Some(&flame), temperature: Some(&temperature), params: &emission };
+    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.85, 0.8), g: 0.3 };
+    let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
+    let lights = vec![Light::sun(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(0.5)).unwrap()];
+    let p = params(medium, lights, camera, 64);
+    let cpu = nimbus_march::render_reference_cpu_emitting(&density, &p, Some(&field), &no_progress).unwrap();
+    let gpu = nimbus_march::render_reference_gpu_emitting(ctx, &density, &p, Some(&field), 64, &|_| {}).unwrap();
+    let (c, g) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
+    let (mc, mg) = (mean(c.emission.iter().copied()), mean(g.emission.iter().copied()));
+    eprintln!("emission: cpu {mc} gpu {mg}");
+    assert!(mc.min_element() > 0.0);
+    assert!(((mg - mc) / mc).abs().max_element() < 0.02, "emission: cpu {mc}, gpu {mg}");
+    let close = cpu.rgba.iter().zip(&gpu.rgba).filter(|(a, b)| (**a - **b).abs().max_element() <= 1e-3 * a.max_element().max(1e-3)).count();
+    eprintln!("emission: {close} of 108 pixels equal to 1e-3");
+    assert!(close >= 80, "only {close} of 108 pixels agree to 1e-3");
+    // Without the field the GPU's paths gather none.
+    let dark = render_reference_gpu(ctx, &density, &p, 64, &|_| {}).unwrap();
+    assert!(dark.aovs.as_ref().unwrap().emission.iter().all(|e| *e == Vec3::ZERO));
+}

@@ -210,6 +210,56 @@ fn table() -> &'static [Vec3] {
     })
 }
 
+/// The table [`blackbody_rgb`] interpolates: colours at `TABLE_MIN + i TABLE_STEP` kelvin
+/// (unclamped), as the GPU twin (`shaders/emission.wgsl`) reads them.
+pub fn blackbody_table() -> (&'static [Vec3], f64, f64) {
+    (table(), TABLE_MIN, TABLE_STEP)
+}
+
+/// WGSL `EmissionInfo` (`shaders/emission.wgsl`): what [`Emission::emitted`] reads, in f32.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuEmissionInfo {
+    pub color: [f32; 3],
+    pub strength: f32,
+    pub temperature_scale: f32,
+    pub blackbody_intensity: f32,
+    /// Bit 0: the grid term; bit 1: the blackbody term (0: no emission).
+    pub flags: u32,
+    pub table_len: u32,
+    pub table_min: f32,
+    pub table_max: f32,
+    pub table_inv_step: f32,
+    /// `sigma_SB 1e-6 / pi`, Cycles' scale, rounded once.
+    pub stefan_boltzmann: f32,
+}
+
+impl GpuEmissionInfo {
+    pub const GRID_TERM: u32 = 1;
+    pub const BLACKBODY_TERM: u32 = 2;
+
+    pub fn new(emission: &Emission) -> Self {
+        let flags = u32::from(emission.has_grid_term()) * Self::GRID_TERM | u32::from(emission.has_blackbody_term()) * Self::BLACKBODY_TERM;
+        GpuEmissionInfo {
+            color: emission.color.to_array(),
+            strength: emission.strength,
+            temperature_scale: emission.temperature_scale,
+            blackbody_intensity: emission.blackbody_intensity,
+            flags,
+            table_len: table().len() as u32,
+            table_min: TABLE_MIN as f32,
+            table_max: TABLE_MAX as f32,
+            table_inv_step: (1.0 / TABLE_STEP) as f32,
+            stefan_boltzmann: (STEFAN_BOLTZMANN * 1e-6 / std::f64::consts::PI) as f32,
+        }
+    }
+
+    /// No emission: what a stage binds when nothing emits.
+    pub fn none() -> Self {
+        GpuEmissionInfo { flags: 0, ..Self::new(&Emission::default()) }
+    }
+}
+
 /// The blackbody's colour at `t` kelvin: linear Rec.709 normalised to luminance 1,
 /// components clamped at 0 (see the module doc), from the 10 K table.
 pub fn blackbody_rgb(t: f64) -> Vec3 {

@@ -57,7 +57,7 @@ mod phase;
 mod rng;
 mod sampling;
 
-pub use emission::{blackbody_rgb, Emission, EmissionError};
+pub use emission::{blackbody_rgb, blackbody_table, Emission, EmissionError, GpuEmissionInfo};
 pub use environment::{power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample, GPU_ENVIRONMENT_HEADER};
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};

@@ -26,9 +26,9 @@ pub(crate) enum Source<'a> {
     Sun(SunEmission),
     /// A point light's directions toward the medium.
     Point(PointEmission),
-    /// The medium's emitting cells (after the lights; CPU only so far).
+    /// The medium's emitting cells (after the lights).
     Medium(MediumEmission<'a>),
-    /// The sky or environment map (last; CPU only so far).
+    /// The sky or environment map (last).
     Environment(EnvironmentEmission),
 }
 

@@ -74,7 +74,7 @@ pub fn trace_cpu_emitting(density: &Volume<f32>, params: &PhotonParams, emission
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),
     };
-    let medium = DensityMedium { density, majorant: &setup.majorant, extinction: params.medium.extinction };
+    let medium = DensityMedium { motion: None, density, majorant: &setup.majorant, extinction: params.medium.extinction };
     run_batches(params, |range| {
         let paths: Vec<PathResult> =
             range.into_par_iter().map(|i| trace_path(i, &setup.emitter, medium, params, setup.step)).collect();
@@ -116,7 +116,7 @@ mod tests {
 
     /// The fraction of `paths` photons of `emitter` that interact at least once.
     fn meeting_fraction(v: &Volume<f32>, setup: &Setup, emitter: &Emitter, params: &PhotonParams, paths: u64) -> f64 {
-        let medium = DensityMedium { density: v, majorant: &setup.majorant, extinction: params.medium.extinction };
+        let medium = DensityMedium { motion: None, density: v, majorant: &setup.majorant, extinction: params.medium.extinction };
         let met = (0..paths).into_par_iter().filter(|&i| trace_path(i, emitter, medium, params, setup.step).interactions > 0).count();
         met as f64 / paths as f64
     }
@@ -182,7 +182,7 @@ mod tests {
             ..PhotonParams::default()
         };
         let Prepared::Trace(setup) = prepare(&v, &params, None).unwrap() else { panic!("nothing to trace") };
-        let medium = DensityMedium { density: &v, majorant: &setup.majorant, extinction: 1.0 };
+        let medium = DensityMedium { motion: None, density: &v, majorant: &setup.majorant, extinction: 1.0 };
         let paths = 100_000;
         let met = (0..paths).into_par_iter().filter(|&i| trace_path(i, &setup.emitter, medium, &params, setup.step).interactions > 0).count();
         let power = setup.emitter.power[0].x as f64;

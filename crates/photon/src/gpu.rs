@@ -7,7 +7,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::Volume;
 
 use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup, Source};
@@ -25,6 +25,12 @@ const GUARD_BINDING: u32 = 8;
 /// WGSL `LIGHT_ENVIRONMENT`: a `PhotonLight` that is the environment (after LIGHT_SUN and
 /// LIGHT_POINT).
 const LIGHT_ENVIRONMENT: u32 = 2;
+/// WGSL `LIGHT_MEDIUM`: a `PhotonLight` that is the medium's emission (medium.rs).
+const LIGHT_MEDIUM: u32 = 3;
+/// Group 1 binding of the medium's emitting cells.
+const MEDIUM_CELLS_BINDING: u32 = 9;
+/// The bind group `shaders/emission.wgsl` sits at.
+const EMISSION_GROUP: u32 = 2;
 
 /// WGSL `PhotonUniforms`.
 #[repr(C)]
@@ -85,6 +91,9 @@ struct GpuTracer<'a> {
     uniform_buffer: wgpu::Buffer,
     lights: wgpu::Buffer,
     emission_cells: wgpu::Buffer,
+    /// The medium's emitting cells (MediumEmission::gpu_cells; one dummy where none).
+    medium_cells: wgpu::Buffer,
+    emission_group: wgpu::BindGroup,
     /// The environment environment photons leave (Environment::gpu_words).
     environment: wgpu::Buffer,
     majorant: wgpu::Buffer,
@@ -118,13 +127,21 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(6, true),
                 storage_entry(7, true),
                 guard.layout_entry(),
+                storage_entry(MEDIUM_CELLS_BINDING, true),
             ],
         )?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}", guard.wgsl(1)));
-        let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout])?;
+        let source = ctx.compose_shader(&format!(
+            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}",
+            emission_wgsl(EMISSION_GROUP),
+            guard.wgsl(1)
+        ));
+        let emission_layout = GpuEmission::layout(ctx)?;
+        let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout, &emission_layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
         let e = &setup.emitter;
+        let mut medium_cells = Vec::new();
+        let mut field: Option<EmissionField> = None;
         // Every light's marked cells (a sun's lattice cells, a point light's direction
         // cells) in one table, each light knowing its slice.
         let mut cells: Vec<[u32; 2]> = Vec::new();
@@ -160,9 +177,21 @@ impl<'a> GpuTracer<'a> {
                         // The flux is the shader's; this its share's reciprocal (Emitter::emit).
                         l.weight = [1.0 / e.share(i); 3];
                     }
-                    // Not reached: trace_gpu prepares without the medium's emission (vdbphoton
-                    // keeps an emitting scene on the CPU); a zero-weight light emits nothing.
-                    Source::Medium(_) => l.weight = [0.0; 3],
+                    Source::Medium(medium) => {
+                        // The density's index-to-world map as origin + i tangent + j bitangent
+                        // + k normal, relative to the origin; the ratio e(x) / w_c is the
+                        // shader's, times the emitter's total (Emitter::emit).
+                        let to_world = density.transform().index_to_world();
+                        l.kind = LIGHT_MEDIUM;
+                        l.origin = rel(to_world.translation, origin);
+                        l.tangent = to_world.matrix3.x_axis.as_vec3().to_array();
+                        l.bitangent = to_world.matrix3.y_axis.as_vec3().to_array();
+                        l.normal = to_world.matrix3.z_axis.as_vec3().to_array();
+                        l.weight = [e.weight[i].element_sum(); 3];
+                        l.cell_count = medium.cells.len() as u32;
+                        medium_cells = medium.gpu_cells();
+                        field = Some(medium.field());
+                    }
                 }
                 l
             })
@@ -171,6 +200,10 @@ impl<'a> GpuTracer<'a> {
             // A binding cannot be empty.
             cells.push([0; 2]);
         }
+        if medium_cells.is_empty() {
+            medium_cells.push(Zeroable::zeroed());
+        }
+        let emission_group = GpuEmission::upload(ctx, field.as_ref(), origin)?.bind_group(ctx, &emission_layout)?;
         let uniforms = GpuPhotonParams {
             medium: GpuMedium::from(&params.medium),
             seed: split_u64(params.seed),
@@ -199,6 +232,8 @@ impl<'a> GpuTracer<'a> {
             uniform_buffer: ctx.uniform_buffer("photon params", &uniforms)?,
             lights: ctx.storage_buffer("photon lights", &lights)?,
             emission_cells: ctx.storage_buffer("photon emission cells", &cells)?,
+            medium_cells: ctx.storage_buffer("photon medium cells", &medium_cells)?,
+            emission_group,
             environment: ctx.storage_buffer("photon environment", &Environment::gpu_words(params.environment.as_ref()))?,
             majorant: majorant_buffer(ctx, &setup.majorant)?,
             counter: ctx.storage_buffer("photon count", &[0u32])?,
@@ -231,13 +266,13 @@ impl<'a> GpuTracer<'a> {
         self.uniforms.capacity = (records.size() / RECORD_BYTES) as u32;
         ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&self.uniforms));
         ctx.queue.write_buffer(&self.counter, 0, bytemuck::bytes_of(&0u32));
-        let group = self.guard.buffer_bind_group(
-            ctx,
-            "photon",
-            &self.layout,
-            &[&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells, &self.environment],
-        )?;
-        ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group], count, WORKGROUP_SIZE)?;
+        let buffers = [&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells, &self.environment];
+        let mut entries: Vec<wgpu::BindGroupEntry> =
+            buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
+        entries.push(self.guard.bind_group_entry());
+        entries.push(wgpu::BindGroupEntry { binding: MEDIUM_CELLS_BINDING, resource: self.medium_cells.as_entire_binding() });
+        let group = ctx.bind_group("photon", &self.layout, &entries)?;
+        ctx.dispatch_1d("photon trace", &self.pipeline, &[&self.volume_group, &group, &self.emission_group], count, WORKGROUP_SIZE)?;
         self.guard.check(ctx, format_args!("tracing photon paths {first}..{}", first + count), "")?;
         let stored: Vec<u32> = ctx.read_buffer(&self.counter)?;
         Ok(stored[0] as u64)
@@ -325,7 +360,14 @@ pub(crate) fn read_prefix<T: Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes
 /// `params.max_emitted` have left the lights): the same emission, free paths, roulette and
 /// stopping rule as [`crate::trace_cpu`], in f32.
 pub fn trace_gpu(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams) -> Result<(PhotonMap, TraceStats), PhotonError> {
-    let setup = match prepare(density, params, None)? {
+    trace_gpu_emitting(ctx, density, params, None)
+}
+
+/// [`trace_gpu`] with the medium's emission, the twin of [`crate::trace_cpu_emitting`]:
+/// photons also leave the emitting cells (photon.wgsl's `LIGHT_MEDIUM`, the same cell, point
+/// and direction from the same draws), stored from their first interaction.
+pub fn trace_gpu_emitting(ctx: &GpuContext, density: &Volume<f32>, params: &PhotonParams, emission: Option<&EmissionField>) -> Result<(PhotonMap, TraceStats), PhotonError> {
+    let setup = match prepare(density, params, emission)? {
         Prepared::Trace(setup) => setup,
         Prepared::Skip(map, stats) => return Ok((map, stats)),
     };
@@ -350,6 +392,8 @@ mod tests {
     #[test]
     fn the_shader_knows_the_environment_light_kind() {
         assert!(PHOTON_WGSL.contains(&format!("const LIGHT_ENVIRONMENT: u32 = {LIGHT_ENVIRONMENT}u;")));
+        assert!(PHOTON_WGSL.contains(&format!("const LIGHT_MEDIUM: u32 = {LIGHT_MEDIUM}u;")));
+        assert!(PHOTON_WGSL.contains(&format!("@group(1) @binding({MEDIUM_CELLS_BINDING}) var<storage, read> medium_cells")));
     }
 
     #[test]

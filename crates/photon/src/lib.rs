@@ -13,7 +13,7 @@
 //! emitting voxels ([`MediumEmission`]: power `4 pi integral e dV`, positions in proportion
 //! to emitted power, isotropic directions), chosen among the sources in proportion to power,
 //! and are stored from their first interaction on: the cache has no single-scattering term
-//! for emission, so that interaction is theirs to carry. CPU only so far.
+//! for emission, so that interaction is theirs to carry. Both backends ([`trace_gpu_emitting`]).
 //!
 //! Photon `i` draws every random number from `Rng(seed, i)`, and photons are emitted in
 //! index order until the stored count is reached, so the map is the same on any thread count
@@ -51,7 +51,7 @@ mod medium;
 
 pub use cpu::{trace_cpu, trace_cpu_emitting};
 pub use emission::{PointEmission, SunEmission, DIRECTION_COLUMNS, DIRECTION_ROWS};
-pub use gpu::{trace_gpu, PHOTON_WGSL};
+pub use gpu::{trace_gpu, trace_gpu_emitting, PHOTON_WGSL};
 pub use medium::MediumEmission;
 
 use glam::{DVec3, Vec3};
@@ -117,7 +117,7 @@ pub struct PhotonParams {
     pub medium: Medium,
     pub lights: Vec<Light>,
     /// A sky or map: photons also leave it (stored from their first interaction, as the
-    /// cache has no single-scattering term for it), CPU only.
+    /// cache has no single-scattering term for it).
     pub environment: Option<nimbus_optics::Environment>,
     pub distance: DistanceSampling,
     /// Simpson step as a fraction of the smallest voxel edge.

@@ -31,6 +31,17 @@ use rayon::prelude::*;
 /// Lattice points along a brick's edge with the far corners of its cells.
 const CORNERS: i32 = BRICK_DIM + 1;
 
+/// WGSL `MediumCell` (photon.wgsl): [`MediumEmission::gpu_cells`].
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuMediumCell {
+    pub cell: [i32; 3],
+    pub weight: f32,
+    /// `ceil(cdf 2^53)`: bits 26.. and 0..26.
+    pub threshold: [u32; 2],
+    pub _pad: [u32; 2],
+}
+
 /// The emitting cells of the medium and what a photon needs to leave one.
 #[derive(Clone)]
 pub struct MediumEmission<'a> {
@@ -119,6 +130,27 @@ impl<'a> MediumEmission<'a> {
         cdf.iter_mut().for_each(|c| *c /= sum);
         let power = (rgb * (4.0 * PI * transform.voxel_volume())).as_vec3();
         Some(MediumEmission { cells, weights, cdf, power, density, field })
+    }
+
+    /// The emitting field (its grids for the GPU's lookups).
+    pub fn field(&self) -> EmissionField<'a> {
+        self.field
+    }
+
+    /// The cells as photon.wgsl's `MediumCell`s: lower corner, weight, and the cumulative
+    /// weight as the integer threshold `ceil(cdf 2^53)` split at bit 26, against which the
+    /// shader compares a draw's 53 bits exactly as [`MediumEmission::sample`] compares the
+    /// f64 (a draw `u = k 2^-53` passes cdf `p` where `p <= u`, that is `ceil(p 2^53) <= k`).
+    pub fn gpu_cells(&self) -> Vec<GpuMediumCell> {
+        self.cells
+            .iter()
+            .zip(&self.weights)
+            .zip(&self.cdf)
+            .map(|((c, &weight), &p)| {
+                let threshold = (p * 9_007_199_254_740_992.0).ceil() as u64;
+                GpuMediumCell { cell: c.to_array(), weight, threshold: [(threshold >> 26) as u32, (threshold & ((1 << 26) - 1)) as u32], _pad: [0; 2] }
+            })
+            .collect()
     }
 
     /// The power the medium emits, 4 pi integral e dV per channel (see the module's notes).

@@ -251,3 +251,47 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         }
     }
 }
+
+/// Photons from the medium's emission (medium.rs; photon.wgsl's LIGHT_MEDIUM) alone and
+/// beside a sun: the same cell (the CDF compared on the draw's 53 bits), point, direction
+/// and power ratio from the same draws, stored from the first interaction. The emission
+/// grid is the density's own lattice and the blackbody's temperature grid another one.
+#[test]
+fn medium_emission_photons_agree() {
+    let Some(ctx) = gpu() else { return };
+    let v = cloud(24, 6.0);
+    let mut temperature = nimbus_volume::Volume::new(nimbus_volume::Transform::uniform(0.13, DVec3::new(0.02, -0.03, 0.01)), 0.0);
+    for x in -9..=9 {
+        for y in -9..=9 {
+            for z in -9..=9 {
+                let c = glam::IVec3::new(x, y, z);
+                let r = c.as_vec3().length() / 9.0;
+                if r < 1.0 {
+                    temperature.set(c, 1.0 + 2.0 * (1.0 - r));
+                }
+            }
+        }
+    }
+    let emission = nimbus_optics::Emission {
+        grid: Some("density".into()),
+        strength: 0.4,
+        color: Vec3::new(1.0, 0.5, 0.2),
+        temperature_grid: Some("temperature".into()),
+        temperature_scale: 1000.0,
+        blackbody_intensity: 0.3,
+    };
+    let field = nimbus_tracking::EmissionField { grid: Some(&v), temperature: Some(&temperature), params: &emission };
+    let sun = Light::sun(Vec3::new(0.3, -0.2, -1.0), Vec3::new(1.0, 0.9, 0.8)).unwrap();
+    for (name, lights) in [("medium alone", vec![]), ("medium + sun", vec![sun])] {
+        let p = PhotonParams { lights, ..params(DistanceSampling::Delta, 3000) };
+        let cpu = nimbus_photon::trace_cpu_emitting(&v, &p, Some(&field)).unwrap();
+        let gpu = nimbus_photon::trace_gpu_emitting(ctx, &v, &p, Some(&field)).unwrap();
+        compare(name, v.world_bounds().unwrap(), &cpu, &gpu, 0.03);
+        let prefix = identical_prefix(&cpu.0, &gpu.0);
+        assert!(prefix >= 1000, "{name}: the maps part after {prefix} photons");
+        // Powers too, photon for photon over the shared prefix.
+        let worst = cpu.0.power[..prefix].iter().zip(&gpu.0.power).map(|(c, g)| ((*g - *c).abs() / c.abs().max(Vec3::splat(1e-12))).max_element()).fold(0.0f32, f32::max);
+        eprintln!("{name}: worst relative power difference over the prefix {worst:.2e}");
+        assert!(worst < 1e-4, "{name}: {worst}");
+    }
+}

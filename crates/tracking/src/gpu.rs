@@ -9,7 +9,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard};
-use nimbus_optics::{Light, OPTICS_WGSL};
+use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, OPTICS_WGSL};
 use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
 use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume};
@@ -330,5 +330,71 @@ mod tests {
         use crate::{RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
         assert!(super::PATH_WGSL.contains(&format!("const ROULETTE_FROM_DEPTH: u32 = {ROULETTE_FROM_DEPTH}u;")));
         assert!(super::PATH_WGSL.contains(&format!("const RATIO_ROULETTE: f32 = {RATIO_ROULETTE:?};")));
+    }
+}
+
+/// `shaders/emission.wgsl`, composed by [`emission_wgsl`].
+const EMISSION_WGSL: &str = include_str!("../../../shaders/emission.wgsl");
+
+/// `shaders/emission.wgsl` with its bindings at bind group `group` (the stage's first free
+/// one): `emission_active()` and `emission_at(x)`, the twin of [`crate::EmissionField::at`].
+/// Composed after the volume; bind a [`GpuEmission`] there.
+pub fn emission_wgsl(group: u32) -> String {
+    EMISSION_WGSL.replace("EMISSION_GROUP", &group.to_string())
+}
+
+/// The medium's emission on the GPU, the twin of [`crate::EmissionField`]: its emission and
+/// temperature grids (each in its own index space, sampled exactly), its parameters and the
+/// blackbody colour table, for a stage that composes [`emission_wgsl`]. Where nothing emits
+/// it binds empty volumes and `emission_active()` is false.
+pub struct GpuEmission {
+    grid: GpuVolume,
+    temperature: GpuVolume,
+    info: wgpu::Buffer,
+    table: wgpu::Buffer,
+    active: bool,
+}
+
+impl GpuEmission {
+    /// Uploads `field` (None: no emission) with positions relative to world point `origin`,
+    /// as the stage's other volumes are.
+    pub fn upload(ctx: &GpuContext, field: Option<&crate::EmissionField>, origin: DVec3) -> Result<GpuEmission, GpuError> {
+        let field = field.filter(|f| f.params.is_active());
+        // An absent grid reads 0 on both sides (EmissionField::at; an empty volume's background).
+        let info = field.map_or_else(GpuEmissionInfo::none, |f| GpuEmissionInfo::new(f.params));
+        let (table, _, _) = blackbody_table();
+        let texels: Vec<[f32; 4]> = table.iter().map(|c| c.extend(0.0).to_array()).collect();
+        Ok(GpuEmission {
+            grid: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.grid), origin)?,
+            temperature: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.temperature), origin)?,
+            info: ctx.uniform_buffer("emission info", &info)?,
+            table: ctx.storage_buffer("blackbody table", &texels)?,
+            active: info.flags != 0,
+        })
+    }
+
+    /// Whether anything emits (`emission_active()` in the shader).
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    /// The layout of the group [`emission_wgsl`] declares.
+    pub fn layout(ctx: &GpuContext) -> Result<wgpu::BindGroupLayout, GpuError> {
+        let filterable = ctx.float32_filterable();
+        let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
+        entries.extend(GpuVolume::layout_entries(4, filterable));
+        entries.extend([uniform_entry(8), storage_entry(9, true)]);
+        ctx.bind_group_layout("emission", &entries)
+    }
+
+    /// This emission as a group for a layout from [`GpuEmission::layout`].
+    pub fn bind_group(&self, ctx: &GpuContext, layout: &wgpu::BindGroupLayout) -> Result<wgpu::BindGroup, GpuError> {
+        let mut entries = self.grid.bind_group_entries(0).to_vec();
+        entries.extend(self.temperature.bind_group_entries(4));
+        entries.extend([
+            wgpu::BindGroupEntry { binding: 8, resource: self.info.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 9, resource: self.table.as_entire_binding() },
+        ]);
+        ctx.bind_group("emission", layout, &entries)
     }
 }

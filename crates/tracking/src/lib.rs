@@ -40,7 +40,7 @@ mod gpu;
 mod optical_depth;
 mod path;
 
-pub use gpu::{light_tables_wgsl, majorant_buffer, GpuLightTables, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
+pub use gpu::{emission_wgsl, light_tables_wgsl, majorant_buffer, GpuEmission, GpuLightTables, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
 pub use optical_depth::{ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing, TabledTransmittance, TABLED_SPREAD};
 pub use path::{environment_nee, trace_path, PathLight, PathSources, PathStart, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
@@ -48,12 +48,73 @@ use glam::DVec3;
 use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 
-/// A density volume seen as a medium: the density, its majorant grid and the extinction scale.
+/// A density volume seen as a medium: the density, its majorant grid and the extinction scale;
+/// with `motion`, the medium at another time than the frame's (Eulerian motion blur: the
+/// majorant must then bound the moved density, [`MotionBlur::majorant_radius`]).
 #[derive(Clone, Copy)]
 pub struct DensityMedium<'a> {
     pub density: &'a Volume<f32>,
     pub majorant: &'a MajorantGrid,
     pub extinction: f32,
+    pub motion: Option<Motion<'a>>,
+}
+
+impl DensityMedium<'_> {
+    /// The density at world position `x` (at the motion's time, where it has one).
+    #[inline]
+    pub fn density_at(&self, x: DVec3) -> f32 {
+        match self.motion {
+            Some(m) => self.density.sample_world(m.back(x)),
+            None => self.density.sample_world(x),
+        }
+    }
+}
+
+/// Eulerian motion blur (issue #20), as Cycles and Arnold blur volumes: at `time` seconds
+/// from the frame, what is at x was at `x - time v(x)` in the frame, v the velocity grid
+/// (world units per second) looked up at x. Every lookup of the medium (density, the cache's
+/// Li, emission) is made at that point.
+#[derive(Clone, Copy)]
+pub struct Motion<'a> {
+    pub velocity: &'a Volume<glam::Vec3>,
+    pub time: f64,
+}
+
+impl Motion<'_> {
+    /// Where the medium at `x` at this time was in the frame.
+    #[inline]
+    pub fn back(&self, x: DVec3) -> DVec3 {
+        x - self.velocity.sample_world(x).as_dvec3() * self.time
+    }
+}
+
+/// A shutter over a velocity grid: each camera sample takes a time in it.
+#[derive(Clone, Copy)]
+pub struct MotionBlur<'a> {
+    pub velocity: &'a Volume<glam::Vec3>,
+    /// Seconds the shutter is open, centred on the frame (Blender's Shutter, in frames,
+    /// over the frame rate; Blender's default position is the centre).
+    pub shutter: f64,
+}
+
+impl<'a> MotionBlur<'a> {
+    /// The motion at shutter fraction `u` in [0, 1): time `(u - 1/2) shutter`.
+    pub fn at(&self, u: f64) -> Motion<'a> {
+        Motion { velocity: self.velocity, time: (u - 0.5) * self.shutter }
+    }
+
+    /// The fastest speed in the velocity grid (its active values and background).
+    pub fn max_speed(&self) -> f64 {
+        let active = self.velocity.bricks().flat_map(|b| b.values.iter()).map(|v| v.length() as f64).fold(0.0, f64::max);
+        active.max(self.velocity.background().length() as f64)
+    }
+
+    /// How far (index units of `density`, per axis) the medium can move within the shutter:
+    /// the radius to dilate a majorant grid by so that it bounds the density at every time.
+    pub fn majorant_radius(&self, density: &Volume<f32>) -> DVec3 {
+        let reach = self.max_speed() * 0.5 * self.shutter.abs();
+        reach / density.transform().voxel_size()
+    }
 }
 
 /// Emission over the volume (issue #19; [`nimbus_optics::Emission`]): the emission and
@@ -111,7 +172,11 @@ impl<'a> MediumRay<'a> {
     /// empty, so optical depth never decreases.
     #[inline]
     pub fn sigma_t(&self, t: f64) -> f32 {
-        let d = self.medium.density.sample_index(self.origin_index + self.dir_index * t);
+        let p = self.origin_index + self.dir_index * t;
+        let d = match self.medium.motion {
+            Some(m) => self.medium.density.sample_world(m.back(self.medium.density.transform().to_world(p))),
+            None => self.medium.density.sample_index(p),
+        };
         self.medium.extinction * d.max(0.0)
     }
 

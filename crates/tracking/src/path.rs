@@ -141,9 +141,10 @@ pub fn trace_path(
         };
         x += w * t;
         if let Some(e) = sources.emission {
-            let sigma_t = medium.extinction as f64 * medium.density.sample_world(x).max(0.0) as f64;
+            let sigma_t = medium.extinction as f64 * medium.density_at(x).max(0.0) as f64;
             if sigma_t > 0.0 {
-                light.emission += beta * e.at(x) * (1.0 / sigma_t) as f32;
+                let at = medium.motion.map_or(x, |m| m.back(x));
+                light.emission += beta * e.at(at) * (1.0 / sigma_t) as f32;
             }
         }
         beta *= optics.albedo;

@@ -21,7 +21,7 @@ fn slab(z0: i32, z1: i32, value: impl Fn(i32) -> f32) -> Volume<f32> {
 
 fn sample_depths(v: &Volume<f32>, extinction: f32, mode: &str, n: u64, start_z: f64) -> Vec<Option<f64>> {
     let majorant = MajorantGrid::build(v);
-    let medium = DensityMedium { density: v, majorant: &majorant, extinction };
+    let medium = DensityMedium { motion: None, density: v, majorant: &majorant, extinction };
     // Straight down, in the middle of the patch.
     let origin = DVec3::new(0.05, 0.05, start_z);
     let ray = MediumRay::new(medium, origin, DVec3::NEG_Z, 0.0, f64::INFINITY);
@@ -112,7 +112,7 @@ fn optical_depth_is_exact_for_piecewise_linear_density() {
     // linear, which Simpson integrates exactly when the panels match the voxels.
     let v = slab(0, 9, |z| 1.0 + z as f32);
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.0 };
     let ray = MediumRay::new(medium, DVec3::new(0.0, 0.0, 0.0), DVec3::Z, 0.0, 0.9);
     // Integral of (1 + 10 z) dz from 0 to 0.9 (density 1 + z_index, z_index = 10 z).
     let exact = 0.9 + 5.0 * 0.81;
@@ -126,7 +126,7 @@ fn a_nonzero_background_does_not_hang_any_sampler() {
     let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.01f32);
     v.set(IVec3::ZERO, 1.0);
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.0 };
     let ray = MediumRay::new(medium, DVec3::new(0.0, 0.0, -5.0), DVec3::Z, 0.0, f64::INFINITY);
     let mut rng = Rng::new(1, 1);
     assert!(ray.optical_depth(0.05).is_finite());

@@ -27,7 +27,7 @@ fn centre(v: &Volume<f32>) -> DVec3 {
 /// Both backends' tables for `lights`: the CPU's, the GPU's read back, and the GPU's bound.
 fn both(ctx: &GpuContext, v: &Volume<f32>, extinction: f32, lights: &[Light], opaque_depth: f64) -> (LightDepths, LightDepths, GpuLightTables) {
     let majorant = MajorantGrid::build(v);
-    let medium = DensityMedium { density: v, majorant: &majorant, extinction };
+    let medium = DensityMedium { motion: None, density: v, majorant: &majorant, extinction };
     let started = Instant::now();
     let cpu = LightDepths::build(medium, lights, LightLattice::default(), opaque_depth);
     let cpu_time = started.elapsed();
@@ -206,7 +206,7 @@ fn rays_longer_than_a_software_adapter_runs_are_refused() {
     }
     let majorant = MajorantGrid::build(&v);
     // Thin: no ray reaches an opaque depth and stops early.
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1e-3 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1e-3 };
     let lights = [Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()];
     let volume = GpuVolume::upload(ctx, &v, &GpuVolumeOptions::default()).unwrap();
     match GpuLightTables::build(ctx, &volume, medium, &lights, LightLattice::default(), f64::INFINITY, DVec3::ZERO) {

@@ -19,7 +19,7 @@ fn shadow_ray(medium: DensityMedium, x: DVec3, sun: Vec3, step: f64) -> f64 {
 fn along_an_index_axis_every_density_node_holds_its_shadow_rays_depth() {
     let v = blob(Transform::uniform(0.05, DVec3::new(0.3, -1.2, 2.0)), 16);
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 8.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 8.0 };
     for sun in [Vec3::NEG_Z, Vec3::X, Vec3::NEG_Y] {
         let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
         let mut worst = 0.0f64;
@@ -50,7 +50,7 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
     let transform = Transform::new(DAffine3::from_mat3_translation(m, DVec3::new(1e6, -2e6, 3e5))).unwrap();
     let v = blob(transform, 14);
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 2.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 2.0 };
     let centre = transform.to_world(DVec3::ZERO);
     for sun in [Vec3::new(0.5, 0.3, -0.8).normalize(), Vec3::new(-0.7, 0.5, -0.5).normalize(), Vec3::new(0.0, 1.0, 0.05).normalize()] {
         let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
@@ -82,7 +82,7 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
 fn nodes_along_a_ray_hold_the_closed_form_depth_and_stop_past_the_opaque_depth() {
     let v = blob(Transform::uniform(0.1, DVec3::ZERO), 12);
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 4.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 4.0 };
     let dir_world = DVec3::new(0.3, -0.2, -0.9).normalize();
     let (origin_world, step) = (DVec3::new(-0.2, 0.4, 2.0), 0.07);
     let (o, d) = (v.transform().to_index(origin_world), v.transform().dir_to_index(dir_world));
@@ -120,7 +120,7 @@ fn lookups_hand_shadow_edges_sharper_than_the_lattice_to_the_shadow_ray() {
     }
     let majorant = MajorantGrid::build(&v);
     // Optical depth 250 a voxel: a lattice node is either lit or black.
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 2500.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 2500.0 };
     let sun = Vec3::new(0.3, 0.2, -1.0).normalize();
     let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
     let mut rng = Rng::new(9, 0);
@@ -143,7 +143,7 @@ fn lookups_hand_shadow_edges_sharper_than_the_lattice_to_the_shadow_ray() {
     // A smooth blob: the table answers alone.
     let b = blob(Transform::uniform(0.05, DVec3::ZERO), 16);
     let majorant = MajorantGrid::build(&b);
-    let smooth = DensityMedium { density: &b, majorant: &majorant, extinction: 2.0 };
+    let smooth = DensityMedium { motion: None, density: &b, majorant: &majorant, extinction: 2.0 };
     let table = OpticalDepthVolume::build(smooth, sun, LightLattice::default(), f64::INFINITY);
     let asked = (0..2000)
         .filter(|_| table.lookup((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 0.8).ray_weight > 0.0)

@@ -49,7 +49,7 @@ proptest! {
     ) {
         let v = random_field(seed, 4.0, DVec3::ZERO);
         let majorant = MajorantGrid::build(&v);
-        let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.5 };
+        let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.5 };
         let (origin, dir) = (DVec3::from(start), unit(theta, phi));
         let ray = MediumRay::new(medium, origin, dir, 0.0, 0.6);
         let got = ray.optical_depth(step);
@@ -69,7 +69,7 @@ proptest! {
         let offset = if far { DVec3::splat(1e6) } else { DVec3::ZERO };
         let v = random_field(seed, scale, offset);
         let majorant = MajorantGrid::build(&v);
-        let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+        let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.0 };
         let dir = unit(theta, phi);
         let origin = offset + DVec3::splat(0.25) - dir * 0.5;
         let tau = -(1.0 - u).ln();
@@ -107,7 +107,7 @@ proptest! {
             }
         }
         let majorant = MajorantGrid::build(&v);
-        let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+        let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.0 };
         // Start inside the uniform region, straight up through 0.8 world units of it.
         let origin = DVec3::new(x, y, 0.1);
         let tau = -(1.0 - u).ln();
@@ -138,7 +138,7 @@ fn sampled_distance_converges_at_fourth_order() {
         }
     }
     let majorant = MajorantGrid::build(&v);
-    let medium = DensityMedium { density: &v, majorant: &majorant, extinction: 1.0 };
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 1.0 };
     let dir = DVec3::ONE.normalize();
     let length = 3f64.sqrt();
     // sigma(t) = 0.2 + 40 (t / sqrt 3)^3: its integral in closed form, inverted by bisection.

@@ -47,7 +47,7 @@ fn main() -> Result<()> {
     let lights = meta.lights().map_err(|e| anyhow::anyhow!("{e}"))?.context("no lights recorded")?;
     let camera = meta.camera().map_err(|e| anyhow::anyhow!("{e}"))?.context("no camera recorded")?;
     let majorant = MajorantGrid::build(&density);
-    let dm = DensityMedium { density: &density, majorant: &majorant, extinction: medium.extinction };
+    let dm = DensityMedium { motion: None, density: &density, majorant: &majorant, extinction: medium.extinction };
     let voxel = density.transform().voxel_size().min_element();
     let dt = voxel / args.steps_per_voxel;
     let shadow_step = voxel / 4.0;

@@ -148,7 +148,7 @@ impl Sphere {
         let density = self.voxelized(voxel);
         let optics = self.medium();
         let majorant = MajorantGrid::for_tracking(&density, optics.extinction);
-        let medium = DensityMedium { density: &density, majorant: &majorant, extinction: optics.extinction };
+        let medium = DensityMedium { motion: None, density: &density, majorant: &majorant, extinction: optics.extinction };
         let lights = [Light::sun(Vec3::NEG_Z, Vec3::ONE).unwrap()];
         points
             .iter()

@@ -1,7 +1,7 @@
 //! The reference path tracer on the CPU: rows in parallel with rayon, in f64.
 
 use nimbus_optics::Rng;
-use nimbus_tracking::{trace_path, DensityMedium, EmissionField, MediumRay, PathSources, PathStart, Shadowing, RATIO_ROULETTE};
+use nimbus_tracking::{trace_path, DensityMedium, EmissionField, MediumRay, MotionBlur, PathSources, PathStart, Shadowing, RATIO_ROULETTE};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
@@ -9,7 +9,7 @@ use super::{sample_stream, ReferenceParams, REFERENCE_DOMAIN};
 use crate::{Image, MarchError, RayResult};
 
 /// Pixel `index` of the reference image: `spp` jittered samples averaged.
-fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Option<&EmissionField>, index: u64) -> RayResult {
+fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Option<&EmissionField>, motion: Option<&MotionBlur>, index: u64) -> RayResult {
     let camera = &params.camera;
     let w = camera.width() as u64;
     let (px, py) = ((index % w) as f64, (index / w) as f64);
@@ -17,6 +17,12 @@ fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Op
     let map = crate::visible_map(params.visible_environment());
     for sample in 0..params.spp {
         let mut rng = Rng::with_domain(params.seed, sample_stream(index, sample), REFERENCE_DOMAIN);
+        // With motion blur the whole sample, its camera ray and path, sees the medium at one
+        // time in the shutter (from a stream of its own: the other draws stay as they are).
+        let medium = match motion {
+            Some(m) => DensityMedium { motion: Some(m.at(Rng::with_domain(params.seed, sample_stream(index, sample), crate::MOTION_DOMAIN).next_f64())), ..medium },
+            None => medium,
+        };
         let (jx, jy) = (rng.next_f64(), rng.next_f64());
         let (origin, dir) = camera.ray(px + jx, py + jy);
         let tr = MediumRay::new(medium, origin, dir, 0.0, f64::INFINITY).transmittance_ratio(&mut rng, RATIO_ROULETTE);
@@ -57,14 +63,30 @@ pub fn render_reference_cpu_emitting(
     emission: Option<&EmissionField>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Image, MarchError> {
+    render_reference_cpu_moving(density, params, emission, None, progress)
+}
+
+/// [`render_reference_cpu_emitting`] with motion blur: each sample traces the medium at its
+/// own time in the shutter ([`nimbus_tracking::Motion`]), over the majorant dilated by how far
+/// it moves.
+pub fn render_reference_cpu_moving(
+    density: &Volume<f32>,
+    params: &ReferenceParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Image, MarchError> {
     params.validate()?;
-    let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
-    let medium = DensityMedium { density, majorant: &majorant, extinction: params.medium.extinction };
+    let mut majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
+    if let Some(m) = motion {
+        majorant = majorant.dilated(m.majorant_radius(density));
+    }
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let (w, h) = (params.camera.width() as u64, params.camera.height() as u64);
     let pixels: Vec<RayResult> = (0..h)
         .into_par_iter()
         .flat_map_iter(|row| {
-            let row_pixels: Vec<RayResult> = (row * w..(row + 1) * w).map(|i| reference_pixel(medium, params, emission, i)).collect();
+            let row_pixels: Vec<RayResult> = (row * w..(row + 1) * w).map(|i| reference_pixel(medium, params, emission, motion, i)).collect();
             progress(w);
             row_pixels
         })

@@ -3,11 +3,11 @@
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{majorant_buffer, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use super::ReferenceParams;
-use crate::gpu::PixelTiles;
+use crate::gpu::{PixelTiles, EMISSION_GROUP};
 use crate::{GpuMarchOptions, Image, MarchError};
 
 /// The reference kernel, `shaders/reference.wgsl`.
@@ -49,6 +49,19 @@ pub fn render_reference_gpu(
     max_tile_pixels: u64,
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
+    render_reference_gpu_emitting(ctx, density, params, None, max_tile_pixels, progress)
+}
+
+/// [`render_reference_gpu`] with the medium's emission (path.wgsl's collision estimator), the
+/// twin of [`crate::render_reference_cpu_emitting`].
+pub fn render_reference_gpu_emitting(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    params: &ReferenceParams,
+    emission: Option<&EmissionField>,
+    max_tile_pixels: u64,
+    progress: &dyn Fn(u64),
+) -> Result<Image, MarchError> {
     params.validate()?;
     let camera = &params.camera;
     let pixel_count = camera.width() as u64 * camera.height() as u64;
@@ -64,8 +77,15 @@ pub fn render_reference_gpu(
         &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
-    let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}", guard.wgsl(1)));
-    let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout])?;
+    let source = ctx.compose_shader(&format!(
+        "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}",
+        emission_wgsl(EMISSION_GROUP),
+        guard.wgsl(1)
+    ));
+    let emission_layout = GpuEmission::layout(ctx)?;
+    let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout, &emission_layout])?;
+    let emission = GpuEmission::upload(ctx, emission, origin)?;
+    let emission_group = emission.bind_group(ctx, &emission_layout)?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
 
     let mut lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
@@ -93,7 +113,7 @@ pub fn render_reference_gpu(
         map_visible: u32::from(crate::visible_map(params.visible_environment()).is_some()),
         _pad: [0; 2],
     };
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, pixel_count, max_tile_pixels };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group], pixel_count, max_tile_pixels };
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };

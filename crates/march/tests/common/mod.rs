@@ -147,3 +147,32 @@ pub fn params(camera: Camera) -> MarchParams {
         aovs: true,
     }
 }
+
+/// A fire for the emission tests: an emission grid (a smaller cloud on its own lattice,
+/// shifted and of another voxel size, so the GPU looks it up in its own index space) and a
+/// temperature grid (the cloud's shape, 0.8 to 3 units at 1000 K a unit), both terms on.
+pub fn fire(centre: DVec3) -> (Volume<f32>, Volume<f32>, nimbus_optics::Emission) {
+    let mut flame = Volume::new(Transform::uniform(0.07, centre + DVec3::new(-0.11, 0.05, -0.2)), 0.0);
+    let mut temperature = Volume::new(Transform::uniform(VOXEL, centre + DVec3::new(0.013, -0.021, 0.007)), 0.0);
+    for x in -16..16 {
+        for y in -16..16 {
+            for z in -16..16 {
+                let c = IVec3::new(x, y, z);
+                let q = c.as_vec3().length() / 16.0;
+                if q < 1.0 {
+                    flame.set(c, 1.5 * (1.0 - q));
+                    temperature.set(c, 0.8 + 2.2 * (1.0 - q * q));
+                }
+            }
+        }
+    }
+    let params = nimbus_optics::Emission {
+        grid: Some("flame".into()),
+        strength: 0.7,
+        color: Vec3::new(1.0, 0.6, 0.3),
+        temperature_grid: Some("temperature".into()),
+        temperature_scale: 1000.0,
+        blackbody_intensity: 0.4,
+    };
+    (flame, temperature, params)
+}
