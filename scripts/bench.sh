@@ -25,6 +25,9 @@ rel=${CARGO_TARGET_DIR:-target}/release
 run "$rel/nimbus-bench" --bin "$rel"
 # Single scattering at the defaults against a brute-force single-scatter march.
 run scripts/bench_single.sh
+# A 24-frame sequence of the moving plume through nimbus-render, locally and on a one-node
+# Slurm cluster (as root), and frame-to-frame flicker (issue #20).
+run scripts/bench_sequence.sh out/bench/sequence
 # Peers side by side (issue #7), where Mitsuba 3 is installed (scripts/peers/README.md):
 # Mitsuba and `vdbmarch --reference` over an spp ladder, scored against the cached reference,
 # to out/bench/SCENE/peers.csv. The plume only by default: Mitsuba's scalar variant (the only

@@ -6,11 +6,12 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use glam::DVec3;
+use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::{parse_dvec3, run, CommonArgs, Failure, Input, MetaWriter, VdbOutputArgs};
 use nimbus_density::{estimate_cpu, estimate_gpu, read_particles_with, Attribute, AttributeVolume, DensityParams, Format, HMin, Method, NoiseParams, ParticleSet, Resolution, H0};
 use nimbus_vdb::{GridClass, PointAttribute, VdbFile, VectorType};
 
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(name = "particles2vdb", version, about = "Particles -> OpenVDB density grid by adaptive SPH density estimation")]
 struct Args {
     /// Particle file (.ply, .csv, .tsv, .vdb with points), or - for stdin.
@@ -90,6 +91,8 @@ struct Args {
     #[arg(long)]
     group: Option<String>,
     #[command(flatten)]
+    sequence: SequenceArgs,
+    #[command(flatten)]
     common: CommonArgs,
 }
 
@@ -108,7 +111,14 @@ fn parse_bounds(s: &str) -> Result<(DVec3, DVec3), String> {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run(move || particles2vdb(args))
+    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
+    run(move || {
+        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
+        for_each_frame("particles2vdb", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
+            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
+            particles2vdb(Args { input, out, ..args.clone() })
+        })
+    })
 }
 
 /// `--h-min`: a world length, or a number of voxels with the suffix `vox`.

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::{
     read_density, read_vdb, run, CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta,
     Quality, VdbOutputArgs,
@@ -13,7 +14,7 @@ use nimbus_cli::{
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
 
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(name = "vdbcache", version, about = "Photon VDB -> illumination cache grids (single + multiple scattering) baked for a camera")]
 struct Args {
     /// Input VDB from vdbphoton (or any fog volume, for single scattering), or - for stdin.
@@ -91,12 +92,21 @@ struct Args {
     #[command(flatten)]
     emission: EmissionArgs,
     #[command(flatten)]
+    sequence: SequenceArgs,
+    #[command(flatten)]
     common: CommonArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run(move || vdbcache(args))
+    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
+    run(move || {
+        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
+        for_each_frame("vdbcache", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
+            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
+            vdbcache(Args { input, out, ..args.clone() })
+        })
+    })
 }
 
 fn read_photons(file: &VdbFile) -> Result<PhotonMap, Failure> {

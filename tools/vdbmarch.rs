@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, ValueEnum};
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
+use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::Log;
 use nimbus_vdb::VdbFile;
 use nimbus_volume::Volume;
@@ -41,7 +42,7 @@ impl From<View> for ViewTransform {
     }
 }
 
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
 struct Args {
     /// Input VDB from vdbcache, or - for stdin.
@@ -123,12 +124,21 @@ struct Args {
     #[command(flatten)]
     motion: MotionArgs,
     #[command(flatten)]
+    sequence: SequenceArgs,
+    #[command(flatten)]
     common: CommonArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run(move || vdbmarch(args))
+    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
+    run(move || {
+        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
+        let outputs = [args.output.as_deref(), args.preview.as_deref()];
+        for_each_frame("vdbmarch", &args.sequence, verbosity, args.input.as_deref(), &outputs, |input, outputs| {
+            vdbmarch(Args { input, output: outputs[0].clone(), preview: outputs[1].clone(), ..args.clone() })
+        })
+    })
 }
 
 fn vdbmarch(args: Args) -> Result<(), Failure> {

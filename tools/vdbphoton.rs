@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
+use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::{
     read_density, read_vdb, run, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
     VdbOutputArgs,
@@ -13,7 +14,7 @@ use nimbus_cli::{
 use nimbus_photon::{trace_cpu_emitting, trace_gpu_emitting, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(name = "vdbphoton", version, about = "Density VDB -> photon map (OpenVDB points) by photon tracing")]
 struct Args {
     /// Input VDB with a fog volume, or - for stdin.
@@ -59,12 +60,21 @@ struct Args {
     #[command(flatten)]
     emission: EmissionArgs,
     #[command(flatten)]
+    sequence: SequenceArgs,
+    #[command(flatten)]
     common: CommonArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run(move || vdbphoton(args))
+    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
+    run(move || {
+        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
+        for_each_frame("vdbphoton", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
+            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
+            vdbphoton(Args { input, out, ..args.clone() })
+        })
+    })
 }
 
 fn vdbphoton(args: Args) -> Result<(), Failure> {

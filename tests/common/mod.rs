@@ -6,13 +6,14 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-/// The built binary of one of the four tools.
+/// The built binary of one of the four tools, or of nimbus-render.
 pub fn bin(name: &str) -> PathBuf {
     match name {
         "particles2vdb" => env!("CARGO_BIN_EXE_particles2vdb"),
         "vdbphoton" => env!("CARGO_BIN_EXE_vdbphoton"),
         "vdbcache" => env!("CARGO_BIN_EXE_vdbcache"),
         "vdbmarch" => env!("CARGO_BIN_EXE_vdbmarch"),
+        "nimbus-render" => env!("CARGO_BIN_EXE_nimbus-render"),
         _ => unreachable!(),
     }
     .into()

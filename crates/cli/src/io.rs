@@ -107,7 +107,9 @@ impl Output {
 
 /// Writes `path` through a temporary file beside it, renamed into place only once `fill`
 /// succeeded and the data reached the disk: readers never see a partial file, and a failed
-/// run leaves the old file (or none) behind.
+/// run leaves the old file (or none) behind. A run stopped by SIGTERM, SIGINT or SIGHUP (a
+/// farm cancelling a task, Ctrl-C) removes its temporary files before it dies
+/// ([`in_flight`]).
 pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut io::BufWriter<fs::File>) -> io::Result<()>) -> Result<(), Failure> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -115,6 +117,7 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut io::BufWriter<fs::File>)
     };
     let name = path.file_name().ok_or_else(|| Failure::usage(format!("not a file name ({})", path.display())))?;
     let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let slot = in_flight::register(&tmp);
     let result = (|| {
         let mut w = io::BufWriter::new(fs::File::create(&tmp)?);
         fill(&mut w)?;
@@ -122,10 +125,83 @@ pub fn write_atomic(path: &Path, fill: impl FnOnce(&mut io::BufWriter<fs::File>)
         file.sync_all()?;
         fs::rename(&tmp, path)
     })();
+    in_flight::release(slot);
     result.map_err(|e| {
         let _ = fs::remove_file(&tmp);
         Failure::runtime(format!("cannot write: {e}"), path.display())
     })
+}
+
+/// The temporary files being written, which a terminating signal removes: a cancelled farm
+/// task (Slurm's scancel sends SIGTERM, then SIGKILL after KillWait) leaves no partial file.
+/// The handler only reads lock-free slots and calls unlink, both async-signal-safe, then dies
+/// of the same signal with its default action.
+mod in_flight {
+    use std::ffi::CString;
+    use std::path::Path;
+    use std::sync::atomic::{AtomicPtr, Ordering};
+    use std::sync::Once;
+
+    const SLOTS: usize = 16;
+    static PATHS: [AtomicPtr<libc::c_char>; SLOTS] = [const { AtomicPtr::new(std::ptr::null_mut()) }; SLOTS];
+    static INSTALL: Once = Once::new();
+    const SIGNALS: [libc::c_int; 3] = [libc::SIGTERM, libc::SIGINT, libc::SIGHUP];
+
+    extern "C" fn on_signal(signal: libc::c_int) {
+        for slot in &PATHS {
+            let p = slot.load(Ordering::SeqCst);
+            if !p.is_null() {
+                // SAFETY: p is a NUL-terminated path leaked by register and freed only after
+                // it left the slot.
+                unsafe { libc::unlink(p) };
+            }
+        }
+        // SAFETY: restoring the default action and re-raising are async-signal-safe.
+        unsafe {
+            libc::signal(signal, libc::SIG_DFL);
+            libc::raise(signal);
+        }
+    }
+
+    fn install() {
+        INSTALL.call_once(|| {
+            for s in SIGNALS {
+                // SAFETY: installs a handler that only does async-signal-safe work; a signal a
+                // caller ignores (nohup's SIGHUP) stays ignored.
+                unsafe {
+                    let previous = libc::signal(s, on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t);
+                    if previous == libc::SIG_IGN {
+                        libc::signal(s, libc::SIG_IGN);
+                    }
+                }
+            }
+        });
+    }
+
+    /// Puts `path` in a free slot (None when all are taken: the file is still written, only
+    /// not cleaned up on a signal).
+    pub(super) fn register(path: &Path) -> Option<usize> {
+        install();
+        let c = CString::new(path.as_os_str().as_encoded_bytes()).ok()?.into_raw();
+        for (i, slot) in PATHS.iter().enumerate() {
+            if slot.compare_exchange(std::ptr::null_mut(), c, Ordering::SeqCst, Ordering::SeqCst).is_ok() {
+                return Some(i);
+            }
+        }
+        // SAFETY: c came from into_raw above and was never shared.
+        drop(unsafe { CString::from_raw(c) });
+        None
+    }
+
+    pub(super) fn release(slot: Option<usize>) {
+        if let Some(i) = slot {
+            let p = PATHS[i].swap(std::ptr::null_mut(), Ordering::SeqCst);
+            if !p.is_null() {
+                // SAFETY: p came from CString::into_raw in register and left the slot.
+                drop(unsafe { CString::from_raw(p) });
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -149,6 +225,37 @@ mod tests {
         write_atomic(&target, |w| w.write_all(b"whole")).unwrap();
         assert_eq!(fs::read(&target).unwrap(), b"whole");
         assert_eq!(fs::read_dir(&dir).unwrap().count(), 1);
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A run killed by SIGTERM mid-write (a farm cancelling a task) leaves neither the target
+    /// nor the temporary file: the test runs itself again as a child that signals itself
+    /// half-way through a write.
+    #[test]
+    fn a_terminating_signal_removes_the_temporary_file() {
+        const NAME: &str = "io::tests::a_terminating_signal_removes_the_temporary_file";
+        if let Ok(dir) = std::env::var("NIMBUS_SIGNAL_TEST_DIR") {
+            let _ = write_atomic(&Path::new(&dir).join("out.exr"), |w| {
+                w.write_all(&[7u8; 1 << 16])?;
+                w.flush()?;
+                // SAFETY: raising a signal is always sound; the handler ends the process.
+                unsafe { libc::raise(libc::SIGTERM) };
+                Ok(())
+            });
+            std::process::exit(3);
+        }
+        use std::os::unix::process::ExitStatusExt;
+        let dir = std::env::temp_dir().join(format!("nimbus-cli-signal-{}", std::process::id()));
+        fs::create_dir_all(&dir).unwrap();
+        let status = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([NAME, "--exact", "--test-threads=1"])
+            .env("NIMBUS_SIGNAL_TEST_DIR", &dir)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .unwrap();
+        assert_eq!(status.signal(), Some(libc::SIGTERM), "the child died of the signal it raised ({status})");
+        let left: Vec<_> = fs::read_dir(&dir).unwrap().flatten().map(|e| e.file_name()).collect();
+        assert!(left.is_empty(), "nothing left behind: {left:?}");
         fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -15,11 +15,14 @@
 //! - [`EmissionArgs`]: the emission flags and the recognition of fire grids, the same in
 //!   vdbphoton, vdbcache and vdbmarch.
 //! - [`MotionArgs`]: vdbmarch's motion blur flags and the velocity grid they find.
+//! - [`SequenceArgs`] and [`for_each_frame`] ([`frames`]): frame patterns (`####`, `%04d`,
+//!   `$F4`), `--frames` sets, and the per-frame loop every tool runs over a sequence.
 
 mod args;
 mod environment;
 mod emission;
 mod failure;
+pub mod frames;
 mod io;
 mod log;
 pub mod meta;
@@ -30,6 +33,7 @@ pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, Medium
 pub use environment::{read_environment_map, EnvironmentArgs};
 pub use emission::{EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};
+pub use frames::{for_each_frame, FramePattern, FrameSet, SequenceArgs};
 pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};

@@ -38,6 +38,27 @@ impl StageTimes {
     pub fn to_metadata(&self) -> String {
         self.stages.iter().map(|(n, d)| format!("{n}={:.3}", d.as_secs_f64())).collect::<Vec<_>>().join(",")
     }
+
+    /// `read 0.012 s, march 1.204 s`: a sequence's per-frame progress line.
+    pub fn describe(&self) -> String {
+        self.stages.iter().map(|(n, d)| format!("{n} {:.3} s", d.as_secs_f64())).collect::<Vec<_>>().join(", ")
+    }
+}
+
+/// The stage times of the last [`Log`] dropped, for the per-frame line of a sequence
+/// (`frames::for_each_frame`): a tool's body makes its own Log and drops it with the frame.
+static LAST_TIMES: Mutex<Option<StageTimes>> = Mutex::new(None);
+
+pub(crate) fn take_last_times() -> Option<StageTimes> {
+    LAST_TIMES.lock().ok().and_then(|mut t| t.take())
+}
+
+impl Drop for Log {
+    fn drop(&mut self) {
+        if let (Ok(mut last), Ok(times)) = (LAST_TIMES.lock(), self.times.lock()) {
+            *last = Some(times.clone());
+        }
+    }
 }
 
 /// The tool's voice on stderr: errors always, warnings unless `-q`, stage lines with `-v`.
