@@ -155,7 +155,12 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     let velocity = args.motion.resolve(&file, &log)?;
     let (mut image, emission) =
         if args.reference { reference(&args, &file, &density, velocity.as_ref(), &log)? } else { march(&args, &file, &density, velocity.as_ref(), &log)? };
-    image.metadata.push(("nimbus:motion_blur".into(), velocity.as_ref().map_or("none".into(), Velocity::describe)));
+    // Only where there is blur: the exr crate keeps header attributes in a hash map, whose
+    // order differs from run to run once there are two, so a second attribute would make
+    // renders of the same frame differ byte for byte.
+    if let Some(v) = &velocity {
+        image.metadata.push(("nimbus:motion_blur".into(), v.describe()));
+    }
     // What emission the image holds, as the pipeline records its parameters (design.md
     // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
     image.metadata.push(("nimbus:emission".into(), emission.as_ref().map_or("none".into(), |e| e.params.describe())));
