@@ -2,7 +2,8 @@
 //
 // Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,
 // sampled exactly) + optics.wgsl + environment.wgsl + emission.wgsl (group 2) + tracking.wgsl
-// (majorant DDA) + noise.wgsl + this file (the velocity grid at group 3 for motion blur).
+// (majorant DDA; nimbus_tracking::tracking_wgsl_moving, with motion.wgsl's velocity grid at group 3
+// for motion blur) + noise.wgsl + this file.
 // Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
 // draws in the same order (jitter x, y when spp > 1, stratified as pixel_jitter, then the
 // lattice offset xi, per sample; the group member offset u from its own stream
@@ -38,8 +39,7 @@ struct MarchUniforms {
     // from pixels[0].
     first_pixel: u32,
     tile_pixels: u32,
-    // Seconds the shutter is open (with FLAG_MOTION).
-    shutter: f32,
+    _pad: u32,
 }
 
 struct PixelOut {
@@ -60,21 +60,6 @@ const MARCH_DOMAIN: u32 = 0x4d415243u;
 const GROUP_DOMAIN: u32 = 0x53544550u;
 const FLAG_SINGLE: u32 = 1u;
 const FLAG_MULTIPLE: u32 = 2u;
-// Motion blur: each sample looks the medium up at x - t v(x), t its time in the shutter.
-const FLAG_MOTION: u32 = 4u;
-const MOTION_DOMAIN: u32 = 0x4d4f5445u;
-
-// The velocity grid (world units per second; an empty volume without motion blur), group 3.
-@group(3) @binding(0) var velocity_atlas: texture_3d<f32>;
-@group(3) @binding(1) var velocity_table: texture_3d<u32>;
-@group(3) @binding(2) var velocity_sampler: sampler;
-@group(3) @binding(3) var<uniform> velocity_info: VolumeInfo;
-
-// nimbus_tracking::Motion::back: where the medium at x at `time` was in the frame.
-fn motion_back(x: vec3<f32>, time: f32) -> vec3<f32> {
-    let v = volume_sample_index_in(velocity_atlas, velocity_table, velocity_info, volume_world_to_index_in(velocity_info, x)).xyz;
-    return x - v * time;
-}
 
 @group(1) @binding(0) var single_atlas: texture_3d<f32>;
 @group(1) @binding(1) var single_table: texture_3d<u32>;
@@ -128,14 +113,13 @@ fn one_minus_exp_neg(x: f32) -> f32 {
 // offset u (lib.rs Groups): the lattice t_k = (k + xi) dt in groups as long as the step
 // factor of the cell their first point lies in, group g's sample its member floor(u g),
 // standing for its g steps.
-fn march_ray(dir: vec3<f32>, xi: f32, u: f32, time: f32) -> PixelOut {
+fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
     let eye = params.camera.eye;
     let o = volume_world_to_index(eye);
     let d = (volume_info.world_to_index * vec4<f32>(dir, 0.0)).xyz;
     let dt = params.step;
     let m = params.medium;
     let jitter = params.offset_noise > 0.0;
-    let moving = (params.flags & FLAG_MOTION) != 0u;
     var r = PixelOut(vec3<f32>(0.0), 1.0, vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
     var tr = 1.0;
     let emits = emission_active();
@@ -173,9 +157,7 @@ fn march_ray(dir: vec3<f32>, xi: f32, u: f32, time: f32) -> PixelOut {
                 let q = params.noise_offset + x * params.noise_inv_scale;
                 x = x + noise_fbm3_vec_split(params.noise_base, q, params.noise_octaves, params.noise_seed) * params.offset_noise;
             }
-            if (moving) {
-                x = motion_back(x, time);
-            }
+            x = motion_back(x);
             let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(x)), 0.0);
             if (sigma_t <= 0.0) {
                 continue;
@@ -251,8 +233,8 @@ fn march_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
         let xi = rng_next_f64_as_f32(&rng);
         let u = rng_next_f64_as_f32(&members);
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
-        let time = (rng_next_f64_as_f32(&times) - 0.5) * params.shutter;
-        let r = march_ray(dir, xi, u, time);
+        motion_begin_sample(rng_next_f64_as_f32(&times));
+        let r = march_ray(dir, xi, u);
         sum.single = sum.single + r.single;
         sum.multiple = sum.multiple + r.multiple;
         sum.transmittance = sum.transmittance + r.transmittance;

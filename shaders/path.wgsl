@@ -117,9 +117,10 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
         x = x + w * t;
         // The collision estimator of emission (trace_path): beta e(x) / sigma_t(x).
         if (emits) {
-            let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(x)), 0.0);
+            let frame_x = motion_back(x);
+            let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(frame_x)), 0.0);
             if (sigma_t > 0.0) {
-                out.emission = out.emission + beta * emission_at(x) * (1.0 / sigma_t);
+                out.emission = out.emission + beta * emission_at(frame_x) * (1.0 / sigma_t);
             }
         }
         beta = beta * m.albedo;

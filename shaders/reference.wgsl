@@ -91,6 +91,10 @@ fn reference_pixels(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgrou
     let end = min(params.first_sample + params.sample_count, params.spp);
     for (var s = params.first_sample; s < end; s = s + 1u) {
         var rng = rng_new(params.seed, vec2<u32>(index, s), REFERENCE_DOMAIN);
+        // The whole sample, camera ray and path, sees the medium at one time in the shutter,
+        // from a stream of its own (reference/cpu.rs).
+        var times = rng_new(params.seed, vec2<u32>(index, s), MOTION_DOMAIN);
+        motion_begin_sample(rng_next_f64_as_f32(&times));
         let j = vec2<f32>(rng_next_f64_as_f32(&rng), rng_next_f64_as_f32(&rng));
         let dir = camera_ray(params.camera, vec2<f32>(px, py) + j);
         let m = params.medium;

@@ -181,8 +181,20 @@ struct TrackRay {
     extinction: f32,
 }
 
+// The medium is static here: a stage with motion blur composes
+// nimbus_tracking::tracking_wgsl_moving, which puts shaders/motion.wgsl between the markers.
+// MOTION BEGIN
+fn motion_back(x: vec3<f32>) -> vec3<f32> {
+    return x;
+}
+
+fn motion_back_index(p: vec3<f32>) -> vec3<f32> {
+    return p;
+}
+// MOTION END
+
 fn track_sigma_t(r: TrackRay, t: f32) -> f32 {
-    return r.extinction * max(volume_sample_index(r.origin + r.dir * t), 0.0);
+    return r.extinction * max(volume_sample_index(motion_back_index(r.origin + r.dir * t)), 0.0);
 }
 
 // Solves integral_0^s q(u) du = remaining for s in [0, h], q the quadratic through (0, l),

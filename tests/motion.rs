@@ -87,7 +87,7 @@ fn a_moving_ball_blurs_along_its_velocity_through_the_chain() {
     let log = String::from_utf8_lossy(&blurred.stderr);
     assert!(log.contains("motion blur: velocity grid 'v'") && log.contains("0.2500 world units"), "{log}");
     assert_eq!(exr_attribute(&blurred.stdout, "nimbus:motion_blur").as_deref(), Some("grid=v,shutter=0.5,fps=24,scale=1"));
-    assert_eq!(exr_attribute(&sharp, "nimbus:motion_blur"), None);
+    assert_eq!(exr_attribute(&sharp, "nimbus:motion_blur").as_deref(), Some("none"));
     let (s, b) = (rgba(&sharp), rgba(&blurred.stdout));
     let ((vs, ss), (vb, sb)) = (profile_moments(&s), profile_moments(&b));
     // A pixel is 2 x 4 tan(10 deg) / 64 = 0.0220 world units at the ball: the 0.25 it
@@ -104,13 +104,16 @@ fn a_moving_ball_blurs_along_its_velocity_through_the_chain() {
     eprintln!("GPU march against the CPU's: {apart:.2e}");
     assert!(apart < 1e-3, "{apart}");
 
-    // The reference blurs too (CPU), and refuses the GPU backend it lacks, exit 2.
+    // The reference blurs too, on either backend.
     let reference = rgba(&ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "cpu", "--motion-blur"]].concat(), &vdb).stdout);
     let (vr, _) = profile_moments(&reference);
     eprintln!("reference: alpha profile variance {vr:.2}");
     assert!(((vr - vs) / (travel * travel / 12.0) - 1.0).abs() < 0.2, "the reference's blur added {} pixels^2", vr - vs);
-    let gpu_reference = pipe_output("vdbmarch", &[SCENE, &["--reference", "--device", "gpu", "--motion-blur"]].concat(), &vdb);
-    assert_eq!(gpu_reference.status.code(), Some(2), "{}", String::from_utf8_lossy(&gpu_reference.stderr));
+    let gpu_reference = rgba(&ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "gpu", "--motion-blur"]].concat(), &vdb).stdout);
+    let (vg, _) = profile_moments(&gpu_reference);
+    eprintln!("GPU reference: alpha profile variance {vg:.2}");
+    // The same draws, decided in f32: the blur's width to a small fraction of what it adds.
+    assert!((vg - vr).abs() < 0.03 * (vr - vs), "GPU reference {vg} against the CPU's {vr}");
 }
 
 #[test]

@@ -16,7 +16,7 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, MotionArgs, Velocity,
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_march::{render_cpu_moving, render_gpu_moving, render_reference_cpu_moving, render_reference_gpu_emitting};
+use nimbus_march::{render_cpu_moving, render_gpu_moving, render_reference_cpu_moving, render_reference_gpu_moving};
 use nimbus_march::{default_spp, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
@@ -155,12 +155,7 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
     let velocity = args.motion.resolve(&file, &log)?;
     let (mut image, emission) =
         if args.reference { reference(&args, &file, &density, velocity.as_ref(), &log)? } else { march(&args, &file, &density, velocity.as_ref(), &log)? };
-    // Only where there is blur: the exr crate keeps header attributes in a hash map, whose
-    // order differs from run to run once there are two, so a second attribute would make
-    // renders of the same frame differ byte for byte.
-    if let Some(v) = &velocity {
-        image.metadata.push(("nimbus:motion_blur".into(), v.describe()));
-    }
+    image.metadata.push(("nimbus:motion_blur".into(), velocity.as_ref().map_or("none".into(), |v| v.describe())));
     // What emission the image holds, as the pipeline records its parameters (design.md
     // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
     image.metadata.push(("nimbus:emission".into(), emission.as_ref().map_or("none".into(), |e| e.params.describe())));
@@ -214,7 +209,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Optio
         aovs: args.aovs,
     };
     params.validate().map_err(Failure::usage)?;
-    let device = args.common.device_for(&[(velocity.is_some(), "motion blur in the reference path tracer")], log)?;
+    let device = args.common.compute_device(log)?;
     let blur = velocity.map(Velocity::blur);
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
@@ -222,7 +217,7 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Optio
     let image = log.stage(
         "path trace",
         || match device.gpu() {
-            Some(ctx) => render_reference_gpu_emitting(ctx, density, &params, field.as_ref(), reference_tile_pixels(), &|n| bar.inc(n)),
+            Some(ctx) => render_reference_gpu_moving(ctx, density, &params, field.as_ref(), blur.as_ref(), reference_tile_pixels(), &|n| bar.inc(n)),
             None => render_reference_cpu_moving(density, &params, field.as_ref(), blur.as_ref(), &|n| bar.inc(n)),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),

@@ -157,16 +157,20 @@ fn offset(params: &MarchParams, x: DVec3) -> DVec3 {
 /// displacement away from the ray being walked, so each cell must also bound the cells within
 /// that distance (index space, per axis) or the march would skip segments whose displaced
 /// samples see density: the grid is dilated by it. The fBm's components stay within about
-/// [-1, 1]; twice the amplitude is a generous bound.
-pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams) -> MajorantGrid {
-    let grid = MajorantGrid::build(density);
-    if params.offset_noise <= 0.0 {
-        return grid;
+/// [-1, 1]; twice the amplitude is a generous bound. Motion blur moves the medium too, by up
+/// to [`MotionBlur::majorant_radius`] within the shutter.
+pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> MajorantGrid {
+    let mut grid = MajorantGrid::build(density);
+    if params.offset_noise > 0.0 {
+        let m = density.transform().world_to_index().matrix3;
+        // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
+        let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
+        grid = grid.dilated(rows * (2.0 * params.offset_noise));
     }
-    let m = density.transform().world_to_index().matrix3;
-    // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
-    let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
-    grid.dilated(rows * (2.0 * params.offset_noise))
+    if let Some(m) = motion {
+        grid = grid.dilated(m.majorant_radius(density));
+    }
+    grid
 }
 
 /// Where in the pixel sample `s` of `spp` looks, from two uniform numbers: jittered within
@@ -191,7 +195,7 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
     params.validate()?;
     // The layout's own brick table skips empty space unless offset noise moves samples
     // off the ray, which needs the dilated majorant grid.
-    let majorant = (params.offset_noise > 0.0).then(|| march_majorant(density, params));
+    let majorant = (params.offset_noise > 0.0).then(|| march_majorant(density, params, None));
     let albedo = params.medium.albedo;
     let pixels = if params.aovs {
         match MarchVolume::<[Vec4; 2]>::new(density, cache, albedo) {
@@ -230,10 +234,7 @@ pub fn render_cpu_moving(
         return render_cpu(density, cache, params);
     }
     params.validate()?;
-    let mut majorant = march_majorant(density, params);
-    if let Some(m) = motion {
-        majorant = majorant.dilated(m.majorant_radius(density));
-    }
+    let majorant = march_majorant(density, params, motion);
     let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied() });
     Ok(assemble(params, &pixels))
 }
@@ -257,7 +258,7 @@ impl Marcher for Extras<'_> {
 
 /// [`march_ray`] itself over the image, where the layout does not apply.
 fn render_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, majorant: Option<MajorantGrid>) -> Vec<RayResult> {
-    let majorant = majorant.unwrap_or_else(|| march_majorant(density, params));
+    let majorant = majorant.unwrap_or_else(|| march_majorant(density, params, None));
     render_tiles(params, &Plain { density, majorant: &majorant, cache, params })
 }
 
@@ -603,7 +604,7 @@ pub(crate) mod tests {
             let stopped = fast.rgba.iter().filter(|p| p.w == 1.0).count();
             assert!(stopped > 10, "rays stop early: {stopped}");
         }
-        let majorant = march_majorant(density, params);
+        let majorant = march_majorant(density, params, None);
         let plain = assemble(params, &render_tiles(params, &Plain { density, majorant: &majorant, cache, params }));
         let lum = |p: Vec3| p.element_sum();
         let max = plain.rgba.iter().map(|p| lum(p.truncate())).fold(0.0, f32::max);
@@ -702,7 +703,7 @@ pub(crate) mod tests {
         }
         // One ray through march_ray_emitting itself, and without emission nothing.
         let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
-        let majorant = march_majorant(&slab, &p);
+        let majorant = march_majorant(&slab, &p, None);
         let r = march_ray_emitting(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field));
         assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
         let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);

@@ -5,7 +5,7 @@ use glam::{DVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, EmissionField, GpuEmission, GpuMajorantInfo, MotionBlur, TRACKING_WGSL};
+use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::{assemble, Image, MarchError, MarchParams, RayResult};
@@ -20,6 +20,8 @@ pub(crate) const WORKGROUP_SIZE: u32 = 64;
 /// The bind group `shaders/emission.wgsl` sits at in the march and the reference (after the
 /// density's and the stage's own).
 pub(crate) const EMISSION_GROUP: u32 = 2;
+/// Bind group of the velocity grid (nimbus_tracking::GpuMotion) in the march and the reference.
+pub(crate) const MOTION_GROUP: u32 = 3;
 /// Most pixels one dispatch marches (128 MiB of results): large images go in tiles, so the
 /// result buffer stays within every device's storage-binding limit, read-back memory stays
 /// bounded, and no single dispatch runs long enough to trip a desktop GPU's watchdog.
@@ -85,8 +87,7 @@ struct GpuMarchParams {
     first_pixel: u32,
     /// Pixels in this tile.
     tile_pixels: u32,
-    /// Seconds the shutter is open (motion blur).
-    shutter: f32,
+    _pad: u32,
 }
 
 /// WGSL `PixelOut` (march.wgsl and reference.wgsl).
@@ -185,10 +186,7 @@ pub fn render_gpu_moving_with(
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    let mut majorant = crate::cpu::march_majorant(density, params);
-    if let Some(m) = motion {
-        majorant = majorant.dilated(m.majorant_radius(density));
-    }
+    let majorant = crate::cpu::march_majorant(density, params, motion);
     if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
         let work = format!("a pixel's march of up to {steps} steps ({} spp)", params.spp);
@@ -246,16 +244,16 @@ fn march_pixels(
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
     let source = ctx.compose_shader(&format!(
-        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{NOISE_WGSL}\n{MARCH_WGSL}",
-        emission_wgsl(EMISSION_GROUP)
+        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NOISE_WGSL}\n{MARCH_WGSL}",
+        emission_wgsl(EMISSION_GROUP),
+        tracking_wgsl_moving(MOTION_GROUP)
     ));
     let emission_layout = GpuEmission::layout(ctx)?;
-    let velocity_layout = ctx.bind_group_layout("velocity", &GpuVolume::layout_entries(0, filterable))?;
-    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &velocity_layout])?;
+    let motion_layout = GpuMotion::layout(ctx)?;
+    let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
     let emission = GpuEmission::upload(ctx, emission, origin)?;
     let emission_group = emission.bind_group(ctx, &emission_layout)?;
-    let velocity = GpuVolume::upload_or_empty(ctx, motion.map(|m| m.velocity), origin)?;
-    let velocity_group = ctx.bind_group("velocity", &velocity_layout, &velocity.bind_group_entries(0))?;
+    let motion_group = GpuMotion::upload(ctx, motion, density, origin)?.bind_group(ctx, &motion_layout)?;
 
     let (noise_base, noise_offset) =
         if params.offset_noise > 0.0 { noise_split(origin, params.noise_scale) } else { ([0; 3], [0.0; 3]) };
@@ -274,7 +272,7 @@ fn march_pixels(
         noise_seed: params.seed as u32,
         offset_noise: params.offset_noise as f32,
         min_transmittance: params.min_transmittance as f32,
-        flags: u32::from(cache.li_single.is_some()) | (u32::from(cache.li_multiple.is_some()) << 1) | (u32::from(motion.is_some()) << 2),
+        flags: u32::from(cache.li_single.is_some()) | (u32::from(cache.li_multiple.is_some()) << 1),
         width: camera.width(),
         pixel_count: u32::try_from(pixel_count).map_err(|_| GpuError::TooLarge {
             what: "the image".into(),
@@ -284,7 +282,7 @@ fn march_pixels(
         })?,
         first_pixel: 0,
         tile_pixels: 0,
-        shutter: motion.map_or(0.0, |m| m.shutter as f32),
+        _pad: 0,
     };
     // The march reads its cells' step factors where the walk reads bounds (0: empty, as a
     // zero bound is): `MarchParams::step_factor` once per cell, so both backends take the
@@ -294,7 +292,7 @@ fn march_pixels(
     // A map behind the volume (a uniform one is the constant background, added on the host).
     let behind = ctx.storage_buffer("march environment", &Environment::gpu_words(crate::visible_map(params.visible_environment())))?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &velocity_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &motion_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
     tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
         let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
@@ -381,7 +379,7 @@ mod tests {
     fn the_shader_uses_the_cpu_random_domains() {
         assert!(MARCH_WGSL.contains(&format!("MARCH_DOMAIN: u32 = 0x{MARCH_DOMAIN:08x}u")));
         assert!(MARCH_WGSL.contains(&format!("GROUP_DOMAIN: u32 = 0x{:08x}u", crate::GROUP_DOMAIN)));
-        assert!(MARCH_WGSL.contains(&format!("MOTION_DOMAIN: u32 = 0x{:08x}u", crate::MOTION_DOMAIN)));
+        assert!(nimbus_tracking::tracking_wgsl_moving(MOTION_GROUP).contains(&format!("MOTION_DOMAIN: u32 = 0x{:08x}u", crate::MOTION_DOMAIN)));
     }
 
     #[test]

@@ -8,6 +8,39 @@ use glam::{Vec3, Vec4};
 
 use crate::{RayResult, ViewTransform};
 
+/// Puts a single-part EXR header's attributes in name order, in place.
+///
+/// The exr crate keeps header attributes in a hash map, so their order differs from run to
+/// run; renders of the same frame must be byte-identical (design.md section 9), and OpenEXR
+/// reads attributes in any order. The header's length does not change, so the offset table
+/// after it stays valid.
+fn sort_header_attributes(bytes: &mut [u8]) {
+    const MULTIPART: u32 = 0x1000;
+    if bytes.len() < 8 || u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]) & MULTIPART != 0 {
+        return;
+    }
+    let cstr_end = |from: usize| bytes.get(from..)?.iter().position(|b| *b == 0).map(|i| from + i);
+    let mut records: Vec<(usize, usize)> = Vec::new();
+    let mut at = 8;
+    while at < bytes.len() && bytes[at] != 0 {
+        let Some(name_end) = cstr_end(at) else { return };
+        let Some(type_end) = cstr_end(name_end + 1) else { return };
+        let size_at = type_end + 1;
+        let Some(size) = bytes.get(size_at..size_at + 4).map(|s| i32::from_le_bytes([s[0], s[1], s[2], s[3]])) else { return };
+        let end = size_at + 4 + size.max(0) as usize;
+        if size < 0 || end > bytes.len() {
+            return;
+        }
+        records.push((at, end));
+        at = end;
+    }
+    let name = |r: &[u8]| r[..r.iter().position(|b| *b == 0).unwrap_or(r.len())].to_vec();
+    let mut sorted: Vec<&[u8]> = records.iter().map(|&(a, b)| &bytes[a..b]).collect();
+    sorted.sort_by_key(|r| name(r));
+    let header = sorted.concat();
+    bytes[8..8 + header.len()].copy_from_slice(&header);
+}
+
 /// A rendered image: premultiplied RGBA per pixel (A = 1 - transmittance), top row first,
 /// plus the diagnostic layers when asked for.
 #[derive(Clone, Debug, PartialEq)]
@@ -109,7 +142,9 @@ impl Image {
         let image = exr::image::Image::from_layer(layer);
         let mut bytes = Cursor::new(Vec::new());
         image.write().to_buffered(&mut bytes).map_err(|e| ImageError::Exr(e.to_string()))?;
-        Ok(bytes.into_inner())
+        let mut bytes = bytes.into_inner();
+        sort_header_attributes(&mut bytes);
+        Ok(bytes)
     }
 
     /// An 8-bit RGB PNG preview: the image's colour (already composited over the background,

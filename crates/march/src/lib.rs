@@ -93,7 +93,7 @@ pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};
-pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_cpu_moving, render_reference_gpu, render_reference_gpu_emitting, ReferenceParams, REFERENCE_WGSL};
+pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_cpu_moving, render_reference_gpu, render_reference_gpu_emitting, render_reference_gpu_moving, ReferenceParams, REFERENCE_WGSL};
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.

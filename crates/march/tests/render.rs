@@ -144,6 +144,33 @@ fn exr_and_png_encode() {
 }
 
 #[test]
+fn exr_headers_come_out_in_one_order() {
+    // Each write builds a fresh hash map of header attributes with its own random order; the
+    // bytes must not depend on it, and every attribute must still read back.
+    let v = filled(VOXEL, IVec3::splat(-4), IVec3::splat(4), |_| true);
+    let cache = constant_cache(&v, Vec3::ONE);
+    let camera = Camera::new(DVec3::new(0.0, -2.0, 0.0), DVec3::ZERO, DVec3::Z, 40.0, 8, 4).unwrap();
+    let mut image = render_cpu(&v, &cache, &params(camera, VOXEL)).unwrap();
+    image.metadata = (0..12).map(|i| (format!("nimbus:key{i:02}"), format!("value {i}"))).collect();
+    let first = image.to_exr().unwrap();
+    for _ in 0..8 {
+        assert!(image.to_exr().unwrap() == first, "two writes of one image differ");
+    }
+    // The pixels still read: the offset table after the reordered header is untouched.
+    use exr::prelude::ReadChannels as _;
+    use exr::prelude::ReadLayers as _;
+    let pixels = exr::prelude::read().no_deep_data().largest_resolution_level().all_channels().all_layers().all_attributes().from_buffered(std::io::Cursor::new(&first)).unwrap();
+    let red = &pixels.layer_data[0].channel_data.list.iter().find(|c| c.name == exr::meta::attribute::Text::from("R")).unwrap().sample_data;
+    assert_eq!(red.len(), 32);
+    assert!((red.value_by_flat_index(0).to_f32() - image.rgba[0].x).abs() == 0.0);
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&first), true).unwrap();
+    for (key, value) in &image.metadata {
+        let got = meta.headers[0].own_attributes.other.get(&exr::meta::attribute::Text::from(key.as_str()));
+        assert_eq!(got, Some(&exr::meta::attribute::AttributeValue::Text(exr::meta::attribute::Text::from(value.as_str()))), "{key}");
+    }
+}
+
+#[test]
 fn one_pixel_images_and_huge_world_offsets() {
     let v = filled(VOXEL, IVec3::splat(-8), IVec3::splat(8), |c| c.length_squared() <= 64);
     let cache = constant_cache(&v, Vec3::ONE);

@@ -398,3 +398,90 @@ impl GpuEmission {
         ctx.bind_group("emission", layout, &entries)
     }
 }
+
+/// `shaders/motion.wgsl`, composed by [`tracking_wgsl_moving`].
+const MOTION_WGSL: &str = include_str!("../../../shaders/motion.wgsl");
+
+/// [`TRACKING_WGSL`]'s static `motion_back` / `motion_back_index`, which a moving stage
+/// replaces.
+fn static_motion_block() -> (usize, usize) {
+    let begin = TRACKING_WGSL.find("// MOTION BEGIN").expect("tracking.wgsl marks its motion block");
+    let end = TRACKING_WGSL.find("// MOTION END").expect("tracking.wgsl marks its motion block") + "// MOTION END".len();
+    (begin, end)
+}
+
+/// [`TRACKING_WGSL`] over a medium that moves: `shaders/motion.wgsl` (the twin of
+/// [`crate::Motion`], its bindings at bind group `group`, the stage's first free one) in
+/// place of the static medium, so every density lookup of the tracking and path code
+/// (`track_sigma_t`, the path's collisions) sees the sample's time. Composed after the
+/// volume; bind a [`GpuMotion`] there, and set each sample's time with
+/// `motion_begin_sample(u)`. Without motion blur the bound [`GpuMotion`] has no shutter and
+/// every lookup is the frame's.
+pub fn tracking_wgsl_moving(group: u32) -> String {
+    let (begin, end) = static_motion_block();
+    format!("{}{}{}", &TRACKING_WGSL[..begin], MOTION_WGSL.replace("MOTION_GROUP", &group.to_string()), &TRACKING_WGSL[end..])
+}
+
+/// WGSL `MotionInfo` (motion.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuMotionInfo {
+    density_to_velocity: [[f32; 4]; 4],
+    shutter: f32,
+    _pad: [f32; 3],
+}
+
+/// A shutter over a velocity grid on the GPU, the twin of [`crate::MotionBlur`], for a stage
+/// that composes [`tracking_wgsl_moving`].
+pub struct GpuMotion {
+    velocity: GpuVolume,
+    info: wgpu::Buffer,
+}
+
+impl GpuMotion {
+    /// Uploads `motion` (None: a static medium, an empty velocity grid and no shutter) over
+    /// `density`, with world positions relative to `origin` as the stage's other volumes.
+    pub fn upload(ctx: &GpuContext, motion: Option<&crate::MotionBlur>, density: &nimbus_volume::Volume<f32>, origin: DVec3) -> Result<GpuMotion, GpuError> {
+        let density_to_velocity = match motion {
+            // Composed in f64: both are near the identity's scale, whatever the world offset.
+            Some(m) => DMat4::from(m.velocity.transform().world_to_index() * density.transform().index_to_world()),
+            None => DMat4::IDENTITY,
+        };
+        let info = GpuMotionInfo {
+            density_to_velocity: density_to_velocity.as_mat4().to_cols_array_2d(),
+            shutter: motion.map_or(0.0, |m| m.shutter as f32),
+            _pad: [0.0; 3],
+        };
+        Ok(GpuMotion {
+            velocity: GpuVolume::upload_or_empty(ctx, motion.map(|m| m.velocity), origin)?,
+            info: ctx.uniform_buffer("motion info", &info)?,
+        })
+    }
+
+    /// The layout of the group [`tracking_wgsl_moving`] declares.
+    pub fn layout(ctx: &GpuContext) -> Result<wgpu::BindGroupLayout, GpuError> {
+        let mut entries = GpuVolume::layout_entries(0, ctx.float32_filterable()).to_vec();
+        entries.push(uniform_entry(4));
+        ctx.bind_group_layout("motion", &entries)
+    }
+
+    /// This motion as a group for a layout from [`GpuMotion::layout`].
+    pub fn bind_group(&self, ctx: &GpuContext, layout: &wgpu::BindGroupLayout) -> Result<wgpu::BindGroup, GpuError> {
+        let mut entries = self.velocity.bind_group_entries(0).to_vec();
+        entries.push(wgpu::BindGroupEntry { binding: 4, resource: self.info.as_entire_binding() });
+        ctx.bind_group("motion", layout, &entries)
+    }
+}
+
+#[cfg(test)]
+mod motion_tests {
+    #[test]
+    fn the_moving_tracking_replaces_the_static_medium() {
+        let moving = super::tracking_wgsl_moving(3);
+        assert!(!moving.contains("// MOTION BEGIN") && !moving.contains("return x;\n}\n\nfn motion_back_index(p: vec3<f32>) -> vec3<f32> {\n    return p;"));
+        assert!(moving.contains("@group(3) @binding(4) var<uniform> motion_info: MotionInfo;"));
+        assert_eq!(moving.matches("fn motion_back(").count(), 1);
+        assert_eq!(moving.matches("fn track_sigma_t(").count(), 1);
+        assert_eq!(std::mem::size_of::<super::GpuMotionInfo>(), 80);
+    }
+}

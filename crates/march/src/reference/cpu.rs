@@ -2,7 +2,7 @@
 
 use nimbus_optics::Rng;
 use nimbus_tracking::{trace_path, DensityMedium, EmissionField, MediumRay, MotionBlur, PathSources, PathStart, Shadowing, RATIO_ROULETTE};
-use nimbus_volume::{MajorantGrid, Volume};
+use nimbus_volume::Volume;
 use rayon::prelude::*;
 
 use super::{sample_stream, ReferenceParams, REFERENCE_DOMAIN};
@@ -77,10 +77,7 @@ pub fn render_reference_cpu_moving(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Image, MarchError> {
     params.validate()?;
-    let mut majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
-    if let Some(m) = motion {
-        majorant = majorant.dilated(m.majorant_radius(density));
-    }
+    let majorant = super::reference_majorant(density, params, motion);
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let (w, h) = (params.camera.width() as u64, params.camera.height() as u64);
     let pixels: Vec<RayResult> = (0..h)

@@ -3,11 +3,11 @@
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, NO_LIGHT_TABLES_WGSL, PATH_WGSL, TRACKING_WGSL};
-use nimbus_volume::{MajorantGrid, Volume};
+use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
+use nimbus_volume::Volume;
 
 use super::ReferenceParams;
-use crate::gpu::{PixelTiles, EMISSION_GROUP};
+use crate::gpu::{PixelTiles, EMISSION_GROUP, MOTION_GROUP};
 use crate::{GpuMarchOptions, Image, MarchError};
 
 /// The reference kernel, `shaders/reference.wgsl`.
@@ -62,12 +62,27 @@ pub fn render_reference_gpu_emitting(
     max_tile_pixels: u64,
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
+    render_reference_gpu_moving(ctx, density, params, emission, None, max_tile_pixels, progress)
+}
+
+/// [`render_reference_gpu_emitting`] with motion blur, the twin of
+/// [`crate::render_reference_cpu_moving`]: each sample traces the medium at its own time in
+/// the shutter (motion.wgsl, the velocity grid at group 3), over the same dilated majorant.
+pub fn render_reference_gpu_moving(
+    ctx: &GpuContext,
+    density: &Volume<f32>,
+    params: &ReferenceParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+    max_tile_pixels: u64,
+    progress: &dyn Fn(u64),
+) -> Result<Image, MarchError> {
     params.validate()?;
     let camera = &params.camera;
     let pixel_count = camera.width() as u64 * camera.height() as u64;
     // Every position on the GPU is relative to the eye.
     let origin = camera.eye();
-    let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
+    let majorant = super::reference_majorant(density, params, motion);
     let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
     volume.set_world_origin(ctx, origin);
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
@@ -78,12 +93,15 @@ pub fn render_reference_gpu_emitting(
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
     let source = ctx.compose_shader(&format!(
-        "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}",
+        "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}",
         emission_wgsl(EMISSION_GROUP),
+        tracking_wgsl_moving(MOTION_GROUP),
         guard.wgsl(1)
     ));
     let emission_layout = GpuEmission::layout(ctx)?;
-    let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout, &emission_layout])?;
+    let motion_layout = GpuMotion::layout(ctx)?;
+    let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
+    let motion_group = GpuMotion::upload(ctx, motion, density, origin)?.bind_group(ctx, &motion_layout)?;
     let emission = GpuEmission::upload(ctx, emission, origin)?;
     let emission_group = emission.bind_group(ctx, &emission_layout)?;
     let volume_group = volume.bind_group(ctx, &volume_layout)?;
@@ -113,7 +131,7 @@ pub fn render_reference_gpu_emitting(
         map_visible: u32::from(crate::visible_map(params.visible_environment()).is_some()),
         _pad: [0; 2],
     };
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group], pixel_count, max_tile_pixels };
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &motion_group], pixel_count, max_tile_pixels };
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };

@@ -30,10 +30,13 @@ mod cpu;
 mod gpu;
 
 pub use cpu::{render_reference_cpu_moving, render_reference_cpu, render_reference_cpu_emitting};
-pub use gpu::{reference_tile_pixels, render_reference_gpu, render_reference_gpu_emitting, REFERENCE_WGSL};
+pub use gpu::{reference_tile_pixels, render_reference_gpu, render_reference_gpu_emitting, render_reference_gpu_moving, REFERENCE_WGSL};
 
 use glam::Vec3;
 use nimbus_optics::{Camera, Environment, Light, Medium};
+
+use nimbus_tracking::MotionBlur;
+use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::MarchError;
 
@@ -45,6 +48,16 @@ pub(crate) const REFERENCE_DOMAIN: u32 = 0x5245_4650; // "REFP"
 /// pixel's samples in separate dispatches and still draw exactly what the CPU draws.
 pub(crate) fn sample_stream(pixel: u64, sample: u32) -> u64 {
     (u64::from(sample) << 32) | pixel
+}
+
+/// The majorant both backends track with: the density's, dilated with motion blur by how far
+/// the medium can move within the shutter, so that it bounds the density at every time.
+pub(crate) fn reference_majorant(density: &Volume<f32>, params: &ReferenceParams, motion: Option<&MotionBlur>) -> MajorantGrid {
+    let majorant = MajorantGrid::for_tracking(density, params.medium.extinction);
+    match motion {
+        Some(m) => majorant.dilated(m.majorant_radius(density)),
+        None => majorant,
+    }
 }
 
 
