@@ -9,6 +9,8 @@
 // With conserve-mass the host runs the passes before density over every chunk first, keeps
 // the lengths, runs `mass` (one invocation per particle: its kernel sum S over the grid), and
 // then density per chunk with the masses m / S.
+// Attributes (issue #20), after the density: `attributes` per chunk of the bricks with density
+// and channel group, the kernel-weighted sums the host normalises (crates/density/src/attributes.rs).
 // The per-point functions mirror crates/density/src/kernel.rs line by line, and distances are
 // formed as on the CPU ((voxel index as f32) - p, then (dx^2 + dy^2) + dz^2), so counts agree
 // with the CPU and the brute-force reference, and densities to summation order. Densities
@@ -52,9 +54,11 @@ struct DensityUniforms {
     // plane_count of them (the host splits the box on adapters that cap loop iterations).
     plane_first: u32,
     plane_count: u32,
+    // The attribute pass: vec4s of channel values per particle, and the two of them (eight
+    // channels) this dispatch sums.
+    attribute_stride: u32,
+    attribute_group: u32,
     _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> u: DensityUniforms;
@@ -80,6 +84,16 @@ struct DensityUniforms {
 @group(1) @binding(1) var<storage, read> brick_slot: array<u32>;
 // Per particle: S = sum over grid points x of m4_shape(|x - p| / h(x)) / (pi h(x)^3).
 @group(1) @binding(2) var<storage, read_write> kernel_sum: array<f32>;
+
+// The attribute pass's own bindings in group 1 (its pipeline binds neither the mass pass's
+// nor group 0's per-voxel outputs):
+// Per particle (sorted as `particles`), attribute_stride vec4s of channel values (the weight
+// V_q and V_q times each component, host attributes.rs channel_values).
+@group(1) @binding(3) var<storage, read> attribute_values: array<vec4<f32>>;
+// Per voxel of the chunk: its final smoothing length, 0 where the density is 0 (not reached).
+@group(1) @binding(4) var<storage, read> attribute_lengths: array<f32>;
+// Per voxel of the chunk, two vec4s: the sums of this group's eight channels.
+@group(1) @binding(5) var<storage, read_write> attribute_sums: array<vec4<f32>>;
 
 const PI: f32 = 3.14159265358979;
 
@@ -138,6 +152,7 @@ const GATHER_KNN: u32 = 2u;
 var<private> acc_count: u32;
 var<private> acc_rho: f32;
 var<private> knn_best: array<f32, KNN_MAX>;
+var<private> acc_channels: array<vec4<f32>, 2>;
 
 // Squared distance from voxel point x to particle p, rounded as the CPU rounds it.
 fn dist2(x: vec3<f32>, p: vec3<f32>) -> f32 {
@@ -145,20 +160,31 @@ fn dist2(x: vec3<f32>, p: vec3<f32>) -> f32 {
     return (d.x * d.x + d.y * d.y) + d.z * d.z;
 }
 
+// The block of cells (low, high corner) the sphere of radius sqrt(limit2) about x overlaps.
+fn cells_within(x: vec3<f32>, limit2: f32) -> array<vec3<i32>, 2> {
+    let reach = sqrt(limit2) + CELL_SLACK;
+    return array<vec3<i32>, 2>(cell_of(x - vec3<f32>(reach)), cell_of(x + vec3<f32>(reach)));
+}
+
+// The particles (first, end) of the block's row of cells at (cy, cz): contiguous, since cell
+// ids run x fastest.
+fn row_particles(lo: vec3<i32>, hi: vec3<i32>, cy: i32, cz: i32) -> vec2<u32> {
+    return vec2<u32>(cell_start[cell_id(vec3<i32>(lo.x, cy, cz))], cell_start[cell_id(vec3<i32>(hi.x, cy, cz)) + 1u]);
+}
+
 // Visits the particles within radius sqrt(limit2) of x (r2 < limit2):
 //   GATHER_COUNT    acc_count += 1 where also r2 <= le (le = limit2 counts all)
 //   GATHER_DENSITY  acc_rho += m * m4_shape(sqrt(r2) * inv_h), acc_count += 1
 //   GATHER_KNN      acc_count += 1 and the k smallest r2 kept sorted in knn_best
 fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
-    let reach = sqrt(limit2) + CELL_SLACK;
-    let lo = cell_of(x - vec3<f32>(reach));
-    let hi = cell_of(x + vec3<f32>(reach));
+    let cells = cells_within(x, limit2);
+    let lo = cells[0];
+    let hi = cells[1];
     let k = min(u.k, KNN_MAX);
     for (var cz = lo.z; cz <= hi.z; cz++) {
         for (var cy = lo.y; cy <= hi.y; cy++) {
-            let first = cell_start[cell_id(vec3<i32>(lo.x, cy, cz))];
-            let last = cell_start[cell_id(vec3<i32>(hi.x, cy, cz)) + 1u];
-            for (var i = first; i < last; i++) {
+            let row = row_particles(lo, hi, cy, cz);
+            for (var i = row.x; i < row.y; i++) {
                 let q = particles[i];
                 let r2 = dist2(x, q.xyz);
                 if (r2 >= limit2) {
@@ -183,6 +209,31 @@ fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
                     }
                     knn_best[j] = r2;
                 }
+            }
+        }
+    }
+}
+
+// The attribute pass's walk over the same cells (a function of its own: a mode of gather()
+// would make every pass's pipeline bind the attribute buffers): acc_channels +=
+// m4_shape(r / h) times the particle's values of channel group attribute_group, two vec4s
+// and no inner loop, since a software adapter's loop cap counts nested iterations.
+fn gather_attributes(x: vec3<f32>, limit2: f32, inv_h: f32) {
+    let cells = cells_within(x, limit2);
+    let lo = cells[0];
+    let hi = cells[1];
+    for (var cz = lo.z; cz <= hi.z; cz++) {
+        for (var cy = lo.y; cy <= hi.y; cy++) {
+            let row = row_particles(lo, hi, cy, cz);
+            for (var i = row.x; i < row.y; i++) {
+                let r2 = dist2(x, particles[i].xyz);
+                if (r2 >= limit2) {
+                    continue;
+                }
+                let w = m4_shape(sqrt(r2) * inv_h);
+                let at = i * u.attribute_stride + 2u * u.attribute_group;
+                acc_channels[0] += w * attribute_values[at];
+                acc_channels[1] += w * attribute_values[at + 1u];
             }
         }
     }
@@ -372,4 +423,25 @@ fn mass(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         sum += plane;
     }
     kernel_sum[i] = sum;
+}
+
+// Attributes: one channel group's kernel-weighted sums at voxel i with its final length, over
+// the particles within kappa*h (as the CPU's splat_attributes). The chunk's bricks are the
+// ones with density, in the host's order.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn attributes(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+              @builtin(local_invocation_index) lid: u32) {
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let h = attribute_lengths[i];
+    acc_channels[0] = vec4<f32>(0.0);
+    acc_channels[1] = vec4<f32>(0.0);
+    if (h > 0.0) {
+        let r = KAPPA * h;
+        gather_attributes(vec3<f32>(voxel_point(i).xyz), r * r, 1.0 / h);
+    }
+    attribute_sums[2u * i] = acc_channels[0];
+    attribute_sums[2u * i + 1u] = acc_channels[1];
 }

@@ -275,9 +275,8 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     let requested: Vec<String> = specs.iter().map(|s| s.name.clone()).collect();
     let params = DensityParams { attributes: requested.clone(), ..params };
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
-    // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe). The
-    // attribute pass has no GPU twin yet: --device gpu refuses it, auto takes the CPU.
-    let device = args.common.device_for(&[(!specs.is_empty(), "--attribute")], &log)?;
+    // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe).
+    let device = args.common.compute_device(&log)?;
 
     let particles = log.stage(
         "read",

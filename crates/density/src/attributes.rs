@@ -164,11 +164,37 @@ fn channel_values(prep: &Prepared, attributes: &[&Attribute], layout: &Layout, r
     values
 }
 
-/// Runs the attribute pass over every brick with density and stores each brick's
-/// normalised components (attribute by attribute, component by component) in
+/// Bricks one call of the backend's splat covers: bounds the raw sums held at once (8
+/// channels of 4096 bricks: 64 MiB) next to the normalised grids they become.
+const SPLAT_CHUNK_BRICKS: usize = 1 << 12;
+
+/// The CPU's attribute splat (rayon over the bricks, cpu.rs `splat_attributes` per brick);
+/// the GPU's is gpu.rs `AttributePass`. For a slice of the bricks with density (final lengths
+/// kept), per brick and channel, sum_q values[q][c] * m4_shape(r / h) over the particles
+/// within kappa*h of each voxel where the density is positive; `values` holds `channels`
+/// floats per particle in [`Prepared`] order.
+pub(crate) fn splat_cpu(prep: &Prepared, _: &crate::PointParams, bricks: &[BrickResult], values: &[f32], channels: usize) -> Result<Vec<Vec<[f32; BRICK_VOXELS]>>, DensityError> {
+    Ok(bricks
+        .par_iter()
+        .map(|b| {
+            let h = b.h.as_ref().expect("lengths kept for the attribute pass");
+            let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| b.rho[v] > 0.0);
+            crate::cpu::splat_attributes(prep, b.origin, h, &reached, values, channels)
+        })
+        .collect())
+}
+
+/// Runs the attribute pass over every brick with density, the sums from `splat`, and stores
+/// each brick's normalised components (attribute by attribute, component by component) in
 /// `BrickResult::attributes`; returns each attribute's count of particles left out for a
-/// non-finite value. The bricks must hold their lengths (`Keep::h`).
-pub(crate) fn interpolate(prep: &Prepared, attributes: &[&Attribute], bricks: &mut [BrickResult]) -> Vec<u64> {
+/// non-finite value. The bricks must hold their lengths (`Keep::h`). `splat(bricks, values,
+/// channels)` is the backend's kernel sums ([`splat_cpu`]).
+pub(crate) fn interpolate(
+    prep: &Prepared,
+    attributes: &[&Attribute],
+    bricks: &mut [BrickResult],
+    mut splat: impl FnMut(&[BrickResult], &[f32], usize) -> Result<Vec<Vec<[f32; BRICK_VOXELS]>>, DensityError>,
+) -> Result<Vec<u64>, DensityError> {
     let skipped: Vec<u64> = attributes
         .iter()
         .map(|a| prep.source.par_iter().filter(|&&src| !a.get(src as usize)[..a.width()].iter().all(|x| x.is_finite())).count() as u64)
@@ -177,19 +203,19 @@ pub(crate) fn interpolate(prep: &Prepared, attributes: &[&Attribute], bricks: &m
     let rho = particle_density(prep, bricks);
     let values = channel_values(prep, attributes, &layout, &rho);
     drop(rho);
-    bricks.par_iter_mut().for_each(|b| {
-        let h = b.h.as_ref().expect("lengths kept for the attribute pass");
-        let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| b.rho[v] > 0.0);
-        let sums = crate::cpu::splat_attributes(prep, b.origin, h, &reached, &values, layout.channels);
-        let mut out = Vec::with_capacity(layout.channels);
-        for &(w, first, k) in &layout.at {
-            let weight = &sums[w];
-            for c in 0..k {
-                let sum = &sums[first + c];
-                out.push(Box::new(std::array::from_fn(|v| if weight[v] > 0.0 { sum[v] / weight[v] } else { 0.0 })));
+    for chunk in bricks.chunks_mut(SPLAT_CHUNK_BRICKS) {
+        let sums = splat(chunk, &values, layout.channels)?;
+        chunk.par_iter_mut().zip(sums).for_each(|(b, sums)| {
+            let mut out = Vec::with_capacity(layout.channels);
+            for &(w, first, k) in &layout.at {
+                let weight = &sums[w];
+                for c in 0..k {
+                    let sum = &sums[first + c];
+                    out.push(Box::new(std::array::from_fn(|v| if weight[v] > 0.0 { sum[v] / weight[v] } else { 0.0 })));
+                }
             }
-        }
-        b.attributes = out;
-    });
-    skipped
+            b.attributes = out;
+        });
+    }
+    Ok(skipped)
 }

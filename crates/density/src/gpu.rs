@@ -53,7 +53,9 @@ struct GpuDensityParams {
     particle_count: u32,
     plane_first: u32,
     plane_count: u32,
-    _pad: [u32; 3],
+    attribute_stride: u32,
+    attribute_group: u32,
+    _pad: u32,
 }
 
 fn method_code(method: Method) -> u32 {
@@ -73,6 +75,42 @@ fn passes(method: Method) -> &'static [&'static str] {
         Method::Asl3 => &["predict", "correct", "density"],
         Method::Knn => &["knn", "density"],
     }
+}
+
+/// The uniforms every pass starts from (per-chunk and per-pass fields 0).
+fn density_uniforms(prep: &Prepared, pp: &PointParams, method: Method) -> GpuDensityParams {
+    let cells = &prep.cells;
+    GpuDensityParams {
+        cell_origin: cells.origin.to_array(),
+        cell_edge: cells.edge,
+        cell_dims: cells.dims.to_array(),
+        n_star: pp.n_star,
+        grid_dims: prep.grid.dims.to_array(),
+        h0: pp.h0,
+        h_min: pp.h_min,
+        relax: pp.relax,
+        k: pp.n_star as u32,
+        voxel_count: 0,
+        first_brick: 0,
+        method: method_code(method),
+        particle_count: prep.positions.len() as u32,
+        plane_first: 0,
+        plane_count: 0,
+        attribute_stride: 0,
+        attribute_group: 0,
+        _pad: 0,
+    }
+}
+
+/// The particles as the passes read them: index-space position and mass, cell-sorted.
+fn particle_buffer(ctx: &GpuContext, prep: &Prepared) -> Result<wgpu::Buffer, GpuError> {
+    let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&prep.masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
+    ctx.storage_buffer("density particles", &particles)
+}
+
+fn brick_buffer(ctx: &GpuContext, origins: &[glam::IVec3]) -> Result<wgpu::Buffer, GpuError> {
+    let bricks: Vec<[i32; 4]> = origins.iter().map(|o| [o.x, o.y, o.z, 0]).collect();
+    ctx.storage_buffer("density bricks", &bricks)
 }
 
 /// Runs the method's passes over every proposed brick, in chunks; bricks with no density are
@@ -98,33 +136,11 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let chunk_bricks = MAX_CHUNK_BRICKS.min((binding_limit / (4 * BRICK_VOXELS as u64)).max(1) as usize);
     let chunk_voxels = (chunk_bricks.min(prep.bricks.len()) * BRICK_VOXELS) as u64;
 
-    let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&prep.masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
-    let bricks: Vec<[i32; 4]> = prep.bricks.iter().map(|o| [o.x, o.y, o.z, 0]).collect();
-    let cells = &prep.cells;
-    let uniforms = GpuDensityParams {
-        cell_origin: cells.origin.to_array(),
-        cell_edge: cells.edge,
-        cell_dims: cells.dims.to_array(),
-        n_star: pp.n_star,
-        grid_dims: prep.grid.dims.to_array(),
-        h0: pp.h0,
-        h_min: pp.h_min,
-        relax: pp.relax,
-        k: pp.n_star as u32,
-        voxel_count: 0,
-        first_brick: 0,
-        method: method_code(method),
-        particle_count: prep.positions.len() as u32,
-        plane_first: 0,
-        plane_count: 0,
-        _pad: [0; 3],
-    };
-
+    let uniforms = density_uniforms(prep, pp, method);
     let uniform_buffer = ctx.uniform_buffer("density params", &uniforms)?;
-    let particle_buffer = ctx.storage_buffer("density particles", &particles)?;
-    drop(particles);
-    let cell_buffer = ctx.storage_buffer("density cells", &cells.start)?;
-    let brick_buffer = ctx.storage_buffer("density bricks", &bricks)?;
+    let particle_buffer = particle_buffer(ctx, prep)?;
+    let cell_buffer = ctx.storage_buffer("density cells", &prep.cells.start)?;
+    let brick_buffer = brick_buffer(ctx, &prep.bricks)?;
     let n0 = ctx.storage_buffer_zeroed("density n0", chunk_voxels * 4)?;
     let h = ctx.storage_buffer_zeroed("density h", chunk_voxels * 4)?;
     let rho = ctx.storage_buffer_zeroed("density rho", chunk_voxels * 4)?;
@@ -268,6 +284,113 @@ fn kernel_sums(
     Ok(ctx.read_buffer::<f32>(&sum_buffer)?.into_iter().map(f64::from).collect())
 }
 
+/// Channels one attribute dispatch sums: two vec4s per particle and voxel (WGSL
+/// `acc_channels`).
+const ATTRIBUTE_GROUP: usize = 8;
+
+/// The attribute pass on the GPU (`attributes` in shaders/density.wgsl): the particles and
+/// their channel values uploaded once, then [`Self::sums`] per slice of the bricks with
+/// density, one dispatch per group of eight channels. A gather per voxel, as the density
+/// pass, where the CPU splats per brick: the same kernel sums to summation order.
+pub(crate) struct AttributePass<'a> {
+    ctx: &'a GpuContext,
+    uniforms: GpuDensityParams,
+    uniform_buffer: wgpu::Buffer,
+    particle_buffer: wgpu::Buffer,
+    cell_buffer: wgpu::Buffer,
+    value_buffer: wgpu::Buffer,
+    channels: usize,
+    layout: wgpu::BindGroupLayout,
+    attribute_layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+    /// Most bricks one dispatch covers (its sums buffer within the binding limit).
+    chunk_bricks: usize,
+}
+
+impl<'a> AttributePass<'a> {
+    /// `values`: `channels` floats per particle in [`Prepared`] order (attributes.rs
+    /// channel_values).
+    pub(crate) fn new(ctx: &'a GpuContext, prep: &Prepared, pp: &PointParams, values: &[f32], channels: usize) -> Result<Self, GpuError> {
+        if ctx.loop_cap().is_some() {
+            // Lengths never exceed h0: the density's widest gather bounds this one.
+            ctx.check_loop_bound(longest_gather(prep, Method::Usl, pp), "a grid point's attribute gather (particles within kappa*h0)", "or a smaller --h0")?;
+        }
+        let groups = channels.div_ceil(ATTRIBUTE_GROUP);
+        let stride = groups * ATTRIBUTE_GROUP;
+        let mut padded = vec![0.0f32; prep.positions.len() * stride];
+        for (out, v) in padded.chunks_mut(stride).zip(values.chunks(channels)) {
+            out[..channels].copy_from_slice(v);
+        }
+        let mut uniforms = density_uniforms(prep, pp, Method::Usl);
+        uniforms.attribute_stride = (stride / 4) as u32;
+        let layout = ctx.bind_group_layout("density attributes particles", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, true)])?;
+        let attribute_layout = ctx.bind_group_layout("density attributes", &[storage_entry(3, true), storage_entry(4, true), storage_entry(5, false)])?;
+        let source = format!("{}\n{DENSITY_WGSL}", nimbus_gpu::DISPATCH_WGSL);
+        let limits = ctx.limits();
+        let binding_limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let sums_per_brick = (BRICK_VOXELS * ATTRIBUTE_GROUP * 4) as u64;
+        Ok(AttributePass {
+            ctx,
+            uniforms,
+            uniform_buffer: ctx.uniform_buffer("density attribute params", &uniforms)?,
+            particle_buffer: particle_buffer(ctx, prep)?,
+            cell_buffer: ctx.storage_buffer("density cells", &prep.cells.start)?,
+            value_buffer: ctx.storage_buffer("density attribute values", &padded)?,
+            channels,
+            pipeline: ctx.compute_pipeline("attributes", &source, "attributes", &[&layout, &attribute_layout])?,
+            layout,
+            attribute_layout,
+            chunk_bricks: MAX_CHUNK_BRICKS.min((binding_limit / sums_per_brick).max(1) as usize),
+        })
+    }
+
+    /// Per brick of `bricks` (their final lengths kept), per channel: sum_q values[q][c] *
+    /// m4_shape(r / h) over the particles within kappa*h of each voxel where the density is
+    /// positive, 0 elsewhere (as cpu.rs splat_attributes).
+    pub(crate) fn sums(&self, bricks: &[BrickResult]) -> Result<Vec<Vec<[f32; BRICK_VOXELS]>>, GpuError> {
+        let ctx = self.ctx;
+        let mut out: Vec<Vec<[f32; BRICK_VOXELS]>> = bricks.iter().map(|_| vec![[0.0; BRICK_VOXELS]; self.channels]).collect();
+        for (chunk, slice) in bricks.chunks(self.chunk_bricks).enumerate() {
+            let origins: Vec<glam::IVec3> = slice.iter().map(|b| b.origin).collect();
+            let lengths: Vec<f32> = slice
+                .iter()
+                .flat_map(|b| {
+                    let h = b.h.as_ref().expect("lengths kept for the attribute pass");
+                    (0..BRICK_VOXELS).map(move |v| if b.rho[v] > 0.0 { h[v] } else { 0.0 })
+                })
+                .collect();
+            let voxels = lengths.len();
+            let brick_buffer = brick_buffer(ctx, &origins)?;
+            let length_buffer = ctx.storage_buffer("density attribute lengths", &lengths)?;
+            let sum_buffer = ctx.storage_buffer_zeroed("density attribute sums", (voxels * ATTRIBUTE_GROUP * 4) as u64)?;
+            let group = ctx.buffer_bind_group("density attributes particles", &self.layout, &[&self.uniform_buffer, &self.particle_buffer, &self.cell_buffer, &brick_buffer])?;
+            let entries: Vec<wgpu::BindGroupEntry> = [&self.value_buffer, &length_buffer, &sum_buffer]
+                .iter()
+                .zip(3..)
+                .map(|(buffer, binding)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() })
+                .collect();
+            let attribute_group = ctx.bind_group("density attributes", &self.attribute_layout, &entries)?;
+            for g in 0..self.channels.div_ceil(ATTRIBUTE_GROUP) {
+                let mut uniforms = self.uniforms;
+                uniforms.voxel_count = voxels as u32;
+                uniforms.attribute_group = g as u32;
+                ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+                ctx.dispatch_1d("attributes", &self.pipeline, &[&group, &attribute_group], voxels as u64, WORKGROUP_SIZE)?;
+                let sums: Vec<f32> = ctx.read_buffer(&sum_buffer)?;
+                for (b, brick) in out[chunk * self.chunk_bricks..][..slice.len()].iter_mut().enumerate() {
+                    for c in g * ATTRIBUTE_GROUP..self.channels.min((g + 1) * ATTRIBUTE_GROUP) {
+                        let k = c - g * ATTRIBUTE_GROUP;
+                        for v in 0..BRICK_VOXELS {
+                            brick[c][v] = sums[((b * BRICK_VOXELS + v) * ATTRIBUTE_GROUP) + k];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// An upper bound on the particle-loop iterations of one invocation: the most particles in
 /// the block of cells any grid point's widest gather (radius kappa*h0) visits, times the
 /// gathers one invocation makes (knn above KNN_MAX bisects the 32 bits of r^2 with counting
@@ -337,5 +460,6 @@ mod tests {
         assert!(DENSITY_WGSL.contains(&format!("const KNN_MAX: u32 = {KNN_MAX}u;")));
         assert!(DENSITY_WGSL.contains(&format!("const WORKGROUP_SIZE: u32 = {WORKGROUP_SIZE}u;")));
         assert!(DENSITY_WGSL.contains(&format!("const KAPPA: f32 = {:.1};", crate::kernel::KAPPA)));
+        assert!(DENSITY_WGSL.contains(&format!("array<vec4<f32>, {}>", ATTRIBUTE_GROUP / 4)));
     }
 }

@@ -9,8 +9,9 @@
 //! estimate_cpu | estimate_gpu       rayon splat per brick | wgpu gather per   cpu.rs, gpu.rs
 //!        |                          voxel (shaders/density.wgsl)
 //!        |  per voxel: h from the method, rho = sum m W(|x - x_q|, h)       kernel.rs
-//! attributes (when asked)           rho at the particles, then an SPH       attributes.rs, cpu.rs
-//!        |                          splat of every requested attribute with the voxels' h
+//! attributes (when asked)           rho at the particles, then an SPH       attributes.rs, cpu.rs,
+//!        |                          sum of every requested attribute with   gpu.rs
+//!        |                          the voxels' h
 //! finish                            noise, threshold, volumes, stats        lib.rs, optics::noise
 //!        v  DensityOutput { density: Volume<f32>, smoothing_length?, neighbour_count?,
 //!                           attributes (float or vec3 volumes), stats }
@@ -49,9 +50,11 @@
 //!   and inactive. Non-finite values are left out of their attribute's sums and counted.
 //!   Measured (tests/attributes.rs): against a direct f64 sum over all particles within 2e-5
 //!   relative; a linear field on a jittered lattice within 0.076 |grad v| h inside and 0.40
-//!   |grad v| h in the one-sided rim. The pass runs on the CPU whatever the backend (the
-//!   GPU backend has no twin yet): one kernel evaluation per (particle, voxel) for every
-//!   channel (a kernel sum shared by the attributes without non-finite values, then the
+//!   |grad v| h in the one-sided rim. Both backends run it over the same channel values:
+//!   the CPU splats per brick (`cpu::splat_attributes`), the GPU gathers per voxel
+//!   (`gpu::AttributePass`, eight channels a dispatch), within 6e-6 of the direct sum and
+//!   3e-7 of the CPU (crates/density/tests/attributes.rs). On the CPU: one kernel
+//!   evaluation per (particle, voxel) for every channel (a kernel sum shared by the attributes without non-finite values, then the
 //!   components), 0.64 s for v, Cd and temperature on the bundled plume beside 0.76 s for
 //!   the density's passes (medians of 5, two loaded cores). The readers' naming rule
 //!   (vec3 from `vx vy vz`, `v_x ..`, `v.x ..`, `v[0] ..`; aliases `vel`, `Cd`/`color`) is in
@@ -325,14 +328,34 @@ pub struct DensityOutput {
 /// Estimates the density on the CPU (rayon over bricks, splat passes): [`prepare`], the
 /// method's passes, then the finishing step shared with [`estimate_gpu`].
 pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp, keep| Ok(cpu::estimate_bricks(prep, params.method, params.conserve_mass, pp, keep)))
+    estimate_with(
+        particles,
+        params,
+        |prep, pp, keep| Ok(cpu::estimate_bricks(prep, params.method, params.conserve_mass, pp, keep)),
+        attributes::splat_cpu,
+    )
 }
 
 /// Estimates the density on the GPU (one wgpu invocation per voxel and pass, gathering from
 /// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
 /// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
 pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    estimate_with(particles, params, |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, params.conserve_mass, pp, keep)?))
+    estimate_with(
+        particles,
+        params,
+        |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, params.conserve_mass, pp, keep)?),
+        {
+            // The particles and their values go up once, on the first slice of bricks.
+            let mut pass: Option<gpu::AttributePass> = None;
+            move |prep: &Prepared, pp: &PointParams, bricks: &[BrickResult], values: &[f32], channels: usize| {
+                let pass = match &mut pass {
+                    Some(pass) => pass,
+                    None => pass.insert(gpu::AttributePass::new(ctx, prep, pp, values, channels)?),
+                };
+                Ok(pass.sums(bricks)?)
+            }
+        },
+    )
 }
 
 /// The pipeline every backend runs: prepare, the backend's passes (per-brick sums), results
@@ -341,6 +364,7 @@ fn estimate_with(
     particles: &ParticleSet,
     params: &DensityParams,
     passes: impl FnOnce(&Prepared, &PointParams, &Keep) -> Result<Vec<BrickResult>, DensityError>,
+    mut attribute_splat: impl FnMut(&Prepared, &PointParams, &[BrickResult], &[f32], usize) -> Result<Vec<Vec<[f32; BRICK_VOXELS]>>, DensityError>,
 ) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
     let wanted = attributes::check(particles, &params.attributes)?;
@@ -353,8 +377,7 @@ fn estimate_with(
     let pp = PointParams::new(&prep.grid, params);
     let mut bricks = passes(&prep, &pp, &keep)?;
     let t2 = Instant::now();
-    // The attribute pass is CPU code whichever backend ran the density (design.md section 8).
-    let skipped = if wanted.is_empty() { Vec::new() } else { attributes::interpolate(&prep, &wanted, &mut bricks) };
+    let skipped = if wanted.is_empty() { Vec::new() } else { attributes::interpolate(&prep, &wanted, &mut bricks, |b, v, c| attribute_splat(&prep, &pp, b, v, c))? };
     let t3 = Instant::now();
     let widths: Vec<usize> = wanted.iter().map(|a| a.width()).collect();
     let mut out = finish(&prep, params, bricks, &widths);

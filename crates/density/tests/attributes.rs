@@ -267,23 +267,66 @@ fn readers_find_attributes_by_the_naming_rule() {
     assert!(err.contains("`density`") && err.contains("available: vx, vy, vz, Cd_x, Cd_y, Cd_z, temperature, name, v, Cd"), "{err}");
 }
 
-/// The library's GPU backend runs the density on the GPU and the attribute pass on the CPU
-/// with the GPU's lengths (the tool keeps `--attribute` on the CPU until the pass has a GPU
-/// twin): the grids agree with the CPU backend's to the lengths' rounding. Small: lavapipe
-/// runs on two cores.
+/// The GPU's attribute pass (shaders/density.wgsl `attributes`) against the direct sum with
+/// its own lengths and density, and against the CPU backend: ten channels (two dispatch
+/// groups of eight), among them an attribute with non-finite values and so a weight channel
+/// of its own. Small: lavapipe runs on two cores.
 #[test]
-fn attributes_after_the_gpu_density_agree_with_the_cpu() {
+fn the_gpu_attribute_pass_matches_a_direct_sum_and_the_cpu() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
     let n = 1500;
-    let particles = random_clumpy(n, 13).with_attribute("heat", Attribute::Float((0..n).map(|i| (i % 11) as f32).collect()));
-    let params = DensityParams { neighbours: 20, resolution: Resolution::Longest(24), ..params(Method::Asl3, &["heat"]) };
+    let base = random_clumpy(n, 13);
+    let mut temperature: Vec<f32> = base.positions.iter().map(|p| (300.0 + 40.0 * p.x) as f32).collect();
+    for i in (0..n).step_by(101) {
+        temperature[i] = f32::NAN;
+    }
+    let v: Vec<Vec3> = base.positions.iter().map(|p| Vec3::new(p.z as f32, -(p.y as f32), (p.x * p.y) as f32 * 0.1)).collect();
+    let colour: Vec<Vec3> = (0..n).map(|i| Vec3::new((i % 3) as f32, (i % 5) as f32 * 0.25, 1.0)).collect();
+    let heat: Vec<f32> = (0..n).map(|i| (i % 11) as f32).collect();
+    let particles = base
+        .with_attribute("temperature", Attribute::Float(temperature.clone()))
+        .with_attribute("v", Attribute::Vec3(v.clone()))
+        .with_attribute("Cd", Attribute::Vec3(colour.clone()))
+        .with_attribute("heat", Attribute::Float(heat.clone()));
+    let params = DensityParams { neighbours: 20, resolution: Resolution::Longest(24), ..params(Method::Asl3, &["temperature", "v", "Cd", "heat"]) };
     let cpu = estimate_cpu(&particles, &params).unwrap();
     let gpu = estimate_gpu(ctx, &particles, &params).unwrap();
-    let (a, b) = (float_grid(&cpu, 0), float_grid(&gpu, 0));
-    let (mut worst, mut count) = (0.0f32, 0);
-    each_active(&cpu.density, |ijk| {
-        worst = worst.max((a.get(ijk) - b.get(ijk)).abs());
+    assert_eq!(gpu.attributes[0].skipped_nonfinite, n.div_ceil(101) as u64);
+    let rho: Vec<f64> = particles.positions.iter().map(|&p| gpu.density.sample_world(p) as f64).collect();
+    let finite = |q: usize| temperature[q].is_finite();
+    let (mut worst_direct, mut worst_cpu, mut count) = (0.0f64, 0.0f64, 0);
+    each_active(&gpu.density, |ijk| {
+        // The direct sum leaves the non-finite temperatures out by giving them no weight.
+        let x = voxel_world(&gpu.grid, ijk);
+        let h = gpu.smoothing_length.as_ref().unwrap().get(ijk) as f64;
+        let (mut t_sum, mut t_weight) = (0.0, 0.0);
+        for (q, &p) in particles.positions.iter().enumerate() {
+            let r = (p - x).length();
+            if r < KAPPA as f64 * h && rho[q] > 0.0 && finite(q) {
+                let w = particles.mass(q, 1.0) as f64 / rho[q] * m4_shape((r / h) as f32) as f64;
+                t_sum += w * temperature[q] as f64;
+                t_weight += w;
+            }
+        }
+        let wants = [
+            (float_grid(&gpu, 0).get(ijk) as f64, float_grid(&cpu, 0).get(ijk) as f64, if t_weight > 0.0 { t_sum / t_weight } else { 0.0 }, 700.0),
+            (float_grid(&gpu, 3).get(ijk) as f64, float_grid(&cpu, 3).get(ijk) as f64, direct_sum(&gpu, &particles, &rho, ijk, |q| [heat[q] as f64, 0.0, 0.0])[0], 10.0),
+        ];
+        let vecs = [(1, direct_sum(&gpu, &particles, &rho, ijk, |q| v[q].as_dvec3().to_array()), 10.0), (2, direct_sum(&gpu, &particles, &rho, ijk, |q| colour[q].as_dvec3().to_array()), 2.0)];
+        for (got, on_cpu, want, scale) in wants {
+            worst_direct = worst_direct.max((got - want).abs() / scale);
+            worst_cpu = worst_cpu.max((got - on_cpu).abs() / scale);
+        }
+        for (i, want, scale) in vecs {
+            let (got, on_cpu) = (vec3_grid(&gpu, i).get(ijk).as_dvec3(), vec3_grid(&cpu, i).get(ijk).as_dvec3());
+            worst_direct = worst_direct.max((got - DVec3::from(want)).abs().max_element() / scale);
+            worst_cpu = worst_cpu.max((got - on_cpu).abs().max_element() / scale);
+        }
         count += 1;
     });
-    assert!(count > 1000 && worst < 1e-3, "worst {worst} over {count} voxels (values 0..10)");
+    eprintln!("GPU attribute pass over {count} voxels: worst {worst_direct:e} from the direct sum, {worst_cpu:e} from the CPU");
+    assert!(count > 1000, "{count} active voxels");
+    assert!(worst_direct < 2e-5, "GPU against the direct sum: worst {worst_direct:e} of each attribute's range");
+    assert!(worst_cpu < 1e-4, "GPU against the CPU: worst {worst_cpu:e} of each attribute's range");
+    assert_eq!(vec3_grid(&gpu, 2).active_voxel_count(), gpu.density.active_voxel_count());
 }
