@@ -11,7 +11,7 @@ use nimbus_vdb::{GridKind, MetaValue, VdbFile, WriteOptions};
 
 mod common;
 
-use common::{bin, pipe_output};
+use common::{bin, pipe_output, run};
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("attr", name)
@@ -19,19 +19,8 @@ fn scratch(name: &str) -> PathBuf {
 
 /// Points uniform in a ball of radius 1 (a fixed LCG, so every run sees the same set).
 fn ball(n: usize) -> Vec<DVec3> {
-    let mut s = 11u64;
-    let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    (0..n)
-        .map(|_| loop {
-            let p = DVec3::new(next(), next(), next()) * 2.0 - 1.0;
-            if p.length_squared() <= 1.0 {
-                break p;
-            }
-        })
-        .collect()
+    let mut rng = common::Lcg::new(11);
+    (0..n).map(|_| DVec3::from(rng.in_unit_ball())).collect()
 }
 
 /// The velocity every test particle carries: linear in the position.
@@ -56,11 +45,6 @@ fn write_ply(path: &Path, points: &[DVec3], nan_at: Option<usize>) {
     std::fs::write(path, text).unwrap();
 }
 
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("tool runs");
-    assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
 const GRID: &[&str] = &["--resolution", "32", "--neighbours", "40"];
 

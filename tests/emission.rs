@@ -2,7 +2,6 @@
 //! vdbmarch, piped as a user's shell pipes them, against its closed form; the fire grids'
 //! recognition and `--no-emission`.
 
-use std::process::Output;
 
 use glam::{DVec3, IVec3};
 use nimbus_vdb::{GridClass, VdbFile, WriteOptions};
@@ -10,7 +9,7 @@ use nimbus_volume::{Transform, Volume};
 
 mod common;
 
-use common::pipe_output;
+use common::{exr_attribute, pipe_ok, rgba_of};
 
 /// Unit value on voxels of 0.1 at z = 0..=7 (a density integral of exactly 8 voxels, 0.8,
 /// through the trilinear face ramps), x and y in -24..=24.
@@ -41,30 +40,8 @@ const CAMERA: &[&str] = &["--eye", "0,0,3", "--look-at", "0,0,0.35", "--up", "0,
 /// Absorption only: albedo 0, extinction 3 (so sigma_a = 3).
 const MEDIUM: &[&str] = &["--extinction", "3", "--albedo", "0"];
 
-fn ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
-    let out = pipe_output(tool, args, input);
-    assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
-/// An EXR's RGBA pixels, read with the exr crate from a scratch file.
-fn rgba(exr: &[u8]) -> Vec<[f32; 4]> {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let path = common::scratch("emission", "exr").join(format!("{}.exr", N.fetch_add(1, Ordering::Relaxed)));
-    std::fs::write(&path, exr).unwrap();
-    common::read_rgba(&path)
-}
 
-/// A text attribute of an EXR's header.
-fn exr_attribute(exr: &[u8], key: &str) -> Option<String> {
-    use exr::meta::attribute::{AttributeValue, Text};
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(exr), false).expect("an EXR header");
-    match meta.headers[0].own_attributes.other.get(&Text::from(key))? {
-        AttributeValue::Text(t) => Some(t.to_string()),
-        _ => None,
-    }
-}
 
 /// The worst relative error of the pixels' RGB against `expect`.
 fn worst(pixels: &[[f32; 4]], expect: [f64; 3]) -> f64 {
@@ -83,9 +60,9 @@ const EMIT: &[&str] = &["--emission-grid", "glow", "--emission-strength", "2", "
 fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
     let vdb = slab_vdb("glow", 1.0);
     // vdbcache copies the emission grid through to vdbmarch.
-    let cache = ok("vdbcache", &[CAMERA, MEDIUM].concat(), &vdb).stdout;
-    let march = ok("vdbmarch", &[EMIT, &["-v", "--device", "cpu"]].concat(), &cache);
-    let err = worst(&rgba(&march.stdout), closed_form());
+    let cache = pipe_ok("vdbcache", &[CAMERA, MEDIUM].concat(), &vdb).stdout;
+    let march = pipe_ok("vdbmarch", &[EMIT, &["-v", "--device", "cpu"]].concat(), &cache);
+    let err = worst(&rgba_of(&march.stdout), closed_form());
     eprintln!("march: worst relative error {err:.2e}");
     // The step is a third of a voxel's diagonal (0.577 voxels): the march's emission
     // telescopes to (S c / sigma)(1 - T_march), so what remains is its transmittance error
@@ -98,8 +75,8 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
 
     // The reference path tracer: 36 pixels x 1024 paths, each first collision adding
     // S c / sigma with probability 0.909: the mean's relative standard deviation 0.16%.
-    let reference = ok("vdbmarch", &[EMIT, MEDIUM, CAMERA, &["--reference", "--spp", "1024", "--device", "cpu"]].concat(), &vdb);
-    let pixels = rgba(&reference.stdout);
+    let reference = pipe_ok("vdbmarch", &[EMIT, MEDIUM, CAMERA, &["--reference", "--spp", "1024", "--device", "cpu"]].concat(), &vdb);
+    let pixels = rgba_of(&reference.stdout);
     let n = pixels.len() as f32;
     let mean: Vec<f32> = (0..3).map(|k| pixels.iter().map(|p| p[k]).sum::<f32>() / n).collect();
     let rel = (0..3).map(|k| ((mean[k] as f64 - closed_form()[k]) / closed_form()[k]).abs()).fold(0.0, f64::max);
@@ -107,8 +84,8 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
     assert!(rel < 0.01, "reference: {rel}");
 
     // The GPU march (emission.wgsl) to its closed form too, and to the CPU's pixels.
-    let gpu = ok("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
-    let (gpu_pixels, cpu_pixels) = (rgba(&gpu.stdout), rgba(&march.stdout));
+    let gpu = pipe_ok("vdbmarch", &[EMIT, &["--device", "gpu"]].concat(), &cache);
+    let (gpu_pixels, cpu_pixels) = (rgba_of(&gpu.stdout), rgba_of(&march.stdout));
     let gpu_err = worst(&gpu_pixels, closed_form());
     let apart = gpu_pixels.iter().zip(&cpu_pixels).flat_map(|(g, c)| (0..3).map(move |k| ((g[k] - c[k]) / c[k]).abs())).fold(0.0f32, f32::max);
     eprintln!("GPU march: worst relative error {gpu_err:.2e}, {apart:.2e} from the CPU's pixels");
@@ -119,15 +96,15 @@ fn an_emitting_absorbing_slab_renders_to_its_closed_form() {
 fn fire_grids_are_recognised_and_no_emission_turns_them_off() {
     // Blender's normalised temperature (max about 3): a blackbody at 1000 K a unit.
     let vdb = slab_vdb("temperature", 2.0);
-    let cache = ok("vdbcache", &[CAMERA, MEDIUM].concat(), &vdb).stdout;
-    let fire = ok("vdbmarch", &["-v", "--device", "cpu"], &cache);
+    let cache = pipe_ok("vdbcache", &[CAMERA, MEDIUM].concat(), &vdb).stdout;
+    let fire = pipe_ok("vdbmarch", &["-v", "--device", "cpu"], &cache);
     let log = String::from_utf8_lossy(&fire.stderr);
     assert!(log.contains("emission: recognised grid 'temperature'") && log.contains("1000 K per unit"), "{log}");
     // 2000 K inside at blackbody intensity 1: luminance sigma T^4 / pi * 1e-6 = 0.2888 a unit
     // length. T follows the faces' one-voxel ramps (T = 2000 g, g the trilinear profile), so
     // e / sigma_t ~ g^3 is not constant there: the closed form is integrated numerically
     // over the profile, L = integral e(z) exp(-3 integral g) dz.
-    let pixels = rgba(&fire.stdout);
+    let pixels = rgba_of(&fire.stdout);
     let p = pixels[14];
     let luminance = |p: &[f32; 4]| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64;
     let lum = pixels.iter().map(luminance).sum::<f64>() / pixels.len() as f64;
@@ -150,15 +127,15 @@ fn fire_grids_are_recognised_and_no_emission_turns_them_off() {
     assert!(p[0] > p[1] && p[1] > p[2], "a 2000 K blackbody is orange: {p:?}");
 
     assert_eq!(exr_attribute(&fire.stdout, "nimbus:emission").as_deref(), Some("temperature=temperature,scale=1000,blackbody=1"));
-    let off = ok("vdbmarch", &["--no-emission", "--device", "cpu"], &cache);
+    let off = pipe_ok("vdbmarch", &["--no-emission", "--device", "cpu"], &cache);
     assert_eq!(exr_attribute(&off.stdout, "nimbus:emission").as_deref(), Some("none"));
-    assert!(rgba(&off.stdout).iter().all(|p| p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0));
+    assert!(rgba_of(&off.stdout).iter().all(|p| p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0));
 
     // Houdini's or Blender's flame without a temperature grid: the emission grid term.
-    let flame = ok("vdbmarch", &["-v", "--device", "cpu"], &ok("vdbcache", &[CAMERA, MEDIUM].concat(), &slab_vdb("flame", 1.0)).stdout);
+    let flame = pipe_ok("vdbmarch", &["-v", "--device", "cpu"], &pipe_ok("vdbcache", &[CAMERA, MEDIUM].concat(), &slab_vdb("flame", 1.0)).stdout);
     let log = String::from_utf8_lossy(&flame.stderr);
     assert!(log.contains("emission: recognised grid 'flame'"), "{log}");
-    assert!(rgba(&flame.stdout)[14][0] > 0.0);
+    assert!(rgba_of(&flame.stdout)[14][0] > 0.0);
 }
 
 /// The slab with `density` and the grids `(name, value)` of its shape.
@@ -178,17 +155,17 @@ fn slab_with(grids: &[(&str, f32)]) -> Vec<u8> {
 /// grid of 2.25. With Houdini's `vel` beside them, the temperature grid is the fire.
 #[test]
 fn a_blender_fire_renders_from_its_flame() {
-    let march = |vdb: &[u8]| ok("vdbmarch", &["-v", "--device", "cpu"], &ok("vdbcache", &[CAMERA, MEDIUM].concat(), vdb).stdout);
+    let march = |vdb: &[u8]| pipe_ok("vdbmarch", &["-v", "--device", "cpu"], &pipe_ok("vdbcache", &[CAMERA, MEDIUM].concat(), vdb).stdout);
     let blender = march(&slab_with(&[("flame", 0.5), ("temperature", 2.0)]));
     let log = String::from_utf8_lossy(&blender.stderr);
     assert!(log.contains("recognised a Blender Mantaflow fire") && log.contains("(1500 to 3000 K)"), "{log}");
     let same = march(&slab_with(&[("temperature", 2.25)]));
-    assert_eq!(rgba(&blender.stdout), rgba(&same.stdout), "flame 0.5 is not a 2250 K blackbody");
+    assert_eq!(rgba_of(&blender.stdout), rgba_of(&same.stdout), "flame 0.5 is not a 2250 K blackbody");
     assert_eq!(exr_attribute(&blender.stdout, "nimbus:emission").as_deref(), Some("temperature=flame->temperature,scale=1000,blackbody=1"));
     let houdini = march(&slab_with(&[("flame", 0.5), ("temperature", 2.0), ("vel", 0.0)]));
     assert!(String::from_utf8_lossy(&houdini.stderr).contains("recognised grid 'temperature'"));
     let heat = march(&slab_with(&[("temperature", 2.0)]));
-    assert_eq!(rgba(&houdini.stdout), rgba(&heat.stdout));
+    assert_eq!(rgba_of(&houdini.stdout), rgba_of(&heat.stdout));
 }
 
 /// A cube of 12^3 voxels of 0.1 whose central 4^3 voxels glow, as a VDB: `density` and
@@ -222,7 +199,7 @@ const GLOWING: &[&str] = &[
 ];
 
 fn mean_rgb(exr: &[u8]) -> [f64; 3] {
-    let pixels = rgba(exr);
+    let pixels = rgba_of(exr);
     let n = pixels.len() as f64;
     [0, 1, 2].map(|k| pixels.iter().map(|p| p[k] as f64).sum::<f64>() / n)
 }
@@ -236,20 +213,20 @@ fn mean_rgb(exr: &[u8]) -> [f64; 3] {
 fn a_glowing_cube_lights_its_own_smoke_through_the_chain() {
     let vdb = glowing_cube_vdb();
     let emit: &[&str] = &["--emission-grid", "glow", "--emission-strength", "20"];
-    let cache = ok("vdbcache", &[GLOWING, emit].concat(), &vdb);
+    let cache = pipe_ok("vdbcache", &[GLOWING, emit].concat(), &vdb);
     assert!(VdbFile::from_bytes(&cache.stdout, "cache").unwrap().metadata().get("nimbus:emission").and_then(|v| v.as_str()) == Some("grid=glow,strength=20,color=1,1,1"));
-    let march = ok("vdbmarch", &[emit, &["-v"]].concat(), &cache.stdout);
+    let march = pipe_ok("vdbmarch", &[emit, &["-v"]].concat(), &cache.stdout);
     let log = String::from_utf8_lossy(&march.stderr);
     assert!(log.contains("its light scattered by the medium is in the cache"), "{log}");
     let chain = mean_rgb(&march.stdout);
 
-    let dark_cache = ok("vdbcache", &[GLOWING, &["--no-emission"]].concat(), &vdb).stdout;
-    let dark = ok("vdbmarch", &[emit, &["-v"]].concat(), &dark_cache);
+    let dark_cache = pipe_ok("vdbcache", &[GLOWING, &["--no-emission"]].concat(), &vdb).stdout;
+    let dark = pipe_ok("vdbmarch", &[emit, &["-v"]].concat(), &dark_cache);
     assert!(String::from_utf8_lossy(&dark.stderr).contains("is not in the cache"));
     let unscattered = mean_rgb(&dark.stdout);
 
     // 576 pixels x 2048 paths: the mean's seeds spread by about 0.7% (1.4% at 512, measured).
-    let reference = mean_rgb(&ok("vdbmarch", &[GLOWING, emit, &["--reference", "--spp", "2048"]].concat(), &vdb).stdout);
+    let reference = mean_rgb(&pipe_ok("vdbmarch", &[GLOWING, emit, &["--reference", "--spp", "2048"]].concat(), &vdb).stdout);
     let ratio = chain[0] / reference[0];
     eprintln!("glowing cube: chain {chain:?}, without scattered emission {unscattered:?}, reference {reference:?}: chain / reference {ratio:.4}");
     assert!((ratio - 1.0).abs() < 0.03, "chain / reference {ratio}");
@@ -259,8 +236,8 @@ fn a_glowing_cube_lights_its_own_smoke_through_the_chain() {
 
     // The GPU cache's paths gather the same emission (the same streams: means within
     // 1%), and the GPU march adds the same glow.
-    let gpu_cache = ok("vdbcache", &[GLOWING, emit, &["--device", "gpu"]].concat(), &vdb).stdout;
-    let gpu_chain = mean_rgb(&ok("vdbmarch", &[emit, &["--device", "gpu"]].concat(), &gpu_cache).stdout);
+    let gpu_cache = pipe_ok("vdbcache", &[GLOWING, emit, &["--device", "gpu"]].concat(), &vdb).stdout;
+    let gpu_chain = mean_rgb(&pipe_ok("vdbmarch", &[emit, &["--device", "gpu"]].concat(), &gpu_cache).stdout);
     let apart = gpu_chain[0] / chain[0] - 1.0;
     eprintln!("glowing cube on the GPU: chain {gpu_chain:?} ({apart:+.2e} from the CPU's)");
     assert!(apart.abs() < 0.01, "GPU chain {gpu_chain:?} against the CPU's {chain:?}");
@@ -277,7 +254,7 @@ fn vdbphoton_traces_photons_from_an_emitting_volume_without_lights() {
         "--extinction", "2000", "--albedo", "0.5", "--sun", "dir=0,0,-1,irradiance=0", "--photons", "20000", "--max-interactions", "1",
         "--emission-grid", "glow", "--emission-strength", "20",
     ];
-    let out = ok("vdbphoton", args, &vdb);
+    let out = pipe_ok("vdbphoton", args, &vdb);
     let file = VdbFile::from_bytes(&out.stdout, "photons").unwrap();
     let meta = file.metadata();
     assert_eq!(meta.get("nimbus:emission").and_then(|v| v.as_str()), Some("grid=glow,strength=20,color=1,1,1"));
@@ -291,7 +268,7 @@ fn vdbphoton_traces_photons_from_an_emitting_volume_without_lights() {
     assert!((total / expected - 1.0).abs() < 0.02, "{total} against {expected}");
 
     // The GPU photon tracer: the same photons from the glow, the same power.
-    let gpu = VdbFile::from_bytes(&ok("vdbphoton", &[args, &["--device", "gpu"]].concat(), &vdb).stdout, "photons").unwrap();
+    let gpu = VdbFile::from_bytes(&pipe_ok("vdbphoton", &[args, &["--device", "gpu"]].concat(), &vdb).stdout, "photons").unwrap();
     let gpu_record = gpu.metadata().get("nimbus:vdbphoton").and_then(|v| v.as_str()).unwrap().to_string();
     let gpu_emitted: f64 = gpu_record.split(',').find_map(|kv| kv.strip_prefix("emitted=")).unwrap().parse().unwrap();
     let gpu_points = gpu.read_points("photons").unwrap();

@@ -13,7 +13,7 @@ use nimbus_volume::{Transform, Volume};
 
 mod common;
 
-use common::{pipe_output, read_rgba, scratch};
+use common::{pipe_ok, read_rgba, scratch};
 
 /// A ball of unit density, radius 8 voxels of 0.1 (a smooth edge two voxels wide).
 fn ball_vdb() -> Vec<u8> {
@@ -37,11 +37,6 @@ fn ball_vdb() -> Vec<u8> {
 /// The ball fills the middle of a 16 x 16 image from -Y; its corners see past it.
 const CAMERA: &[&str] = &["--eye", "0,-4,0", "--look-at", "0,0,0", "--up", "0,0,1", "--fov", "30", "--width", "16", "--height", "16"];
 
-fn ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
-    let out = pipe_output(tool, args, input);
-    assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
 fn rgba(exr: &[u8], name: &str) -> Vec<[f32; 4]> {
     let path = scratch("environment", name).join("image.exr");
@@ -62,12 +57,12 @@ fn mean_rgb(pixels: &[[f32; 4]]) -> [f64; 3] {
 /// vdbcache | vdbmarch with `light` flags on vdbcache only: vdbmarch finds the environment
 /// in the cache's metadata.
 fn chain(vdb: &[u8], medium: &[&str], light: &[&str], name: &str) -> Vec<[f32; 4]> {
-    let cache = ok("vdbcache", &[CAMERA, medium, light, &["--device", "cpu"]].concat(), vdb).stdout;
-    rgba(&ok("vdbmarch", &["--device", "cpu"], &cache).stdout, name)
+    let cache = pipe_ok("vdbcache", &[CAMERA, medium, light, &["--device", "cpu"]].concat(), vdb).stdout;
+    rgba(&pipe_ok("vdbmarch", &["--device", "cpu"], &cache).stdout, name)
 }
 
 fn reference(vdb: &[u8], medium: &[&str], light: &[&str], spp: &str, name: &str) -> Vec<[f32; 4]> {
-    rgba(&ok("vdbmarch", &[CAMERA, medium, light, &["--reference", "--spp", spp, "--device", "cpu"]].concat(), vdb).stdout, name)
+    rgba(&pipe_ok("vdbmarch", &[CAMERA, medium, light, &["--reference", "--spp", spp, "--device", "cpu"]].concat(), vdb).stdout, name)
 }
 
 #[test]
@@ -160,11 +155,11 @@ fn an_environment_map_lights_the_chain_as_it_lights_the_reference() {
 fn photons_from_the_sky_light_the_photon_gather() {
     let vdb = ball_vdb();
     let medium = ["--extinction", "4", "--albedo", "0.8", "--g", "0.3"];
-    let photons = ok("vdbphoton", &[&medium[..], &["--sky", "0.5,0.7,1", "--photons", "100000", "-v"]].concat(), &vdb);
+    let photons = pipe_ok("vdbphoton", &[&medium[..], &["--sky", "0.5,0.7,1", "--photons", "100000", "-v"]].concat(), &vdb);
     let log = String::from_utf8_lossy(&photons.stderr);
     assert!(log.contains("environment: sky=0.5,0.7,1"), "{log}");
-    let cache = ok("vdbcache", &[CAMERA, &["--gather-neighbours", "64"]].concat(), &photons.stdout).stdout;
-    let gathered = mean_rgb(&rgba(&ok("vdbmarch", &["--background", "0"], &cache).stdout, "photons-sky"));
+    let cache = pipe_ok("vdbcache", &[CAMERA, &["--gather-neighbours", "64"]].concat(), &photons.stdout).stdout;
+    let gathered = mean_rgb(&rgba(&pipe_ok("vdbmarch", &["--background", "0"], &cache).stdout, "photons-sky"));
     let truth = mean_rgb(&reference(&vdb, &medium, &["--sky", "0.5,0.7,1", "--background", "0"], "256", "photons-ref"));
     eprintln!("photon gather under a sky: {gathered:?}, reference {truth:?}");
     for k in 0..3 {

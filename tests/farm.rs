@@ -6,12 +6,12 @@
 //! of scripts/install-deps.sh; not root, they fail unless NIMBUS_SKIP_ROOT_TESTS=1.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{bin, read_rgba};
+use common::{bin, read_rgba, run, write_ball};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -29,30 +29,7 @@ fn root_or_skip(what: &str) -> bool {
     panic!("{what} needs root (make test runs as root on CI); set NIMBUS_SKIP_ROOT_TESTS=1 to skip it");
 }
 
-fn ok(cmd: &mut Command) -> Output {
-    let out = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
-    assert!(out.status.success(), "{cmd:?} failed: {}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    out
-}
 
-/// A ball of particles moved along +X by `shift` (as tests/sequence.rs makes them).
-fn write_ball(path: &Path, n: usize, shift: f64) {
-    let mut s = 11u64;
-    let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let mut text = format!("ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
-    let mut written = 0;
-    while written < n {
-        let p = [next() * 2.0 - 1.0, next() * 2.0 - 1.0, next() * 2.0 - 1.0];
-        if p.iter().map(|v| v * v).sum::<f64>() <= 1.0 {
-            text += &format!("{} {} {}\n", p[0] + shift, p[1], p[2]);
-            written += 1;
-        }
-    }
-    std::fs::write(path, text).unwrap();
-}
 
 /// Small and quick: 32x24 draft frames of a ball on a 16-voxel grid.
 const RENDER: &[&str] = &[
@@ -81,7 +58,7 @@ struct Cluster {
 impl Cluster {
     fn start(dir: &Path) -> Cluster {
         let cluster = Cluster { dir: dir.to_path_buf() };
-        ok(Command::new(repo().join("scripts/farm/slurm-local.sh")).arg("start").arg(dir).arg("2"));
+        run(Command::new(repo().join("scripts/farm/slurm-local.sh")).arg("start").arg(dir).arg("2"));
         cluster
     }
 
@@ -97,7 +74,7 @@ impl Cluster {
 
     /// Whether the job still has tasks queued or running.
     fn active(&self, job: &str) -> bool {
-        let out = ok(self.command("squeue").args(["-h", "-j", job, "-o", "%i %T"]));
+        let out = run(self.command("squeue").args(["-h", "-j", job, "-o", "%i %T"]));
         !String::from_utf8_lossy(&out.stdout).trim().is_empty()
     }
 
@@ -111,7 +88,7 @@ impl Cluster {
 
     /// Each array task's state, from scontrol (kept MinJobAge seconds after the end).
     fn states(&self, job: &str) -> Vec<String> {
-        let out = ok(self.command("scontrol").args(["show", "job", job, "-o"]));
+        let out = run(self.command("scontrol").args(["show", "job", job, "-o"]));
         String::from_utf8_lossy(&out.stdout)
             .lines()
             .filter_map(|l| l.split_whitespace().find_map(|w| w.strip_prefix("JobState=")).map(str::to_string))
@@ -132,7 +109,7 @@ impl Drop for Cluster {
 }
 
 fn submit(cluster: &Cluster, dir: &Path, out_dir: &str, frames: &str, chunk: &str, max_running: &str, extra: &[&str]) -> String {
-    let out = ok(cluster
+    let out = run(cluster
         .command(repo().join("scripts/farm/slurm-submit.sh").to_str().unwrap())
         .current_dir(dir)
         .env("NIMBUS_RENDER", bin("nimbus-render"))
@@ -170,7 +147,7 @@ fn slurm_renders_a_sequence_and_a_cancelled_task_costs_no_frame() {
     assert_eq!(cluster.states(&job), ["COMPLETED"; 3], "logs: {:?}", files(&dir.join("logs")));
     assert_eq!(files(&dir.join("frames")), ["i.0001.exr", "i.0002.exr", "i.0003.exr"]);
     // The farm's frame is the one a local run renders.
-    ok(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "2"]).args(RENDER));
+    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "2"]).args(RENDER));
     assert_eq!(std::fs::read(dir.join("frames/i.0002.exr")).unwrap(), std::fs::read(dir.join("local/i.0002.exr")).unwrap());
     for f in 1..=3 {
         assert!(read_rgba(&dir.join(format!("frames/i.{f:04}.exr"))).iter().any(|p| p[3] > 0.05), "frame {f} shows the ball");
@@ -187,7 +164,7 @@ fn slurm_renders_a_sequence_and_a_cancelled_task_costs_no_frame() {
     }
     std::thread::sleep(Duration::from_millis(1500));
     assert!(files(&dir.join("slow")).is_empty(), "task 0 still mid-frame when cancelled: {:?}", files(&dir.join("slow")));
-    ok(cluster.command("scancel").arg(format!("{job}_0")));
+    run(cluster.command("scancel").arg(format!("{job}_0")));
     cluster.wait(&job, Duration::from_secs(300));
     assert_eq!(cluster.task_state(&job, 0).as_deref(), Some("CANCELLED"));
     // The cancelled frame left nothing behind, not even a hidden temporary file.
@@ -225,7 +202,7 @@ fn the_openjd_template_renders_a_sequence_in_chunks() {
     let found = Command::new(&openjd).arg("--help").output().is_ok_and(|o| o.status.success());
     assert!(found, "openjd-cli not found ({}): run scripts/install-deps.sh, which installs it into ~/.cache/nimbus/openjd", openjd.display());
     let template = repo().join("farm/nimbus-render.openjd.yaml");
-    let out = ok(Command::new(&openjd).arg("check").arg(&template));
+    let out = run(Command::new(&openjd).arg("check").arg(&template));
     assert!(String::from_utf8_lossy(&out.stdout).contains("passes validation"), "{}", String::from_utf8_lossy(&out.stdout));
 
     let dir = common::scratch("farm", "openjd");
@@ -233,7 +210,7 @@ fn the_openjd_template_renders_a_sequence_in_chunks() {
         write_ball(&dir.join(format!("p.{f:04}.ply")), 1200, 0.2 * f as f64);
     }
     let extra = RENDER.iter().map(|w| format!("'{w}'")).collect::<Vec<_>>().join(" ");
-    let out = ok(Command::new(&openjd).current_dir(&dir).arg("run").arg(&template).args(["--step", "Render"]).args([
+    let out = run(Command::new(&openjd).current_dir(&dir).arg("run").arg(&template).args(["--step", "Render"]).args([
         "-p".to_string(),
         "Input=p.$F4.ply".into(),
         "-p".into(),
@@ -252,7 +229,7 @@ fn the_openjd_template_renders_a_sequence_in_chunks() {
     let report = String::from_utf8_lossy(&out.stdout);
     assert!(report.contains("Chunks run: 2"), "frames 1-2 and 3: {report}");
     assert_eq!(files(&dir.join("frames")), ["i.0001.exr", "i.0002.exr", "i.0003.exr"], "{report}");
-    ok(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "3"]).args(RENDER));
+    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "3"]).args(RENDER));
     assert_eq!(std::fs::read(dir.join("frames/i.0003.exr")).unwrap(), std::fs::read(dir.join("local/i.0003.exr")).unwrap());
     std::fs::remove_dir_all(&dir).ok();
 }

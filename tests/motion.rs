@@ -3,7 +3,6 @@
 //! the distance the shutter covers, the GPU march agrees with the CPU's, the EXR records
 //! the blur, and bad input is refused.
 
-use std::process::Output;
 
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_vdb::{GridClass, VdbFile, WriteOptions};
@@ -11,7 +10,7 @@ use nimbus_volume::{Transform, Volume};
 
 mod common;
 
-use common::pipe_output;
+use common::{exr_attribute, pipe_ok, pipe_output, rgba_of};
 
 const VOXEL: f64 = 0.05;
 
@@ -43,28 +42,8 @@ const SCENE: &[&str] = &[
     "--extinction", "4", "--albedo", "0.9",
 ];
 
-fn ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
-    let out = pipe_output(tool, args, input);
-    assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
-fn rgba(exr: &[u8]) -> Vec<[f32; 4]> {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let path = common::scratch("motion", "exr").join(format!("{}.exr", N.fetch_add(1, Ordering::Relaxed)));
-    std::fs::write(&path, exr).unwrap();
-    common::read_rgba(&path)
-}
 
-fn exr_attribute(exr: &[u8], key: &str) -> Option<String> {
-    use exr::meta::attribute::{AttributeValue, Text};
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(exr), false).expect("an EXR header");
-    match meta.headers[0].own_attributes.other.get(&Text::from(key))? {
-        AttributeValue::Text(t) => Some(t.to_string()),
-        _ => None,
-    }
-}
 
 /// The variance (pixels squared) and the sum of the image's alpha profile along x (each
 /// column's summed alpha): a blur over a travel of L pixels convolves the profile with a
@@ -81,14 +60,14 @@ fn profile_moments(pixels: &[[f32; 4]]) -> (f64, f64) {
 fn a_moving_ball_blurs_along_its_velocity_through_the_chain() {
     // 12 units a second over a shutter of 0.5 frames at 24 fps: 0.25 world units of travel.
     let vdb = moving_ball("v", Vec3::new(12.0, 0.0, 0.0));
-    let cache = ok("vdbcache", SCENE, &vdb).stdout;
-    let sharp = ok("vdbmarch", &["--spp", "16", "--device", "cpu"], &cache).stdout;
-    let blurred = ok("vdbmarch", &["--spp", "16", "--device", "cpu", "--motion-blur", "-v"], &cache);
+    let cache = pipe_ok("vdbcache", SCENE, &vdb).stdout;
+    let sharp = pipe_ok("vdbmarch", &["--spp", "16", "--device", "cpu"], &cache).stdout;
+    let blurred = pipe_ok("vdbmarch", &["--spp", "16", "--device", "cpu", "--motion-blur", "-v"], &cache);
     let log = String::from_utf8_lossy(&blurred.stderr);
     assert!(log.contains("motion blur: velocity grid 'v'") && log.contains("0.2500 world units"), "{log}");
     assert_eq!(exr_attribute(&blurred.stdout, "nimbus:motion_blur").as_deref(), Some("grid=v,shutter=0.5,fps=24,scale=1"));
     assert_eq!(exr_attribute(&sharp, "nimbus:motion_blur").as_deref(), Some("none"));
-    let (s, b) = (rgba(&sharp), rgba(&blurred.stdout));
+    let (s, b) = (rgba_of(&sharp), rgba_of(&blurred.stdout));
     let ((vs, ss), (vb, sb)) = (profile_moments(&s), profile_moments(&b));
     // A pixel is 2 x 4 tan(10 deg) / 64 = 0.0220 world units at the ball: the 0.25 it
     // travels is 11.3 pixels, which adds 10.7 pixels^2 to the variance.
@@ -99,17 +78,17 @@ fn a_moving_ball_blurs_along_its_velocity_through_the_chain() {
     assert!((sb / ss - 1.0).abs() < 0.02, "alpha sums {ss} and {sb}");
 
     // The GPU march takes the same times and lookups.
-    let gpu = rgba(&ok("vdbmarch", &["--spp", "16", "--device", "gpu", "--motion-blur"], &cache).stdout);
+    let gpu = rgba_of(&pipe_ok("vdbmarch", &["--spp", "16", "--device", "gpu", "--motion-blur"], &cache).stdout);
     let apart = gpu.iter().zip(&b).flat_map(|(g, c)| (0..4).map(move |k| (g[k] - c[k]).abs())).fold(0.0f32, f32::max);
     eprintln!("GPU march against the CPU's: {apart:.2e}");
     assert!(apart < 1e-3, "{apart}");
 
     // The reference blurs too, on either backend.
-    let reference = rgba(&ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "cpu", "--motion-blur"]].concat(), &vdb).stdout);
+    let reference = rgba_of(&pipe_ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "cpu", "--motion-blur"]].concat(), &vdb).stdout);
     let (vr, _) = profile_moments(&reference);
     eprintln!("reference: alpha profile variance {vr:.2}");
     assert!(((vr - vs) / (travel * travel / 12.0) - 1.0).abs() < 0.2, "the reference's blur added {} pixels^2", vr - vs);
-    let gpu_reference = rgba(&ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "gpu", "--motion-blur"]].concat(), &vdb).stdout);
+    let gpu_reference = rgba_of(&pipe_ok("vdbmarch", &[SCENE, &["--reference", "--spp", "16", "--device", "gpu", "--motion-blur"]].concat(), &vdb).stdout);
     let (vg, _) = profile_moments(&gpu_reference);
     eprintln!("GPU reference: alpha profile variance {vg:.2}");
     // The same draws, decided in f32: the blur's width to a small fraction of what it adds.
@@ -121,7 +100,7 @@ fn motion_blur_finds_houdini_and_blender_velocity_grids_and_refuses_bad_input() 
     // Houdini's `vel`, Blender's `velocity` are found without --velocity-grid.
     for name in ["vel", "velocity"] {
         let vdb = moving_ball(name, Vec3::new(2.0, 0.0, 0.0));
-        let out = ok("vdbmarch", &[SCENE, &["--reference", "--spp", "1", "--motion-blur", "-v", "--device", "cpu"]].concat(), &vdb);
+        let out = pipe_ok("vdbmarch", &[SCENE, &["--reference", "--spp", "1", "--motion-blur", "-v", "--device", "cpu"]].concat(), &vdb);
         assert!(String::from_utf8_lossy(&out.stderr).contains(&format!("velocity grid '{name}'")));
     }
     // No velocity grid: a clear error naming the vec3 grids there are, exit 2.
@@ -131,7 +110,7 @@ fn motion_blur_finds_houdini_and_blender_velocity_grids_and_refuses_bad_input() 
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.starts_with("error: --motion-blur needs a velocity grid") && err.contains("wind"), "{err}");
     // Named, it is used.
-    ok("vdbmarch", &[SCENE, &["--reference", "--spp", "1", "--motion-blur", "--velocity-grid", "wind", "--device", "cpu"]].concat(), &vdb);
+    pipe_ok("vdbmarch", &[SCENE, &["--reference", "--spp", "1", "--motion-blur", "--velocity-grid", "wind", "--device", "cpu"]].concat(), &vdb);
     // A scalar grid named as velocity, a bad shutter and fps, and --shutter without
     // --motion-blur: exit 2.
     for args in [

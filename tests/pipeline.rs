@@ -2,11 +2,11 @@
 //! through files, with the files checked by independent readers.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 mod common;
 
-use common::{bin, pipe_output, read_rgba};
+use common::{bin, pipe_output, read_rgba, run};
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("e2e", name)
@@ -14,24 +14,16 @@ fn scratch(name: &str) -> PathBuf {
 
 /// A ball of particles with a denser knot, as ASCII PLY.
 fn write_particles(path: &Path, n: usize) {
-    let mut s = 7u64;
-    let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let mut text = format!("ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
-    for i in 0..n {
-        // Uniform in a ball of radius 1, a quarter of them in a knot of radius 0.3.
-        let (r, c) = if i % 4 == 0 { (0.3, [0.3, 0.0, 0.2]) } else { (1.0, [0.0, 0.0, 0.0]) };
-        loop {
-            let p = [next() * 2.0 - 1.0, next() * 2.0 - 1.0, next() * 2.0 - 1.0];
-            if p.iter().map(|v| v * v).sum::<f64>() <= 1.0 {
-                text += &format!("{} {} {}\n", c[0] + r * p[0], c[1] + r * p[1], c[2] + r * p[2]);
-                break;
-            }
-        }
-    }
-    std::fs::write(path, text).unwrap();
+    let mut rng = common::Lcg::new(7);
+    // Uniform in a ball of radius 1, a quarter of them in a knot of radius 0.3.
+    let points: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let (r, c) = if i % 4 == 0 { (0.3, [0.3, 0.0, 0.2]) } else { (1.0, [0.0, 0.0, 0.0]) };
+            let p = rng.in_unit_ball();
+            [c[0] + r * p[0], c[1] + r * p[1], c[2] + r * p[2]]
+        })
+        .collect();
+    common::write_points_ply(path, points.into_iter());
 }
 
 const DENSITY: &[&str] = &["--resolution", "40", "--neighbours", "24"];
@@ -39,11 +31,6 @@ const PHOTON: &[&str] = &["--photons", "4000", "--extinction", "6", "--seed", "5
 const CACHE: &[&str] = &["--width", "48", "--height", "32", "--gather-neighbours", "16"];
 const MARCH: &[&str] = &["--spp", "2"];
 
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("tool runs");
-    assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
 fn pipe(tool: &str, args: &[&str], input: &[u8]) -> Vec<u8> {
     let out = pipe_output(tool, args, input);

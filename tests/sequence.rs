@@ -8,30 +8,12 @@ use std::process::{Command, Output};
 
 mod common;
 
-use common::{bin, read_rgba};
+use common::{bin, read_rgba, run, write_ball};
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("seq", name)
 }
 
-/// A ball of `n` particles of radius 1, moved along +X by `shift`, as ASCII PLY.
-pub fn write_ball(path: &Path, n: usize, shift: f64) {
-    let mut s = 11u64;
-    let mut next = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let mut text = format!("ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n");
-    let mut written = 0;
-    while written < n {
-        let p = [next() * 2.0 - 1.0, next() * 2.0 - 1.0, next() * 2.0 - 1.0];
-        if p.iter().map(|v| v * v).sum::<f64>() <= 1.0 {
-            text += &format!("{} {} {}\n", p[0] + shift, p[1], p[2]);
-            written += 1;
-        }
-    }
-    std::fs::write(path, text).unwrap();
-}
 
 const P2V: &[&str] = &["--resolution", "16", "--neighbours", "16"];
 const SUN: &str = "dir=0.3,0.2,-1,irradiance=3";
@@ -42,11 +24,6 @@ fn output(cmd: &mut Command) -> Output {
     cmd.output().expect("the tool runs")
 }
 
-fn ok(cmd: &mut Command) -> Output {
-    let out = output(cmd);
-    assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
-    out
-}
 
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
@@ -63,9 +40,9 @@ fn cache(dir: &Path, name: &str) -> PathBuf {
     let ply = dir.join(format!("{name}.ply"));
     write_ball(&ply, 1500, 0.0);
     let d = dir.join(format!("{name}.density.vdb"));
-    ok(tool("particles2vdb", dir).arg(&ply).args(P2V).arg("-o").arg(&d));
+    run(tool("particles2vdb", dir).arg(&ply).args(P2V).arg("-o").arg(&d));
     let c = dir.join(format!("{name}.vdb"));
-    ok(tool("vdbcache", dir).arg(&d).args(CACHE).arg("-o").arg(&c));
+    run(tool("vdbcache", dir).arg(&d).args(CACHE).arg("-o").arg(&c));
     c
 }
 
@@ -89,10 +66,10 @@ fn every_tool_runs_a_sequence_and_reports_a_missing_frame() {
     // The per-frame progress line: frame, time, stage times.
     assert!(err.contains("particles2vdb: frame 2: ") && err.contains("estimate "), "{err}");
 
-    ok(tool("vdbphoton", &dir).args(["d.%04d.vdb", "--frame", "2", "-o", "ph.%04d.vdb", "--photons", "2000", "-q"]));
+    run(tool("vdbphoton", &dir).args(["d.%04d.vdb", "--frame", "2", "-o", "ph.%04d.vdb", "--photons", "2000", "-q"]));
     assert!(dir.join("ph.0002.vdb").is_file());
-    ok(tool("vdbcache", &dir).args(["d.%04d.vdb", "--frames", "1-2,4", "-o", "c.%d.vdb"]).args(CACHE));
-    let out = ok(tool("vdbmarch", &dir).args(["c.%d.vdb", "--frames", "1,2,4", "-o", "i.$F.exr", "--preview", "i.##.png"]).args(MARCH));
+    run(tool("vdbcache", &dir).args(["d.%04d.vdb", "--frames", "1-2,4", "-o", "c.%d.vdb"]).args(CACHE));
+    let out = run(tool("vdbmarch", &dir).args(["c.%d.vdb", "--frames", "1,2,4", "-o", "i.$F.exr", "--preview", "i.##.png"]).args(MARCH));
     assert!(stderr(&out).contains("vdbmarch: frame 4: "), "{}", stderr(&out));
     for f in [1, 2, 4] {
         assert!(dir.join(format!("i.{f:02}.png")).is_file());
@@ -101,7 +78,7 @@ fn every_tool_runs_a_sequence_and_reports_a_missing_frame() {
     assert!(one.iter().any(|p| p[3] > 0.05), "the ball is in the picture");
     assert_ne!(one, two, "the ball moved between frames");
     // -q: nothing on stderr, not even the frame lines.
-    let out = ok(tool("vdbmarch", &dir).args(["c.%d.vdb", "--frame", "1", "-q", "-o", "q.####.exr"]).args(MARCH));
+    let out = run(tool("vdbmarch", &dir).args(["c.%d.vdb", "--frame", "1", "-q", "-o", "q.####.exr"]).args(MARCH));
     assert!(out.stderr.is_empty(), "{}", stderr(&out));
     assert_eq!(std::fs::read(dir.join("q.0001.exr")).unwrap(), std::fs::read(dir.join("i.1.exr")).unwrap());
     std::fs::remove_dir_all(&dir).ok();
@@ -114,17 +91,17 @@ fn skip_existing_finishes_only_the_missing_frames() {
     for f in 1..=3 {
         std::fs::copy(&c, dir.join(format!("c.{f:04}.vdb"))).unwrap();
     }
-    ok(tool("vdbmarch", &dir).args(["c.####.vdb", "--frames", "1-3", "-o", "i.####.exr"]).args(MARCH));
+    run(tool("vdbmarch", &dir).args(["c.####.vdb", "--frames", "1-3", "-o", "i.####.exr"]).args(MARCH));
     let first = std::fs::read(dir.join("i.0001.exr")).unwrap();
     std::fs::write(dir.join("i.0002.exr"), b"stands for a finished frame").unwrap();
     std::fs::remove_file(dir.join("i.0003.exr")).unwrap();
-    let out = ok(tool("vdbmarch", &dir).args(["c.####.vdb", "--frames", "1-3", "--skip-existing", "-o", "i.####.exr"]).args(MARCH));
+    let out = run(tool("vdbmarch", &dir).args(["c.####.vdb", "--frames", "1-3", "--skip-existing", "-o", "i.####.exr"]).args(MARCH));
     let err = stderr(&out);
     assert!(err.contains("frame 1: skipped") && err.contains("frame 2: skipped"), "{err}");
     assert_eq!(std::fs::read(dir.join("i.0002.exr")).unwrap(), b"stands for a finished frame", "an existing frame is not redone");
     assert_eq!(std::fs::read(dir.join("i.0003.exr")).unwrap(), first, "the missing frame is rendered (a static volume: as frame 1)");
     // Without a sequence too: the output exists, nothing runs.
-    ok(tool("vdbmarch", &dir).args(["c.0001.vdb", "--skip-existing", "-o", "i.0002.exr"]));
+    run(tool("vdbmarch", &dir).args(["c.0001.vdb", "--skip-existing", "-o", "i.0002.exr"]));
     assert_eq!(std::fs::read(dir.join("i.0002.exr")).unwrap(), b"stands for a finished frame");
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -162,9 +139,9 @@ fn sequence_usage_errors_exit_2_and_write_nothing() {
 /// Frame `f`'s image through the three tools by hand, through files.
 fn by_hand(dir: &Path, ply: &Path, name: &str) -> Vec<u8> {
     let (d, c, e) = (dir.join(format!("{name}.d.vdb")), dir.join(format!("{name}.c.vdb")), dir.join(format!("{name}.exr")));
-    ok(tool("particles2vdb", dir).arg(ply).args(P2V).arg("-o").arg(&d));
-    ok(tool("vdbcache", dir).arg(&d).args(CACHE).arg("-o").arg(&c));
-    ok(tool("vdbmarch", dir).arg(&c).args(MARCH).arg("-o").arg(&e));
+    run(tool("particles2vdb", dir).arg(ply).args(P2V).arg("-o").arg(&d));
+    run(tool("vdbcache", dir).arg(&d).args(CACHE).arg("-o").arg(&c));
+    run(tool("vdbmarch", dir).arg(&c).args(MARCH).arg("-o").arg(&e));
     std::fs::read(e).unwrap()
 }
 
@@ -207,17 +184,17 @@ fn nimbus_render_runs_the_chain_over_a_sequence() {
     assert_eq!(std::fs::read(dir.join("r/i.0001.exr")).unwrap(), hand, "nimbus-render passes the shared flags on as a user would");
 
     // Piped (no --keep-intermediates): the same image, and no intermediate file anywhere.
-    ok(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "piped/i.####.exr", "--frame", "1", "-q"]).args(RENDER));
+    run(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "piped/i.####.exr", "--frame", "1", "-q"]).args(RENDER));
     assert_eq!(std::fs::read(dir.join("piped/i.0001.exr")).unwrap(), hand);
     let files: Vec<_> = std::fs::read_dir(dir.join("piped")).unwrap().flatten().map(|e| e.file_name()).collect();
     assert_eq!(files, ["i.0001.exr"]);
 
     // A density VDB skips particles2vdb.
-    ok(tool("nimbus-render", &dir).args(["k/i.####.density.vdb", "-o", "v/i.####.exr", "--frame", "3"]).args(&RENDER[..12]));
+    run(tool("nimbus-render", &dir).args(["k/i.####.density.vdb", "-o", "v/i.####.exr", "--frame", "3"]).args(&RENDER[..12]));
     assert_eq!(std::fs::read(dir.join("v/i.0003.exr")).unwrap(), std::fs::read(dir.join("r/i.0003.exr")).unwrap());
 
     // The photon chain.
-    let out = ok(tool("nimbus-render", &dir)
+    let out = run(tool("nimbus-render", &dir)
         .args(["p.####.ply", "-o", "ph/i.####.exr", "--frame", "1", "--photons", "--keep-intermediates", "ph", "--vdbphoton", "--photons 3000", "--vdbcache", "--gather-neighbours 16"])
         .args(RENDER));
     assert!(dir.join("ph/i.0001.photons.vdb").is_file(), "{}", stderr(&out));
@@ -226,7 +203,7 @@ fn nimbus_render_runs_the_chain_over_a_sequence() {
     // A rerun with --skip-existing does only what is missing.
     write_ball(&dir.join("p.0002.ply"), 1200, 0.4);
     let before = std::fs::metadata(dir.join("r/i.0001.exr")).unwrap().modified().unwrap();
-    let out = ok(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "r/i.$F4.exr", "--frames", "1-3", "--skip-existing"]).args(RENDER));
+    let out = run(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "r/i.$F4.exr", "--frames", "1-3", "--skip-existing"]).args(RENDER));
     assert!(stderr(&out).contains("frame 3: skipped"), "{}", stderr(&out));
     assert!(dir.join("r/i.0002.exr").is_file());
     assert_eq!(std::fs::metadata(dir.join("r/i.0001.exr")).unwrap().modified().unwrap(), before);
@@ -255,7 +232,7 @@ fn nimbus_render_usage_errors_exit_2() {
     }
     assert!(!dir.join("i.0001.exr").exists());
     // The farm scripts' chunks.
-    let out = ok(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "i.$F4.exr", "--frames", "1-7,10", "--print-chunks", "3"]));
+    let out = run(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "i.$F4.exr", "--frames", "1-7,10", "--print-chunks", "3"]));
     assert_eq!(String::from_utf8_lossy(&out.stdout), "1-3\n4-6\n7,10\n");
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -270,15 +247,15 @@ fn a_static_volume_gives_identical_frames_and_reruns_are_bit_identical() {
     // The Perlin offset noise on: anchored in world space and seeded by the same seed every
     // frame, it does not crawl; the cache's paths are keyed by (seed, voxel) alike.
     let noise = ["--vdbmarch", "--offset-noise 0.05 --noise-scale 0.3 --spp 2", "--vdbcache", "--paths 8"];
-    ok(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "s/i.####.exr", "--frames", "1-3", "-q"]).args(RENDER).args(noise));
+    run(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "s/i.####.exr", "--frames", "1-3", "-q"]).args(RENDER).args(noise));
     let frames: Vec<Vec<u8>> = (1..=3).map(|f| std::fs::read(dir.join(format!("s/i.{f:04}.exr"))).unwrap()).collect();
     assert_eq!(frames[0], frames[1], "frames 1 and 2 of a static volume are identical");
     assert_eq!(frames[1], frames[2], "frames 2 and 3 of a static volume are identical");
     // The same frame rendered again, in another process: bit-identical.
-    ok(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "again/i.####.exr", "--frame", "2", "-q"]).args(RENDER).args(noise));
+    run(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "again/i.####.exr", "--frame", "2", "-q"]).args(RENDER).args(noise));
     assert_eq!(std::fs::read(dir.join("again/i.0002.exr")).unwrap(), frames[1]);
     // The noise is there (so the identity above is about it): without it the image differs.
-    ok(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "plain/i.####.exr", "--frame", "1", "-q", "--vdbcache", "--paths 8", "--vdbmarch", "--spp 2"]).args(RENDER));
+    run(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "plain/i.####.exr", "--frame", "1", "-q", "--vdbcache", "--paths 8", "--vdbmarch", "--spp 2"]).args(RENDER));
     assert_ne!(read_rgba(&dir.join("plain/i.0001.exr")), read_rgba(&dir.join("s/i.0001.exr")));
     std::fs::remove_dir_all(&dir).ok();
 }

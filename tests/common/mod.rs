@@ -55,3 +55,78 @@ pub fn read_rgba(path: &Path) -> Vec<[f32; 4]> {
     .expect("a readable EXR");
     image.layer_data.channel_data.pixels.1
 }
+
+/// Runs `cmd` to its end and asserts it succeeded (its stderr in the message).
+pub fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
+    assert!(out.status.success(), "{cmd:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// [`pipe_output`], asserting the tool succeeded.
+pub fn pipe_ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
+    let out = pipe_output(tool, args, input);
+    assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// The RGBA pixels of an EXR's bytes (a tool's stdout), through [`read_rgba`] from a scratch
+/// file of their own.
+pub fn rgba_of(exr: &[u8]) -> Vec<[f32; 4]> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    static N: AtomicUsize = AtomicUsize::new(0);
+    let path = scratch("exr", "images").join(format!("{}.exr", N.fetch_add(1, Ordering::Relaxed)));
+    std::fs::write(&path, exr).unwrap();
+    read_rgba(&path)
+}
+
+/// A text attribute of an EXR's header, read with the exr crate.
+pub fn exr_attribute(exr: &[u8], key: &str) -> Option<String> {
+    use exr::meta::attribute::{AttributeValue, Text};
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(exr), false).expect("an EXR header");
+    match meta.headers[0].own_attributes.other.get(&Text::from(key))? {
+        AttributeValue::Text(t) => Some(t.to_string()),
+        _ => None,
+    }
+}
+
+/// A fixed 64-bit LCG (Knuth's MMIX constants): every run of a test sees the same particles.
+pub struct Lcg(u64);
+
+impl Lcg {
+    pub fn new(seed: u64) -> Lcg {
+        Lcg(seed)
+    }
+
+    /// Uniform in [0, 1), 53 bits.
+    pub fn next_f64(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in the ball of radius 1 about the origin, by rejection.
+    pub fn in_unit_ball(&mut self) -> [f64; 3] {
+        loop {
+            let p = [self.next_f64() * 2.0 - 1.0, self.next_f64() * 2.0 - 1.0, self.next_f64() * 2.0 - 1.0];
+            if p.iter().map(|v| v * v).sum::<f64>() <= 1.0 {
+                return p;
+            }
+        }
+    }
+}
+
+/// An ASCII PLY of `points` (x y z only).
+pub fn write_points_ply(path: &Path, points: impl ExactSizeIterator<Item = [f64; 3]>) {
+    let mut text = format!("ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n", points.len());
+    for p in points {
+        text += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// A ball of `n` particles of radius 1 moved along +X by `shift`, as ASCII PLY: the same
+/// particles for every shift, so a sequence of shifts is a ball in motion.
+pub fn write_ball(path: &Path, n: usize, shift: f64) {
+    let mut rng = Lcg::new(11);
+    write_points_ply(path, (0..n).map(|_| rng.in_unit_ball()).map(|p| [p[0] + shift, p[1], p[2]]).collect::<Vec<_>>().into_iter());
+}
