@@ -5,7 +5,8 @@
 # Slurm cluster running two array tasks at a time (as root: scripts/farm/slurm-local.sh);
 # seconds a frame and the peak memory of the largest process; and frame-to-frame flicker, the
 # relative RMS difference of consecutive frames (nimbus-compare) of a static scene with the
-# Perlin offset noise on, beside the moving scene's for scale.
+# Perlin offset noise on, beside the moving scene's for scale, and of a slowly moving plume
+# against its path-traced reference's (nimbus-compare --flicker).
 #
 #   scripts/bench_sequence.sh [OUT]        (make bench runs it; NIMBUS_BIN=target/ci for the
 #                                           ci profile's binaries)
@@ -83,3 +84,39 @@ for f in 1 12; do
   r=$("$bin/nimbus-compare" "$out/local/plume.$a.exr" "$out/local/plume.$b.exr" | sed 's/.*relative RMSE \([^,]*\),.*/\1/')
   echo "| moving plume (1 unit a frame), $f -> $((f + 1)) | $r |"
 done
+
+# The chain's flicker beyond the motion: a slowly moving plume (0.25 a frame along +X, 0.125
+# up) against a path-traced reference of each frame (vdbmarch --reference on the frame's own
+# cache.vdb, which records the medium and the lights), the same seed for every frame in both,
+# at the draft quality above and at the default. "excess" is the RMS of (image change -
+# reference change): what the chain adds to the motion or misses of it; the reference's own
+# noise floor is beside it (frame 1 at two seeds).
+spp=${FLICKER_SPP:-2048}
+python3 scripts/make_moving_particles.py data/plume.ply "$out/slow.####.ply" --frames 4 --velocity 0.25,0,0.125
+default_flags=()
+for f in "${flags[@]}"; do [ "$f" = --quality ] || [ "$f" = draft ] || default_flags+=("$f"); done
+rm -rf "$out/slow" "$out/slow-draft" "$out/slow-kept"
+"$bin/nimbus-render" "$out/slow.####.ply" -o "$out/slow-draft/slow.####.exr" --frames 1-4 "${flags[@]}"
+"$bin/nimbus-render" "$out/slow.####.ply" -o "$out/slow/slow.####.exr" --frames 1-4 \
+  --keep-intermediates "$out/slow-kept" "${default_flags[@]}"
+view=(--eye 10,-420,100 --look-at 10,0,95 --width 240 --height 180 --reference --spp "$spp" -q)
+for f in 1 2 3 4; do
+  n=$(printf '%04d' "$f")
+  "$bin/vdbmarch" "$out/slow-kept/slow.$n.cache.vdb" "${view[@]}" -o "$out/slow/reference.$n.exr"
+done
+"$bin/vdbmarch" "$out/slow-kept/slow.0001.cache.vdb" "${view[@]}" --seed 1 -o "$out/slow/reference-seed1.0001.exr"
+floor=$("$bin/nimbus-compare" "$out/slow/reference.0001.exr" "$out/slow/reference-seed1.0001.exr" | sed 's/.*relative RMSE \([^,]*\),.*/\1/')
+echo
+echo "| slowly moving plume, $spp-spp reference | reference change | chain change | excess | chain's error, frame 1 |"
+echo "|---|---|---|---|---|"
+for run in slow-draft slow; do
+  label=$([ "$run" = slow ] && echo "default quality" || echo "draft")
+  error=$("$bin/nimbus-compare" "$out/slow/reference.0001.exr" "$out/$run/slow.0001.exr" | sed 's/.*relative RMSE \([^,]*\),.*/\1/')
+  for f in 1 2 3; do
+    a=$(printf '%04d' "$f"); b=$(printf '%04d' $((f + 1)))
+    "$bin/nimbus-compare" --flicker "$out/slow/reference.$a.exr" "$out/slow/reference.$b.exr" \
+      "$out/$run/slow.$a.exr" "$out/$run/slow.$b.exr" |
+      sed "s/reference change \([^,]*\), image change \([^,]*\), excess \(.*\)/| $label, $f -> $((f + 1)) | \1 | \2 | \3 | $error |/"
+  done
+done
+echo "(reference noise floor: frame 1 at seeds 0 and 1 differ by $floor relative RMSE)"
