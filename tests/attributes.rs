@@ -245,6 +245,13 @@ fn bad_attribute_input_is_refused_or_counted() {
     assert!(err.starts_with("error: ") && err.contains("`heat`") && err.contains("available: vx, vy, vz, Cd_x, Cd_y, Cd_z, temperature, v, Cd"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
 
+    // Noise at a rest position needs a vec3 attribute the file has.
+    for (rest, says) in [("temperature", "is not a vec3 attribute"), ("rest", "`rest`")] {
+        let out = tool(&["--noise", "0.5", "--noise-rest", rest]);
+        assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stderr).contains(says), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+
     // Two attributes onto one grid.
     let out = tool(&["--attribute", "v", "--attribute", "vel"]);
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));

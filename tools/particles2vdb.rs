@@ -69,6 +69,11 @@ struct Args {
     noise_scale: f64,
     #[arg(long, default_value_t = 4)]
     noise_octaves: u32,
+    /// Evaluate the noise at this vec3 particle attribute (a rest position, Houdini's `rest`)
+    /// interpolated like `--attribute`, instead of at the world position: the pattern then
+    /// moves and deforms with the particles instead of the particles moving through it.
+    #[arg(long, value_name = "ATTRIBUTE")]
+    noise_rest: Option<String>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Also write `smoothing_length` and `neighbour_count` grids. They are not fog volumes, so
@@ -273,7 +278,9 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         return Err(Failure::usage(format!("--attribute: two attributes would write the grid '{}'", twice.1.grid)));
     }
     let requested: Vec<String> = specs.iter().map(|s| s.name.clone()).collect();
-    let params = DensityParams { attributes: requested.clone(), ..params };
+    let params = DensityParams { attributes: requested.clone(), noise_rest: args.noise_rest.clone(), ..params };
+    // What the readers read: the attributes to grid, and the noise's rest positions.
+    let read: Vec<String> = requested.iter().chain(args.noise_rest.as_ref().filter(|r| !requested.contains(r))).cloned().collect();
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
     // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe).
     let device = args.common.compute_device(&log)?;
@@ -282,10 +289,10 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         "read",
         || -> Result<ParticleSet, Failure> {
             match format {
-                None => particles_from_vdb(&input.read_all()?, &input.name(), &requested, args.group.as_deref()),
+                None => particles_from_vdb(&input.read_all()?, &input.name(), &read, args.group.as_deref()),
                 Some(_) if args.group.is_some() => Err(Failure::usage("--group selects OpenVDB point groups: the input is not a VDB")),
                 Some(format) => {
-                    let (set, report) = read_particles_with(input.open()?, format, &requested).map_err(|e| Failure::input(e, input.name()))?;
+                    let (set, report) = read_particles_with(input.open()?, format, &read).map_err(|e| Failure::input(e, input.name()))?;
                     if report.skipped_nonfinite > 0 {
                         log.warn(format!("skipped {} particles with non-finite positions or masses ({})", report.skipped_nonfinite, input.name()));
                     }
@@ -376,6 +383,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         ("conserve_mass", args.conserve_mass.to_string()),
         ("noise", args.noise.to_string()),
         ("noise_scale", args.noise_scale.to_string()),
+        ("noise_rest", args.noise_rest.clone().unwrap_or_default()),
         ("particles", s.particles.to_string()),
         ("skipped", s.skipped_nonfinite.to_string()),
         ("active_voxels", s.active_voxels.to_string()),

@@ -39,7 +39,11 @@
 //!   kernel has compact support, so this only drops rounding dust and far-tail values; each
 //!   dropped voxel loses at most tolerance * max * voxel volume of mass.
 //! - Noise: `rho * max(0, 1 + amp * fbm(x / L))` at the world position x, so the pattern stays
-//!   fixed in the world when bounds change between frames.
+//!   fixed in the world when bounds change between frames; or, with
+//!   [`DensityParams::noise_rest`], at the rest position interpolated from a vec3 particle
+//!   attribute (Houdini's `rest`) as the attributes are, so it moves and deforms with the
+//!   particles (a translated particle set with the same rest positions gives the same
+//!   density, translated).
 //! - Attributes ([`DensityParams::attributes`], [`AttributeOutput`], issue #20): a float or
 //!   vec3 per-particle attribute A becomes
 //!   `A(x) = sum_q V_q A_q W(|x - x_q|, h(x)) / sum_q V_q W(|x - x_q|, h(x))`, V_q = m_q / rho_q,
@@ -368,6 +372,15 @@ fn estimate_with(
 ) -> Result<DensityOutput, DensityError> {
     let t0 = Instant::now();
     let wanted = attributes::check(particles, &params.attributes)?;
+    // The noise's rest positions ride the attribute pass after the requested attributes.
+    let rest = match params.noise_rest.as_ref().filter(|_| noise_rest_used(params)) {
+        Some(name) => match attributes::check(particles, std::slice::from_ref(name))?[0] {
+            a if a.width() == 3 => Some(a),
+            _ => return Err(DensityError::InvalidParam { name: "noise rest attribute", value: name.clone(), why: "is not a vec3 attribute" }),
+        },
+        None => None,
+    };
+    let interpolated: Vec<&Attribute> = wanted.iter().copied().chain(rest).collect();
     let prep = prepare(particles, params)?;
     if prep.positions.is_empty() {
         return Err(DensityError::NoParticles);
@@ -377,7 +390,7 @@ fn estimate_with(
     let pp = PointParams::new(&prep.grid, params);
     let mut bricks = passes(&prep, &pp, &keep)?;
     let t2 = Instant::now();
-    let skipped = if wanted.is_empty() { Vec::new() } else { attributes::interpolate(&prep, &wanted, &mut bricks, |b, v, c| attribute_splat(&prep, &pp, b, v, c))? };
+    let skipped = if interpolated.is_empty() { Vec::new() } else { attributes::interpolate(&prep, &interpolated, &mut bricks, |b, v, c| attribute_splat(&prep, &pp, b, v, c))? };
     let t3 = Instant::now();
     let widths: Vec<usize> = wanted.iter().map(|a| a.width()).collect();
     let mut out = finish(&prep, params, bricks, &widths);
@@ -418,7 +431,8 @@ pub(crate) struct Keep {
 impl Keep {
     fn new(prep: &Prepared, params: &DensityParams) -> Keep {
         // The attribute pass reads each voxel's final length.
-        Keep { occupied: occupancy(prep), h: params.smoothing_length || !params.attributes.is_empty(), used: params.neighbour_count }
+        let attribute_pass = !params.attributes.is_empty() || noise_rest_used(params);
+        Keep { occupied: occupancy(prep), h: params.smoothing_length || attribute_pass, used: params.neighbour_count }
     }
 
     /// From a backend's raw sums for proposed brick `index`, `rho[v] = sum m * m4_shape(r /
@@ -498,19 +512,28 @@ fn occupancy(prep: &Prepared) -> Vec<BrickMask> {
     occupied
 }
 
+/// Whether the density noise is evaluated at interpolated rest positions.
+fn noise_rest_used(params: &DensityParams) -> bool {
+    params.noise_rest.is_some() && params.noise.amplitude != 0.0
+}
+
 /// Noise, activity threshold, volumes and statistics from per-brick results (`widths`: the
-/// components of each requested attribute).
+/// components of each requested attribute; the noise's rest position follows them).
 fn finish(prep: &Prepared, params: &DensityParams, mut bricks: Vec<BrickResult>, widths: &[usize]) -> DensityOutput {
     let grid = prep.grid;
     let noise = params.noise;
     if noise.amplitude != 0.0 {
         let fbm = noise::Fbm::new(noise.octaves, noise.seed);
+        let rest = noise_rest_used(params).then(|| widths.iter().sum::<usize>());
         bricks.par_iter_mut().for_each(|b| {
             b.max_rho = 0.0;
             for (v, rho) in b.rho.iter_mut().enumerate() {
                 if *rho > 0.0 {
-                    let world = grid.transform.to_world((b.origin + brick_local(v)).as_dvec3());
-                    *rho *= (1.0 + noise.amplitude * fbm.eval(world / noise.scale)).max(0.0);
+                    let at = match rest {
+                        Some(k) => DVec3::new(b.attributes[k][v] as f64, b.attributes[k + 1][v] as f64, b.attributes[k + 2][v] as f64),
+                        None => grid.transform.to_world((b.origin + brick_local(v)).as_dvec3()),
+                    };
+                    *rho *= (1.0 + noise.amplitude * fbm.eval(at / noise.scale)).max(0.0);
                     b.max_rho = b.max_rho.max(*rho);
                 }
             }

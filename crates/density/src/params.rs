@@ -99,6 +99,11 @@ pub struct DensityParams {
     /// Particle attributes (names in [`crate::ParticleSet::attributes`]) to interpolate onto
     /// grids beside the density, with its smoothing lengths ([`crate::AttributeOutput`]).
     pub attributes: Vec<String>,
+    /// A vec3 particle attribute the density noise is evaluated at instead of the world
+    /// position (Houdini's `rest`): interpolated as an attribute, so the noise pattern moves
+    /// and deforms with the particles instead of the particles moving through it. `None`:
+    /// the noise is anchored in world space.
+    pub noise_rest: Option<String>,
 }
 
 /// The floor of the smoothing length (`--h-min`): a world length, or a number of voxels.
@@ -154,6 +159,7 @@ impl Default for DensityParams {
             bounds: None,
             max_voxels: 1 << 32,
             noise: NoiseParams::default(),
+            noise_rest: None,
             active_tolerance: 1e-6,
             smoothing_length: false,
             neighbour_count: false,

@@ -330,3 +330,42 @@ fn the_gpu_attribute_pass_matches_a_direct_sum_and_the_cpu() {
     assert!(worst_cpu < 1e-4, "GPU against the CPU: worst {worst_cpu:e} of each attribute's range");
     assert_eq!(vec3_grid(&gpu, 2).active_voxel_count(), gpu.density.active_voxel_count());
 }
+
+/// Density noise at rest positions (`noise_rest`, Houdini's `rest`) moves with the particles:
+/// the same particles translated, with the same rest positions, give the same noisy density
+/// translated (the grid follows the particles' bounds). Noise anchored in the world does not
+/// (the particles move through its pattern), which is what makes the check able to fail.
+#[test]
+fn noise_at_rest_positions_moves_with_the_particles() {
+    let base = random_clumpy(3000, 21);
+    let rest: Vec<Vec3> = base.positions.iter().map(|p| p.as_vec3()).collect();
+    let shift = DVec3::new(2.0, -1.0, 0.5);
+    let moved = ParticleSet { positions: base.positions.iter().map(|&p| p + shift).collect(), ..base.clone() };
+    let [base, moved] = [base, moved].map(|set| set.with_attribute("rest", Attribute::Vec3(rest.clone())));
+    let noisy = |rest: Option<&str>| DensityParams {
+        resolution: Resolution::VoxelSize(0.25),
+        noise: NoiseParams { amplitude: 0.8, scale: 0.7, octaves: 3, seed: 4 },
+        noise_rest: rest.map(str::to_string),
+        ..DensityParams::default()
+    };
+    let worst = |params: &DensityParams| {
+        let (a, b) = (estimate_cpu(&base, params).unwrap(), estimate_cpu(&moved, params).unwrap());
+        assert_eq!(a.grid.dims, b.grid.dims);
+        let (mut worst, mut count) = (0.0f32, 0);
+        each_active(&a.density, |ijk| {
+            worst = worst.max((a.density.get(ijk) - b.density.get(ijk)).abs() / a.stats.max_density);
+            count += 1;
+        });
+        assert!(count > 1000, "{count} voxels");
+        worst
+    };
+    let (at_rest, in_world) = (worst(&noisy(Some("rest"))), worst(&noisy(None)));
+    eprintln!("translated particles, largest change of the density (of its maximum): rest {at_rest:e}, world {in_world:e}");
+    assert!(at_rest < 1e-4, "noise at rest positions changed the density by {at_rest} of its maximum");
+    assert!(in_world > 0.05, "world noise moved with the particles ({in_world})");
+
+    // A rest attribute that is not a vec3 is refused.
+    let flat = base.clone().with_attribute("restx", Attribute::Float(vec![0.0; 3000]));
+    let err = estimate_cpu(&flat, &noisy(Some("restx"))).err().expect("an error").to_string();
+    assert!(err.contains("restx") && err.contains("vec3"), "{err}");
+}
