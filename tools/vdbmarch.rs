@@ -16,7 +16,7 @@ use nimbus_cli::{
     parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, MotionArgs, Velocity,
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
-use nimbus_march::{render_cpu_moving, render_gpu_moving, render_reference_cpu_moving, render_reference_gpu_moving};
+use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
 use nimbus_march::{default_spp, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
@@ -214,11 +214,12 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Optio
     let pixels = params.camera.width() as u64 * params.camera.height() as u64;
     let bar = log.progress("paths", pixels);
     let field = emission.as_ref().map(EmissionGrids::field);
+    let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
     let image = log.stage(
         "path trace",
         || match device.gpu() {
-            Some(ctx) => render_reference_gpu_moving(ctx, density, &params, field.as_ref(), blur.as_ref(), reference_tile_pixels(), &|n| bar.inc(n)),
-            None => render_reference_cpu_moving(density, &params, field.as_ref(), blur.as_ref(), &|n| bar.inc(n)),
+            Some(ctx) => render_reference_gpu_with(ctx, density, &params, fields, reference_tile_pixels(), &|n| bar.inc(n)),
+            None => render_reference_cpu_with(density, &params, fields, &|n| bar.inc(n)),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     );
@@ -261,11 +262,12 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
     let blur = velocity.map(Velocity::blur);
     scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
+    let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
     let image = log.stage(
         "march",
         || match device.gpu() {
-            Some(ctx) => render_gpu_moving(ctx, density, &cache, &params, field.as_ref(), blur.as_ref()),
-            None => render_cpu_moving(density, &cache, &params, field.as_ref(), blur.as_ref()),
+            Some(ctx) => render_gpu_with(ctx, density, &cache, &params, fields, &Default::default()),
+            None => render_cpu_with(density, &cache, &params, fields),
         },
         |r| r.as_ref().map(|i| format!("{}x{} pixels, {} spp", i.width, i.height, params.spp)).unwrap_or_default(),
     )

@@ -13,7 +13,7 @@ use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
-use crate::{assemble, Groups, Image, MarchError, MarchParams, GROUP_DOMAIN};
+use crate::{assemble, Groups, Image, MarchError, MarchParams, MediumFields, GROUP_DOMAIN};
 use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 
 /// Random-number domain of camera samples.
@@ -49,35 +49,19 @@ pub fn march_ray(
     xi: f64,
     u: f64,
 ) -> RayResult {
-    march_ray_emitting(density, majorant, cache, params, origin, dir, xi, u, None)
+    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None)
 }
 
-/// [`march_ray`] with the medium's emission: each sample adds `T e(x) (1 - exp(-sigma_t dt))
-/// / sigma_t`, the exact integral of `T(t) e` over its step for e and sigma_t constant over
-/// it (`T e dt` where sigma_t is 0 would be the limit, but nothing emits there: the medium
-/// carries the emission, [`EmissionField`]). Emitted radiance is per unit length: no albedo,
-/// no sigma_s.
+/// [`march_ray`] with what the medium holds beyond its density. `emission`: each sample
+/// adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t`, the exact integral of `T(t) e` over its
+/// step for e and sigma_t constant over it (`T e dt` where sigma_t is 0 would be the limit,
+/// but nothing emits there: the medium carries the emission, [`EmissionField`]); emitted
+/// radiance is per unit length: no albedo, no sigma_s. `motion`: a time in the shutter
+/// (Eulerian motion blur): every lookup, the density, the cache's Li and the emission, at the
+/// sample's position moved back along the velocity ([`Motion::back`]); `majorant` must bound
+/// the moved density ([`MotionBlur::majorant_radius`]).
 #[allow(clippy::too_many_arguments)]
-pub fn march_ray_emitting(
-    density: &Volume<f32>,
-    majorant: &MajorantGrid,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    origin: DVec3,
-    dir: DVec3,
-    xi: f64,
-    u: f64,
-    emission: Option<&EmissionField>,
-) -> RayResult {
-    march_ray_moving(density, majorant, cache, params, origin, dir, xi, u, emission, None)
-}
-
-/// [`march_ray_emitting`] at a time in the shutter (`motion`, Eulerian motion blur): every
-/// lookup, the density, the cache's Li and the emission, at the sample's position moved
-/// back along the velocity ([`Motion::back`]); `majorant` must bound the moved density
-/// ([`MotionBlur::majorant_radius`]).
-#[allow(clippy::too_many_arguments)]
-pub fn march_ray_moving(
+pub fn march_ray_with(
     density: &Volume<f32>,
     majorant: &MajorantGrid,
     cache: &IlluminationCache,
@@ -211,24 +195,14 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
     Ok(assemble(params, &pixels))
 }
 
-/// [`render_cpu`] with the medium's emission: [`march_ray_emitting`] per sample over the
-/// sparse volumes (the plain march; the layout's fused march does not carry emission yet).
-/// Without emission it is [`render_cpu`].
-pub fn render_cpu_emitting(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, emission: Option<&EmissionField>) -> Result<Image, MarchError> {
-    render_cpu_moving(density, cache, params, emission, None)
-}
-
-/// [`render_cpu_emitting`] with motion blur: each camera sample takes a time in the shutter
-/// (uniform, from its own stream, [`MOTION_DOMAIN`]) and marches the medium as it is then
-/// ([`march_ray_moving`]), over the majorant dilated by how far it moves. Without motion
-/// and emission it is [`render_cpu`].
-pub fn render_cpu_moving(
-    density: &Volume<f32>,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    emission: Option<&EmissionField>,
-    motion: Option<&MotionBlur>,
-) -> Result<Image, MarchError> {
+/// [`render_cpu`] with what the medium holds beyond its density ([`MediumFields`]): with
+/// emission, [`march_ray_with`] per sample over the sparse volumes (the plain march; the
+/// layout's fused march does not carry emission yet); with motion blur each camera sample
+/// takes a time in the shutter (uniform, from its own stream, [`MOTION_DOMAIN`]) and marches
+/// the medium as it is then, over the majorant dilated by how far it moves. With neither it
+/// is [`render_cpu`].
+pub fn render_cpu_with(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, fields: MediumFields) -> Result<Image, MarchError> {
+    let MediumFields { emission, motion } = fields;
     let emission = emission.filter(|e| e.params.is_active());
     if emission.is_none() && motion.is_none() {
         return render_cpu(density, cache, params);
@@ -239,7 +213,7 @@ pub fn render_cpu_moving(
     Ok(assemble(params, &pixels))
 }
 
-/// [`march_ray_moving`] per sample: emission and/or motion blur.
+/// [`march_ray_with`] per sample: emission and/or motion blur.
 struct Extras<'a> {
     density: &'a Volume<f32>,
     majorant: &'a MajorantGrid,
@@ -252,7 +226,7 @@ struct Extras<'a> {
 impl Marcher for Extras<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult {
         let motion = self.motion.map(|m| m.at(shutter));
-        march_ray_moving(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion)
     }
 }
 
@@ -686,7 +660,7 @@ pub(crate) mod tests {
         let cache = IlluminationCache::default();
         for (step, spp) in [(0.5, 1), (1.0 / 3.0, 4), (1.0, 4)] {
             let p = MarchParams { medium, step: step * 0.1, spp, background: Vec3::ZERO, ..params(slab_camera()) };
-            let image = render_cpu_emitting(&slab, &cache, &p, Some(&field)).unwrap();
+            let image = render_cpu_with(&slab, &cache, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
             let worst = image.rgba.iter().map(|c| ((c.truncate() - expect) / expect).abs().max_element()).fold(0.0, f32::max);
             let alpha = 1.0 - (-3.0f32 * 0.8).exp();
             let alpha_err = image.rgba.iter().map(|c| (c.w - alpha).abs()).fold(0.0, f32::max);
@@ -701,10 +675,10 @@ pub(crate) mod tests {
             let aovs = image.aovs.as_ref().unwrap();
             assert!(aovs.single.iter().chain(&aovs.multiple).all(|v| *v == Vec3::ZERO));
         }
-        // One ray through march_ray_emitting itself, and without emission nothing.
+        // One ray through march_ray_with itself, and without emission nothing.
         let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
         let majorant = march_majorant(&slab, &p, None);
-        let r = march_ray_emitting(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field));
+        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None);
         assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
         let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);
         assert_eq!(r.emission, Vec3::ZERO);

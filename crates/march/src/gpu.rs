@@ -8,7 +8,7 @@ use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WG
 use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
 
-use crate::{assemble, Image, MarchError, MarchParams, RayResult};
+use crate::{assemble, Image, MarchError, MarchParams, MediumFields, RayResult};
 
 /// Perlin noise and fBm, the WGSL twin of `nimbus_optics::noise` (`shaders/noise.wgsl`):
 /// plain functions, no bindings, for any stage shader to concatenate.
@@ -128,63 +128,24 @@ fn cell_factor(params: &MarchParams, majorant: f32) -> f32 {
 /// Renders the image on the GPU with the default [`GpuMarchOptions`] (hardware-filtered
 /// cache lookups where the device can filter).
 pub fn render_gpu(ctx: &GpuContext, density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
-    render_gpu_with(ctx, density, cache, params, &GpuMarchOptions::default())
+    render_gpu_with(ctx, density, cache, params, MediumFields::default(), &GpuMarchOptions::default())
 }
 
-/// Renders the image on the GPU: the same rays, random numbers, step lattice, majorant
-/// skipping, offset noise and early termination as [`crate::render_cpu`], in f32.
+/// Renders the image on the GPU, the twin of [`crate::render_cpu_with`]: the same rays,
+/// random numbers, step lattice, majorant skipping, offset noise and early termination as
+/// the CPU, in f32; with emission each sample also adds `T e(x) (1 - exp(-sigma_t dt)) /
+/// sigma_t` (`shaders/emission.wgsl`); with motion blur each sample's time in the shutter
+/// comes from the same stream and the lookups are at `x - t v(x)` (the velocity grid at
+/// group 3), over the same dilated majorant.
 pub fn render_gpu_with(
     ctx: &GpuContext,
     density: &Volume<f32>,
     cache: &IlluminationCache,
     params: &MarchParams,
+    fields: MediumFields,
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
-    render_gpu_emitting_with(ctx, density, cache, params, None, options)
-}
-
-/// [`render_gpu`] with the medium's emission, the twin of [`crate::render_cpu_emitting`]:
-/// each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t` (`shaders/emission.wgsl`).
-pub fn render_gpu_emitting(ctx: &GpuContext, density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, emission: Option<&EmissionField>) -> Result<Image, MarchError> {
-    render_gpu_emitting_with(ctx, density, cache, params, emission, &GpuMarchOptions::default())
-}
-
-/// [`render_gpu_emitting`] with [`GpuMarchOptions`].
-pub fn render_gpu_emitting_with(
-    ctx: &GpuContext,
-    density: &Volume<f32>,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    emission: Option<&EmissionField>,
-    options: &GpuMarchOptions,
-) -> Result<Image, MarchError> {
-    render_gpu_moving_with(ctx, density, cache, params, emission, None, options)
-}
-
-/// [`render_gpu_emitting`] with motion blur, the twin of [`crate::render_cpu_moving`]: each
-/// sample's time in the shutter from the same stream, the same lookups at `x - t v(x)` (the
-/// velocity grid at group 3), over the same dilated majorant.
-pub fn render_gpu_moving(
-    ctx: &GpuContext,
-    density: &Volume<f32>,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    emission: Option<&EmissionField>,
-    motion: Option<&MotionBlur>,
-) -> Result<Image, MarchError> {
-    render_gpu_moving_with(ctx, density, cache, params, emission, motion, &GpuMarchOptions::default())
-}
-
-/// [`render_gpu_moving`] with [`GpuMarchOptions`].
-pub fn render_gpu_moving_with(
-    ctx: &GpuContext,
-    density: &Volume<f32>,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    emission: Option<&EmissionField>,
-    motion: Option<&MotionBlur>,
-    options: &GpuMarchOptions,
-) -> Result<Image, MarchError> {
+    let MediumFields { emission, motion } = fields;
     params.validate()?;
     let majorant = crate::cpu::march_majorant(density, params, motion);
     if ctx.loop_cap().is_some() {

@@ -28,15 +28,15 @@
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
-//! Emission (issue #19, [`render_cpu_emitting`], [`march_ray_emitting`], an
+//! Emission (issue #19, [`render_cpu_with`] and [`march_ray_with`] with a [`MediumFields`] holding, an
 //! [`EmissionField`]): each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t`, e the
 //! emitted radiance per unit length, the exact integral of `T e` over the step for e and
 //! sigma_t constant over it; it goes to [`RayResult::emission`] (the `emission` layer). So
 //! far the CPU runs it in the plain march only (f64 over the sparse volumes, about the speed
 //! of [`march_ray`]), not in the layout's fused march; the GPU's march adds it in the same
-//! samples ([`render_gpu_emitting`], `shaders/emission.wgsl`). The reference adds
-//! `beta e / sigma_t` at each real collision ([`render_reference_cpu_emitting`],
-//! [`render_reference_gpu_emitting`]).
+//! samples ([`render_gpu_with`], `shaders/emission.wgsl`). The reference adds
+//! `beta e / sigma_t` at each real collision ([`render_reference_cpu_with`],
+//! [`render_reference_gpu_with`]).
 //! The emission the medium scatters is not the march's: it comes through the cache's Li
 //! (vdbcache's paths gather it, vdbphoton's photons carry it), so the march adds the
 //! unscattered emission only and nothing is counted twice.
@@ -87,13 +87,24 @@ mod samples;
 mod simd;
 mod view;
 
-pub use cpu::{march_ray, march_ray_emitting, march_ray_moving, render_cpu, render_cpu_emitting, render_cpu_moving, RayResult, MOTION_DOMAIN};
+pub use cpu::{march_ray, march_ray_with, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
 pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
-pub use gpu::{render_gpu, render_gpu_emitting, render_gpu_emitting_with, render_gpu_moving, render_gpu_moving_with, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
+pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, MAX_DEFAULT_SAMPLES_PER_SIDE};
-pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_emitting, render_reference_cpu_moving, render_reference_gpu, render_reference_gpu_emitting, render_reference_gpu_moving, ReferenceParams, REFERENCE_WGSL};
+pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_with, render_reference_gpu, render_reference_gpu_with, ReferenceParams, REFERENCE_WGSL};
+
+/// What the medium holds beyond its density, for the renders that take it (`render_cpu_with`
+/// and its twins): its emission and its motion over the shutter. The default is neither: the
+/// plain render.
+#[derive(Clone, Copy, Default)]
+pub struct MediumFields<'a> {
+    /// The emission field; none emits.
+    pub emission: Option<&'a EmissionField<'a>>,
+    /// Eulerian motion blur: the velocity grid and the shutter.
+    pub motion: Option<&'a MotionBlur<'a>>,
+}
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
 /// backend ends with.

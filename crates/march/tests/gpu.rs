@@ -7,7 +7,7 @@ mod common;
 use common::{cache_for, camera, cloud, gpu, params};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, GpuContext};
-use nimbus_march::{render_cpu, render_cpu_emitting, render_gpu, render_gpu_emitting_with, render_gpu_with, CacheLookup, EmissionField, GpuMarchOptions, Image, MarchParams, NOISE_WGSL};
+use nimbus_march::{render_cpu, render_cpu_with, render_gpu, render_gpu_with, CacheLookup, EmissionField, GpuMarchOptions, Image, MarchParams, MediumFields, NOISE_WGSL};
 use nimbus_optics::noise::{fbm3_vec, perlin3};
 
 /// Worst relative difference over lit pixels (scattered light above 1e-3 of the brightest pixel) of
@@ -81,7 +81,7 @@ fn scene(centre: DVec3) -> (nimbus_volume::Volume<f32>, nimbus_cache::Illuminati
 /// Both backends' images of the 64 x 48 scene, held to agree (exact GPU cache lookups).
 fn both_agree(ctx: &GpuContext, name: &str, v: &nimbus_volume::Volume<f32>, cache: &nimbus_cache::IlluminationCache, p: &MarchParams) -> Image {
     let cpu = render_cpu(v, cache, p).unwrap();
-    let gpu = render_gpu_with(ctx, v, cache, p, &EXACT).unwrap();
+    let gpu = render_gpu_with(ctx, v, cache, p, MediumFields::default(), &EXACT).unwrap();
     assert_close(name, &diff(&cpu, &gpu), 64 * 48);
     cpu
 }
@@ -135,7 +135,7 @@ fn images_agree_far_from_the_origin() {
     let (v, cache, mut p) = scene(centre);
     p.offset_noise = 0.1;
     let cpu = render_cpu(&v, &cache, &p).unwrap();
-    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
     let d = diff(&cpu, &gpu);
     report("far from the origin, offset noise", &d);
     // The CPU's own f64 world positions at 1e4 lose ~1e-12 relative; the GPU's eye-relative
@@ -151,7 +151,7 @@ fn early_termination_and_missing_cache_grids_agree() {
     p.min_transmittance = 0.02;
     cache.li_multiple = None;
     let cpu = render_cpu(&v, &cache, &p).unwrap();
-    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
     let d = diff(&cpu, &gpu);
     assert_close("dense, early termination, no Li_multiple", &d, 64 * 48);
     assert!(gpu.aovs.as_ref().unwrap().multiple.iter().all(|m| *m == Vec3::ZERO));
@@ -178,8 +178,8 @@ fn tiled_dispatches_equal_one_dispatch() {
     let Some(ctx) = gpu() else { return };
     let (v, cache, mut p) = scene(DVec3::ZERO);
     p.spp = 2;
-    let whole = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
-    let tiled = render_gpu_with(ctx, &v, &cache, &p, &GpuMarchOptions { max_tile_pixels: 1000, ..EXACT }).unwrap();
+    let whole = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
+    let tiled = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &GpuMarchOptions { max_tile_pixels: 1000, ..EXACT }).unwrap();
     assert_eq!(whole, tiled);
 }
 
@@ -207,7 +207,7 @@ fn an_environment_behind_the_volume_renders_alike() {
         p.environment = Some(environment);
         p.environment_visible = true;
         let cpu = render_cpu(&v, &cache, &p).unwrap();
-        let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+        let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
         let worst = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| ((c.truncate() - g.truncate()).abs() / c.truncate().abs().max(Vec3::splat(1e-3))).max_element()).fold(0.0f32, f32::max);
         let clear = cpu.rgba.iter().filter(|c| c.w < 0.01).count();
         eprintln!("behind the volume: worst relative pixel difference {worst:.2e}, {clear} clear pixels");
@@ -287,10 +287,10 @@ fn marches_longer_than_a_software_adapter_takes_are_refused() {
     p.camera = nimbus_optics::Camera::new(DVec3::new(0.0, -5.0, 0.0), DVec3::ZERO, DVec3::Z, 1.0, 1, 1).unwrap();
     p.step = 3.2 / 4_000.0;
     let cpu = render_cpu(&v, &cache, &p).unwrap();
-    let gpu = render_gpu_with(ctx, &v, &cache, &p, &EXACT).unwrap();
+    let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
     assert!((cpu.rgba[0] - gpu.rgba[0]).abs().max_element() <= 1e-3 * cpu.rgba[0].max_element(), "{} vs {}", cpu.rgba[0], gpu.rgba[0]);
     p.step = 3.2 / 100_000.0;
-    match render_gpu_with(ctx, &v, &cache, &p, &EXACT) {
+    match render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT) {
         Err(e) if ctx.info.is_software => assert!(e.to_string().contains("--device cpu"), "{e}"),
         Err(e) => panic!("a hardware adapter should take it: {e}"),
         Ok(image) => {
@@ -317,8 +317,8 @@ fn emission_along_camera_rays_renders_alike() {
         ("blackbody at B 1", nimbus_optics::Emission { grid: None, blackbody_intensity: 1.0, ..emission.clone() }),
     ] {
         let field = EmissionField { grid: Some(&flame), temperature: Some(&temperature), params: &emission };
-        let cpu = render_cpu_emitting(&v, &cache, &p, Some(&field)).unwrap();
-        let gpu = render_gpu_emitting_with(ctx, &v, &cache, &p, Some(&field), &EXACT).unwrap();
+        let cpu = render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
+        let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }, &EXACT).unwrap();
         let (ce, ge) = (&cpu.aovs.as_ref().unwrap().emission, &gpu.aovs.as_ref().unwrap().emission);
         let brightest = ce.iter().map(|e| e.max_element()).fold(0.0, f32::max);
         let emitting = ce.iter().filter(|e| e.max_element() > 1e-3 * brightest).count();
@@ -329,7 +329,7 @@ fn emission_along_camera_rays_renders_alike() {
         assert!(worst < 2e-4 && rgb < 2e-4, "{name}: emission {worst}, rgb {rgb}");
         // Without emission the GPU adds none.
         if name == "both terms" {
-            let dark = render_gpu_emitting_with(ctx, &v, &cache, &p, None, &EXACT).unwrap();
+            let dark = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
             assert!(dark.aovs.as_ref().unwrap().emission.iter().all(|e| *e == Vec3::ZERO));
         }
     }
@@ -355,9 +355,9 @@ fn motion_blur_renders_alike() {
     }
     let blur = nimbus_march::MotionBlur { velocity: &velocity, shutter: 0.2 };
     p.spp = 4;
-    let cpu = nimbus_march::render_cpu_moving(&v, &cache, &p, Some(&field), Some(&blur)).unwrap();
-    let gpu = nimbus_march::render_gpu_moving_with(ctx, &v, &cache, &p, Some(&field), Some(&blur), &EXACT).unwrap();
-    let sharp = nimbus_march::render_cpu_moving(&v, &cache, &p, Some(&field), None).unwrap();
+    let cpu = nimbus_march::render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }).unwrap();
+    let gpu = nimbus_march::render_gpu_with(ctx, &v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, &EXACT).unwrap();
+    let sharp = nimbus_march::render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
     let brightest = cpu.rgba.iter().map(|c| c.truncate().max_element()).fold(0.0, f32::max);
     let worst = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| rel(g.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);
     let moved = cpu.rgba.iter().zip(&sharp.rgba).map(|(c, s)| rel(s.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);

@@ -6,7 +6,7 @@
 mod common;
 
 use glam::{DVec3, Vec3};
-use nimbus_march::{render_cpu_moving, render_reference_cpu_moving, EmissionField, Image, MarchParams, MotionBlur, ReferenceParams};
+use nimbus_march::{render_cpu_with, render_reference_cpu_with, EmissionField, Image, MarchParams, MediumFields, MotionBlur, ReferenceParams};
 use nimbus_optics::{Camera, Emission, Medium};
 use nimbus_volume::{Transform, Volume};
 
@@ -102,26 +102,26 @@ fn a_translating_ball_blurs_as_the_average_of_its_sub_frames_in_the_march() {
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let cache = nimbus_cache::IlluminationCache::default();
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
-    let blurred = render_cpu_moving(&frame, &cache, &march_params(256), Some(&field), Some(&blur)).unwrap();
+    let blurred = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&blur) }).unwrap();
     let sub_frames = average(64, |seed, t| {
         let moved = ball_at(t);
         let field = EmissionField { grid: Some(&moved), temperature: None, params: &emission };
-        render_cpu_moving(&moved, &cache, &MarchParams { seed, ..march_params(4) }, Some(&field), None).unwrap()
+        render_cpu_with(&moved, &cache, &MarchParams { seed, ..march_params(4) }, MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap()
     });
-    let sharp = render_cpu_moving(&frame, &cache, &march_params(256), Some(&field), None).unwrap();
+    let sharp = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
     let (err, unblurred) = (relative_rmse(&blurred, &sub_frames), relative_rmse(&sharp, &sub_frames));
     eprintln!("march: blurred against 64 sub-frames {err:.4}; the sharp frame {unblurred:.4}");
     // 256 random times a pixel against 64 strata: a few percent of noise; the sharp frame
     // is far off (the ball moves 0.7 of its radius).
     assert!(err < 0.04, "blurred {err}");
     assert!(unblurred > 5.0 * err, "the sharp frame {unblurred} against {err}");
-    // Without motion the frame is unchanged by the extra stream: render_cpu_moving with no
+    // Without motion the frame is unchanged by the extra stream: render_cpu_with with no
     // motion is the plain emitting march.
-    let again = nimbus_march::render_cpu_emitting(&frame, &cache, &march_params(256), Some(&field)).unwrap();
+    let again = nimbus_march::render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
     assert_eq!(again.rgba, sharp.rgba);
     // A zero velocity blurs nothing.
     let still = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), Vec3::ZERO);
-    let none = render_cpu_moving(&frame, &cache, &march_params(256), Some(&field), Some(&MotionBlur { velocity: &still, shutter: SHUTTER })).unwrap();
+    let none = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&MotionBlur { velocity: &still, shutter: SHUTTER }) }).unwrap();
     assert_eq!(none.rgba, sharp.rgba);
 }
 
@@ -133,13 +133,13 @@ fn a_translating_ball_blurs_as_the_average_of_its_sub_frames_in_the_reference() 
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let params = reference_params;
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
-    let blurred = render_reference_cpu_moving(&frame, &params(512), Some(&field), Some(&blur), &|_| {}).unwrap();
+    let blurred = render_reference_cpu_with(&frame, &params(512), MediumFields { emission: Some(&field), motion: Some(&blur) }, &|_| {}).unwrap();
     let sub_frames = average(32, |seed, t| {
         let moved = ball_at(t);
         let field = EmissionField { grid: Some(&moved), temperature: None, params: &emission };
-        render_reference_cpu_moving(&moved, &ReferenceParams { seed, ..params(16) }, Some(&field), None, &|_| {}).unwrap()
+        render_reference_cpu_with(&moved, &ReferenceParams { seed, ..params(16) }, MediumFields { emission: Some(&field), ..MediumFields::default() }, &|_| {}).unwrap()
     });
-    let sharp = render_reference_cpu_moving(&frame, &params(512), Some(&field), None, &|_| {}).unwrap();
+    let sharp = render_reference_cpu_with(&frame, &params(512), MediumFields { emission: Some(&field), ..MediumFields::default() }, &|_| {}).unwrap();
     let (err, unblurred) = (profile_rmse(&blurred, &sub_frames), profile_rmse(&sharp, &sub_frames));
     eprintln!("reference: column profile, blurred against 32 sub-frames {err:.4}; the sharp frame {unblurred:.4}; per pixel {:.4} and {:.4}",
         relative_rmse(&blurred, &sub_frames), relative_rmse(&sharp, &sub_frames));
@@ -167,9 +167,9 @@ fn the_gpu_reference_blurs_as_the_cpu_reference() {
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
     let p = reference_params(64);
-    let cpu = render_reference_cpu_moving(&frame, &p, Some(&field), Some(&blur), &|_| {}).unwrap();
-    let gpu = nimbus_march::render_reference_gpu_moving(ctx, &frame, &p, Some(&field), Some(&blur), 4096, &|_| {}).unwrap();
-    let sharp = nimbus_march::render_reference_gpu_moving(ctx, &frame, &p, Some(&field), None, 4096, &|_| {}).unwrap();
+    let cpu = render_reference_cpu_with(&frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, &|_| {}).unwrap();
+    let gpu = nimbus_march::render_reference_gpu_with(ctx, &frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, 4096, &|_| {}).unwrap();
+    let sharp = nimbus_march::render_reference_gpu_with(ctx, &frame, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }, 4096, &|_| {}).unwrap();
     let (err, unblurred) = (profile_rmse(&gpu, &cpu), profile_rmse(&sharp, &cpu));
     eprintln!("reference, GPU against CPU with motion blur: column profile {err:.4} (per pixel {:.4}); the GPU's sharp frame {unblurred:.4}",
         relative_rmse(&gpu, &cpu));

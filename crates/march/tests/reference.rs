@@ -5,7 +5,7 @@ mod common;
 
 use glam::{DVec3, IVec3, Vec3};
 use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
-use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, ReferenceParams};
+use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, MediumFields, ReferenceParams};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_volume::Volume;
@@ -324,8 +324,8 @@ fn emission_renders_alike_on_gpu_and_cpu() {
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
     let lights = vec![Light::sun(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(0.5)).unwrap()];
     let p = params(medium, lights, camera, 64);
-    let cpu = nimbus_march::render_reference_cpu_emitting(&density, &p, Some(&field), &no_progress).unwrap();
-    let gpu = nimbus_march::render_reference_gpu_emitting(ctx, &density, &p, Some(&field), 64, &|_| {}).unwrap();
+    let cpu = nimbus_march::render_reference_cpu_with(&density, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }, &no_progress).unwrap();
+    let gpu = nimbus_march::render_reference_gpu_with(ctx, &density, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }, 64, &|_| {}).unwrap();
     let (c, g) = (cpu.aovs.as_ref().unwrap(), gpu.aovs.as_ref().unwrap());
     let (mc, mg) = (mean(c.emission.iter().copied()), mean(g.emission.iter().copied()));
     eprintln!("emission: cpu {mc} gpu {mg}");

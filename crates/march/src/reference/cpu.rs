@@ -6,7 +6,7 @@ use nimbus_volume::Volume;
 use rayon::prelude::*;
 
 use super::{sample_stream, ReferenceParams, REFERENCE_DOMAIN};
-use crate::{Image, MarchError, RayResult};
+use crate::{Image, MarchError, MediumFields, RayResult};
 
 /// Pixel `index` of the reference image: `spp` jittered samples averaged.
 fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Option<&EmissionField>, motion: Option<&MotionBlur>, index: u64) -> RayResult {
@@ -53,29 +53,20 @@ pub fn render_reference_cpu(
     params: &ReferenceParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Image, MarchError> {
-    render_reference_cpu_emitting(density, params, None, progress)
+    render_reference_cpu_with(density, params, MediumFields::default(), progress)
 }
 
-/// [`render_reference_cpu`] with the medium's emission (`trace_path`'s collision estimator).
-pub fn render_reference_cpu_emitting(
+/// [`render_reference_cpu`] with what the medium holds beyond its density: emission
+/// (`trace_path`'s collision estimator) and motion blur (each sample traces the medium at its
+/// own time in the shutter, [`nimbus_tracking::Motion`], over the majorant dilated by how far
+/// it moves).
+pub fn render_reference_cpu_with(
     density: &Volume<f32>,
     params: &ReferenceParams,
-    emission: Option<&EmissionField>,
+    fields: MediumFields,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Image, MarchError> {
-    render_reference_cpu_moving(density, params, emission, None, progress)
-}
-
-/// [`render_reference_cpu_emitting`] with motion blur: each sample traces the medium at its
-/// own time in the shutter ([`nimbus_tracking::Motion`]), over the majorant dilated by how far
-/// it moves.
-pub fn render_reference_cpu_moving(
-    density: &Volume<f32>,
-    params: &ReferenceParams,
-    emission: Option<&EmissionField>,
-    motion: Option<&MotionBlur>,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<Image, MarchError> {
+    let MediumFields { emission, motion } = fields;
     params.validate()?;
     let majorant = super::reference_majorant(density, params, motion);
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
@@ -115,7 +106,7 @@ mod tests {
             seed: 3,
             aovs: false,
         };
-        let image = render_reference_cpu_emitting(&slab, &params, Some(&field), &|_| {}).unwrap();
+        let image = render_reference_cpu_with(&slab, &params, MediumFields { emission: Some(&field), ..MediumFields::default() }, &|_| {}).unwrap();
         let mean = image.mean_rgb();
         // Each path's first collision adds S c / sigma (e / sigma_t is constant in the slab)
         // with probability 1 - T = 0.909: over 36 x 8192 paths the mean's relative standard

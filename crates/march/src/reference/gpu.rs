@@ -3,12 +3,12 @@
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
+use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
 use nimbus_volume::Volume;
 
 use super::ReferenceParams;
 use crate::gpu::{PixelTiles, EMISSION_GROUP, MOTION_GROUP};
-use crate::{GpuMarchOptions, Image, MarchError};
+use crate::{GpuMarchOptions, Image, MarchError, MediumFields};
 
 /// The reference kernel, `shaders/reference.wgsl`.
 pub const REFERENCE_WGSL: &str = include_str!("../../../../shaders/reference.wgsl");
@@ -49,34 +49,22 @@ pub fn render_reference_gpu(
     max_tile_pixels: u64,
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
-    render_reference_gpu_emitting(ctx, density, params, None, max_tile_pixels, progress)
+    render_reference_gpu_with(ctx, density, params, MediumFields::default(), max_tile_pixels, progress)
 }
 
-/// [`render_reference_gpu`] with the medium's emission (path.wgsl's collision estimator), the
-/// twin of [`crate::render_reference_cpu_emitting`].
-pub fn render_reference_gpu_emitting(
+/// [`render_reference_gpu`] with what the medium holds beyond its density, the twin of
+/// [`crate::render_reference_cpu_with`]: emission (path.wgsl's collision estimator) and motion
+/// blur (each sample traces the medium at its own time in the shutter, motion.wgsl with the
+/// velocity grid at group 3, over the same dilated majorant).
+pub fn render_reference_gpu_with(
     ctx: &GpuContext,
     density: &Volume<f32>,
     params: &ReferenceParams,
-    emission: Option<&EmissionField>,
+    fields: MediumFields,
     max_tile_pixels: u64,
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
-    render_reference_gpu_moving(ctx, density, params, emission, None, max_tile_pixels, progress)
-}
-
-/// [`render_reference_gpu_emitting`] with motion blur, the twin of
-/// [`crate::render_reference_cpu_moving`]: each sample traces the medium at its own time in
-/// the shutter (motion.wgsl, the velocity grid at group 3), over the same dilated majorant.
-pub fn render_reference_gpu_moving(
-    ctx: &GpuContext,
-    density: &Volume<f32>,
-    params: &ReferenceParams,
-    emission: Option<&EmissionField>,
-    motion: Option<&MotionBlur>,
-    max_tile_pixels: u64,
-    progress: &dyn Fn(u64),
-) -> Result<Image, MarchError> {
+    let MediumFields { emission, motion } = fields;
     params.validate()?;
     let camera = &params.camera;
     let pixel_count = camera.width() as u64 * camera.height() as u64;

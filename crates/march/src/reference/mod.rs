@@ -29,8 +29,8 @@
 mod cpu;
 mod gpu;
 
-pub use cpu::{render_reference_cpu_moving, render_reference_cpu, render_reference_cpu_emitting};
-pub use gpu::{reference_tile_pixels, render_reference_gpu, render_reference_gpu_emitting, render_reference_gpu_moving, REFERENCE_WGSL};
+pub use cpu::{render_reference_cpu, render_reference_cpu_with};
+pub use gpu::{reference_tile_pixels, render_reference_gpu, render_reference_gpu_with, REFERENCE_WGSL};
 
 use glam::Vec3;
 use nimbus_optics::{Camera, Environment, Light, Medium};
