@@ -116,8 +116,9 @@ struct MediumCell {
 // *dir and *ratio.
 fn medium_emission_sample(light: PhotonLight, rng: ptr<function, Rng>, dir: ptr<function, vec3<f32>>,
                           ratio: ptr<function, vec3<f32>>) -> vec3<f32> {
-    let hi = rng_next_u32(rng) >> 5u;
-    let lo = rng_next_u32(rng) >> 6u;
+    let bits = rng_next_f64_bits(rng);
+    let hi = bits.x;
+    let lo = bits.y;
     var first = 0u;
     var last = light.cell_count;
     loop {

@@ -155,18 +155,28 @@ fn majorant_walk_next(w: ptr<function, MajorantWalk>, g: MajorantGridInfo) -> Ma
 // The CPU's f64 draws (Rng::next_f64: two words, 27 + 26 bits) in f32. Drawing both words
 // keeps the stream aligned with the CPU's.
 
-// xi = Rng::next_f64 rounded to f32.
-fn rng_next_f64_as_f32(rng: ptr<function, Rng>) -> f32 {
+// The 53 bits of Rng::next_f64 (the top 27 of one draw, then the top 26 of the next): the
+// value is hi 2^-27 + lo 2^-53.
+fn rng_next_f64_bits(rng: ptr<function, Rng>) -> vec2<u32> {
     let hi = rng_next_u32(rng) >> 5u;
     let lo = rng_next_u32(rng) >> 6u;
+    return vec2<u32>(hi, lo);
+}
+
+// xi = Rng::next_f64 rounded to f32.
+fn rng_next_f64_as_f32(rng: ptr<function, Rng>) -> f32 {
+    let bits = rng_next_f64_bits(rng);
+    let hi = bits.x;
+    let lo = bits.y;
     // Rounding to f32 may reach 1.0; keep [0,1) as the CPU has it.
     return min(f32(hi) * (1.0 / 134217728.0) + f32(lo) * (1.0 / 9007199254740992.0), 0.99999994);
 }
 
 // -ln(1 - xi) for xi = Rng::next_f64, with 1 - xi formed without cancellation.
 fn rng_next_exp1(rng: ptr<function, Rng>) -> f32 {
-    let hi = rng_next_u32(rng) >> 5u;
-    let lo = rng_next_u32(rng) >> 6u;
+    let bits = rng_next_f64_bits(rng);
+    let hi = bits.x;
+    let lo = bits.y;
     // 1 - xi = (2^27 - hi) 2^-27 - lo 2^-53, and 2^27 - hi >= 1.
     let one_minus = f32(134217728u - hi) * (1.0 / 134217728.0) - f32(lo) * (1.0 / 9007199254740992.0);
     return -log(one_minus);
