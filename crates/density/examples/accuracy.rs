@@ -80,6 +80,13 @@ fn accuracy(scene: Scene) {
     let base = DensityParams::default();
     let mut rows = Vec::new();
 
+    if std::env::var_os("ICI_QUICK").is_some() {
+        for confidence in [0.5, 1.0, 1.5, 2.0] {
+            rows.push(run(&particles, &truth, format!("ici gamma={confidence}"), DensityParams { method: Method::Ici, confidence, ..base.clone() }));
+        }
+        print(&rows);
+        return;
+    }
     // usl over an h0 sweep (in voxels), then at half and double the best.
     let mut usl: Vec<(f64, Row)> = [0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0]
         .into_iter()
@@ -96,13 +103,24 @@ fn accuracy(scene: Scene) {
     let best_l2 = usl.iter().map(|r| r.1.l2).fold(f64::INFINITY, f64::min);
     rows.extend(usl.into_iter().map(|r| r.1));
 
-    let mut asl3_default = f64::NAN;
-    for method in [Method::Asl2, Method::Asl3, Method::Knn] {
+    let (mut asl3_default, mut ici_default) = (f64::NAN, f64::NAN);
+    for method in [Method::Asl2, Method::Asl3, Method::Knn, Method::Ici] {
         let row = run(&particles, &truth, format!("{} defaults", method.name()), DensityParams { method, ..base.clone() });
-        if method == Method::Asl3 {
-            asl3_default = row.l2;
+        match method {
+            Method::Asl3 => asl3_default = row.l2,
+            Method::Ici => ici_default = row.l2,
+            _ => {}
         }
         rows.push(row);
+    }
+    if std::env::var_os("ICI_ONLY").is_some() {
+        for confidence in [0.5, 0.75, 1.0, 1.5, 2.0, 3.0] {
+            rows.push(run(&particles, &truth, format!("ici gamma={confidence}"), DensityParams { method: Method::Ici, confidence, ..base.clone() }));
+        }
+        rows.push(run(&particles, &truth, "asl3 N*=32".into(), DensityParams { method: Method::Asl3, neighbours: 32, h_min: HMin::Voxels(1.0), ..base.clone() }));
+        print(&rows);
+        println!("  best usl {best_l2:.4}; asl3 defaults {asl3_default:.4}; ici defaults {ici_default:.4} ({:+.1}%)", (ici_default / best_l2 - 1.0) * 100.0);
+        return;
     }
     // The sweeps one setting at a time start from the paper's N* 32 and h_min 1 voxel (the
     // defaults until issue #18), as the crate docs' tables do: N* at h_min 1 voxel (h0 auto

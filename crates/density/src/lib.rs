@@ -178,7 +178,7 @@ use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
 pub use nimbus_optics::noise;
-pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_H_MIN_VOXELS, DEFAULT_NEIGHBOURS, H0};
+pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_H_MIN_VOXELS, DEFAULT_ICI_CONFIDENCE, DEFAULT_NEIGHBOURS, H0};
 pub use attributes::{AttributeOutput, AttributeVolume};
 pub use particles::{
     attribute_aliases, available_attributes, find_attribute, read_particles, read_particles_with, read_path, write_ply, Attribute, Format, ParticleSet, ReadError, ReadReport,
@@ -197,6 +197,8 @@ pub enum DensityError {
     H0Undetermined,
     #[error("no particle attribute `{name}` (available: {available})")]
     UnknownAttribute { name: String, available: String },
+    #[error("--method {0} is not built for the GPU backend yet (use the CPU)")]
+    NotOnGpu(&'static str),
     #[error(transparent)]
     Gpu(#[from] GpuError),
 }
@@ -210,6 +212,8 @@ pub struct PointParams {
     pub h0: f32,
     pub h_min: f32,
     pub relax: f32,
+    /// ici's Gamma.
+    pub confidence: f32,
     /// World voxel edge, to turn index-unit kernels into world densities.
     pub voxel_size: f64,
 }
@@ -221,6 +225,7 @@ impl PointParams {
             h0: (grid.h0 / grid.voxel_size) as f32,
             h_min: (grid.h_min / grid.voxel_size) as f32,
             relax: params.relax,
+            confidence: params.confidence,
             voxel_size: grid.voxel_size,
         }
     }
@@ -332,6 +337,9 @@ pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<D
 /// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
 /// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
 pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
+    if !params.method.on_gpu() {
+        return Err(DensityError::NotOnGpu(params.method.name()));
+    }
     estimate_with(particles, params, |prep, pp, keep| Ok(gpu::estimate_bricks(ctx, prep, params.method, params.conserve_mass, pp, keep)?))
 }
 

@@ -4,11 +4,32 @@
 
 use glam::{DVec3, IVec3};
 use nimbus_density::analytic::Rng;
-use nimbus_density::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
+use nimbus_density::kernel::{clamp_h, correct_h, ici_ladder, ici_rung, m4_shape, predict_h1, KAPPA};
 use nimbus_density::*;
 
-/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index).
-fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
+/// ici's per-rung sums by brute force: sum m W and sum (m W)^2 over the particles within
+/// kappa*h_k of the point, in f64.
+fn ladder_sums(r2s: &[(f32, usize)], own: &[f32], ladder: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    ladder
+        .iter()
+        .map(|&h| {
+            let r = KAPPA * h;
+            let (mut sum, mut squares) = (0.0f64, 0.0f64);
+            for &(r2, i) in r2s {
+                if r2 < r * r {
+                    let w = (own[i] * m4_shape(r2.sqrt() / h)) as f64;
+                    sum += w;
+                    squares += w * w;
+                }
+            }
+            (sum as f32, squares as f32)
+        })
+        .unzip()
+}
+
+/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index);
+/// `own` are the particles' masses (ici's lengths follow them).
+fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
     let x = ijk.as_vec3();
     let r2s: Vec<(f32, usize)> = particles
         .positions
@@ -43,14 +64,19 @@ fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: M
                 clamp_h(sorted[k - 1].0.sqrt() / KAPPA, pp.h_min, pp.h0)
             }
         }
+        Method::Ici => {
+            let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+            let (sums, squares) = ladder_sums(&r2s, own, &all[..rungs]);
+            all[ici_rung(&sums, &squares, &all[..rungs], pp.confidence)]
+        }
     };
     (h, n0, r2s)
 }
 
 /// Brute-force (density, h in index units, used count) at grid point ijk, with the particles'
 /// `masses`.
-fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
-    let (h, n0, r2s) = reference_h(particles, grid, pp, method, ijk);
+fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
+    let (h, n0, r2s) = reference_h(particles, grid, pp, method, own, ijk);
     if n0 == 0 {
         return (0.0, pp.h0, 0);
     }
@@ -69,7 +95,7 @@ fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, metho
 /// m / S, S = sum over every grid point x of W(|x - x_q|, h(x)) dV, for particles whose whole
 /// support (radius kappa*h0) reaches no grid point outside the grid; and how many were.
 fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, params: &DensityParams) -> (Vec<f32>, usize) {
-    let own: Vec<f32> = (0..particles.len()).map(|i| particles.mass(i, params.mass)).collect();
+    let own = own_masses(particles, params);
     if !params.conserve_mass {
         return (own, 0);
     }
@@ -77,7 +103,7 @@ fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, meth
     for k in 0..grid.dims.z {
         for j in 0..grid.dims.y {
             for i in 0..grid.dims.x {
-                let (h, n0, r2s) = reference_h(particles, grid, pp, method, IVec3::new(i, j, k));
+                let (h, n0, r2s) = reference_h(particles, grid, pp, method, &own, IVec3::new(i, j, k));
                 let r = KAPPA * h;
                 for (r2, q) in r2s {
                     if n0 > 0 && r2 < r * r {
@@ -106,6 +132,10 @@ fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, meth
         })
         .collect();
     (masses, normalised)
+}
+
+fn own_masses(particles: &ParticleSet, params: &DensityParams) -> Vec<f32> {
+    (0..particles.len()).map(|i| particles.mass(i, params.mass)).collect()
 }
 
 fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
@@ -175,6 +205,7 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
     let grid = out.grid;
     let pp = PointParams::new(&grid, &params);
     let (masses, normalised) = reference_masses(particles, &grid, &pp, method, &params);
+    let own = own_masses(particles, &params);
     let max = out.stats.max_density;
     assert!(max > 0.0);
     let h_vol = out.smoothing_length.as_ref().unwrap();
@@ -185,7 +216,7 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
         for j in (0..grid.dims.y).step_by(2) {
             for i in (0..grid.dims.x).step_by(2) {
                 let ijk = IVec3::new(i, j, k);
-                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &masses, ijk);
+                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &own, &masses, ijk);
                 let fast = out.density.get(ijk);
                 assert!(
                     (fast - rho).abs() <= 1e-5 * max + 1e-5 * rho,
@@ -231,6 +262,29 @@ fn asl3_relaxed_equals_brute_force() {
 #[test]
 fn knn_equals_brute_force() {
     check_method(Backend::Cpu, Method::Knn, 0.0, H0::Fixed(1.6));
+}
+
+#[test]
+fn ici_equals_brute_force() {
+    check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(2.4));
+}
+
+#[test]
+fn ici_with_auto_h0_and_other_confidences_equals_brute_force() {
+    for confidence in [0.5, 3.0] {
+        let params = DensityParams { method: Method::Ici, confidence, resolution: Resolution::VoxelSize(0.5), ..Default::default() };
+        check_params(Backend::Cpu, &random_clumpy(1500, 3), params, 500);
+    }
+}
+
+/// Methods without a GPU twin are refused by name, not run on the CPU behind the caller's back.
+#[test]
+fn gpu_refuses_ici() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let params = DensityParams { method: Method::Ici, resolution: Resolution::VoxelSize(0.5), ..Default::default() };
+    let err = estimate_gpu(ctx, &random_clumpy(200, 3), &params).err().expect("refused");
+    assert!(matches!(err, DensityError::NotOnGpu("ici")), "{err}");
 }
 
 #[test]
@@ -323,7 +377,7 @@ fn gpu_kernel_sums_in_slabs_agree() {
 /// Every method on both backends over every voxel: the same active voxels, counts and
 /// lengths, densities to float tolerance, the same stats.
 fn backends_agree(ctx: &nimbus_gpu::GpuContext, particles: &ParticleSet, params: DensityParams, min_voxels: u32) {
-    for method in Method::ALL {
+    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
         let params = DensityParams { method, smoothing_length: true, neighbour_count: true, ..params.clone() };
         let (particles, params) = (particles, &params);
         let cpu = estimate_cpu(particles, params).unwrap();
@@ -393,7 +447,7 @@ fn conserving_mass_equals_brute_force() {
 
 #[test]
 fn gpu_conserving_mass_equals_brute_force() {
-    for method in Method::ALL {
+    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
         check_conserving(Backend::Gpu, method, None);
     }
 }
