@@ -21,8 +21,10 @@ struct Args {
     /// Input format when the extension does not tell (stdin): ply, csv, tsv or vdb.
     #[arg(long)]
     format: Option<String>,
-    /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference).
-    #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn"])]
+    /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference),
+    /// ici (a ladder of lengths from --h-min to h0, the longest whose estimate agrees with the
+    /// shorter ones' within their noise; CPU only so far).
+    #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
     method: String,
     /// Upper bound of the smoothing length (world units), or auto.
     #[arg(long, default_value = "auto")]
@@ -276,8 +278,9 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     let params = DensityParams { attributes: requested.clone(), ..params };
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
     // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe). The
-    // attribute pass has no GPU twin yet: --device gpu refuses it, auto takes the CPU.
-    let device = args.common.device_for(&[(!specs.is_empty(), "--attribute")], &log)?;
+    // attribute pass and --method ici have no GPU twin yet: --device gpu refuses them, auto
+    // takes the CPU.
+    let device = args.common.device_for(&[(!specs.is_empty(), "--attribute"), (!method.on_gpu(), "--method ici")], &log)?;
 
     let particles = log.stage(
         "read",

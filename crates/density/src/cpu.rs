@@ -658,6 +658,7 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
             let l = &s.ladder;
             let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
             let mut used = Box::new([0u32; BRICK_VOXELS]);
+            let mut rung = [0usize; BRICK_VOXELS];
             for v in 0..BRICK_VOXELS {
                 reached[v] &= l.counts[rungs - 1][v] > 0;
                 if !reached[v] {
@@ -665,15 +666,48 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
                 }
                 let sums: [f32; ICI_MAX_RUNGS] = std::array::from_fn(|k| l.sums[k][v]);
                 let squares: [f32; ICI_MAX_RUNGS] = std::array::from_fn(|k| l.squares[k][v]);
-                let k = ici_rung(&sums[..rungs], &squares[..rungs], ladder, pp.confidence);
-                h[v] = ladder[k];
-                rho[v] = l.sums[k][v];
-                used[v] = l.counts[k][v];
+                rung[v] = ici_rung(&sums[..rungs], &squares[..rungs], ladder, pp.confidence);
+            }
+            // The least rung about each voxel: a neighbour whose ladder broke off sees an edge
+            // within a voxel of this one, which its own noisier intervals may have missed.
+            least_rungs_near(&mut rung, &reached);
+            for v in 0..BRICK_VOXELS {
+                if reached[v] {
+                    let k = rung[v];
+                    h[v] = ladder[k];
+                    rho[v] = l.sums[k][v];
+                    used[v] = l.counts[k][v];
+                }
             }
             done = Some((rho, used));
         }
     }
     (h, reached, done)
+}
+
+/// ici: per voxel, the least rung among it and its 26 neighbours in the brick that any pass
+/// evaluates (`reached`; others hold usize::MAX on return). Within the brick only: the
+/// neighbours' rungs across a face are another brick's work (a voxel on a face takes the least
+/// of fewer, so the rule is brick-aligned; what it leaves lies within the estimates'
+/// confidence intervals). A box minimum is separable: three passes of three along one axis.
+pub(crate) fn least_rungs_near(rung: &mut [usize; BRICK_VOXELS], reached: &[bool; BRICK_VOXELS]) {
+    for v in 0..BRICK_VOXELS {
+        if !reached[v] {
+            rung[v] = usize::MAX;
+        }
+    }
+    for axis in 0..3 {
+        let step = IVec3::AXES[axis];
+        let before = *rung;
+        for (v, out) in rung.iter_mut().enumerate() {
+            let c = brick_local(v);
+            for q in [c - step, c + step] {
+                if q.cmpge(IVec3::ZERO).all() && q.cmplt(IVec3::splat(BRICK_DIM)).all() {
+                    *out = (*out).min(before[brick_offset(q)]);
+                }
+            }
+        }
+    }
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

@@ -156,7 +156,7 @@ pub const DEFAULT_H_MIN_VOXELS: f64 = 1.2;
 
 /// ici's Gamma: one constant for every scene, chosen on the accuracy example's scenes (crate
 /// docs, issue #21).
-pub const DEFAULT_ICI_CONFIDENCE: f32 = 1.0;
+pub const DEFAULT_ICI_CONFIDENCE: f32 = 1.5;
 
 impl Default for DensityParams {
     fn default() -> Self {

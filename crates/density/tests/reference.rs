@@ -27,6 +27,28 @@ fn ladder_sums(r2s: &[(f32, usize)], own: &[f32], ladder: &[f32]) -> (Vec<f32>, 
         .unzip()
 }
 
+/// ici's rung from grid point ijk's own ladder, `None` without a particle within kappa*h0.
+fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32], ijk: IVec3) -> Option<usize> {
+    let x = ijk.as_vec3();
+    let r2s: Vec<(f32, usize)> = particles
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            let q = grid.to_index_f32(p);
+            let (dx, dy, dz) = (x.x - q.x, x.y - q.y, x.z - q.z);
+            (dx * dx + dy * dy + dz * dz, i)
+        })
+        .collect();
+    let r0 = KAPPA * pp.h0;
+    if !r2s.iter().any(|(r2, _)| *r2 < r0 * r0) {
+        return None;
+    }
+    let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+    let (sums, squares) = ladder_sums(&r2s, own, &all[..rungs]);
+    Some(ici_rung(&sums, &squares, &all[..rungs], pp.confidence))
+}
+
 /// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index);
 /// `own` are the particles' masses (ici's lengths follow them).
 fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
@@ -65,9 +87,30 @@ fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: M
             }
         }
         Method::Ici => {
-            let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
-            let (sums, squares) = ladder_sums(&r2s, own, &all[..rungs]);
-            all[ici_rung(&sums, &squares, &all[..rungs], pp.confidence)]
+            // The least rung over the point and its neighbours in its 8^3 brick that have a
+            // particle within kappa*h0.
+            let (all, _) = ici_ladder(pp.h_min, pp.h0);
+            let brick = ijk - ijk % 8;
+            let mut least = usize::MAX;
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let q = ijk + IVec3::new(dx, dy, dz);
+                        let in_brick = (q - brick).cmpge(IVec3::ZERO).all() && (q - brick).cmplt(IVec3::splat(8)).all();
+                        let in_grid = q.cmpge(IVec3::ZERO).all() && q.cmplt(grid.dims).all();
+                        if in_brick && in_grid {
+                            if let Some(k) = own_rung(particles, grid, pp, own, q) {
+                                least = least.min(k);
+                            }
+                        }
+                    }
+                }
+            }
+            if least == usize::MAX {
+                pp.h0
+            } else {
+                all[least]
+            }
         }
     };
     (h, n0, r2s)
@@ -268,6 +311,14 @@ fn knn_equals_brute_force() {
 fn ici_equals_brute_force() {
     check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(1.6));
     check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(2.4));
+    // The clumps and the background take different rungs: the comparison covers the rule,
+    // not one length everywhere.
+    let params = DensityParams { method: Method::Ici, h0: H0::Fixed(2.4), resolution: Resolution::VoxelSize(0.5), smoothing_length: true, ..Default::default() };
+    let out = estimate_cpu(&random_clumpy(1500, 3), &params).unwrap();
+    let mut lengths: Vec<u32> = out.smoothing_length.unwrap().bricks().flat_map(|b| b.values.iter().filter(|&&h| h > 0.0).map(|h| h.to_bits()).collect::<Vec<_>>()).collect();
+    lengths.sort_unstable();
+    lengths.dedup();
+    assert!(lengths.len() >= 4, "ici used {} lengths", lengths.len());
 }
 
 #[test]
@@ -518,7 +569,12 @@ fn mass_is_conserved() {
     // `conserving_mass_holds_the_particles_mass` is the exact alternative. Measured here:
     // blob (smooth) asl2/asl3/knn +1.3% at the defaults, +0.6% at N* 32 with h_min 1 voxel
     // (the paper's setting, the default until then); knots (steep contrast) asl2 +1.3%,
-    // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32.
+    // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32. ici (issue #21,
+    // its length from the ladder h_min..h0 whatever N*) -0.1% on the blob, +11.1% on these
+    // 20k knots: there a sparse point's small rungs hold a few particles, their intervals
+    // (the variance floored from the top rung, which reaches into a knot) are wide, and the
+    // point takes a long kernel into the knot; on the 150k-particle knots of the accuracy
+    // example +3.2%. `--conserve-mass` makes it exact (`conserving_mass_holds_the_particles_mass`).
     let blob = analytic::Scene {
         name: "blob",
         density: analytic::Analytic {
@@ -540,7 +596,11 @@ fn mass_is_conserved() {
     for (scene, voxel, base, setting, adaptive) in cases {
         for (method, ratio) in mass_ratios(scene.clone(), voxel, &base) {
             eprintln!("{}, {setting}, {method:?}: {ratio}", scene.name);
-            let tolerance = if method == Method::Usl { 0.01 } else { adaptive };
+            let tolerance = match method {
+                Method::Usl => 0.01,
+                Method::Ici if scene.name == "knots" => 0.12,
+                _ => adaptive,
+            };
             assert!((ratio - 1.0).abs() < tolerance, "{}, {setting}, {method:?}: grid mass / particle mass {ratio}", scene.name);
         }
     }
