@@ -21,8 +21,10 @@ struct Args {
     /// Input format when the extension does not tell (stdin): ply, csv, tsv or vdb.
     #[arg(long)]
     format: Option<String>,
-    /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference).
-    #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn"])]
+    /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference),
+    /// ici (a ladder of lengths from --h-min to h0, the longest whose estimate agrees with the
+    /// shorter ones' within their noise; CPU only so far).
+    #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
     method: String,
     /// Upper bound of the smoothing length (world units), or auto.
     #[arg(long, default_value = "auto")]
@@ -283,7 +285,8 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     let read: Vec<String> = requested.iter().chain(args.noise_rest.as_ref().filter(|r| !requested.contains(r))).cloned().collect();
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
     // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe).
-    let device = args.common.compute_device(&log)?;
+    // --method ici has no GPU twin yet: --device gpu refuses it, auto takes the CPU.
+    let device = args.common.device_for(&[(!method.on_gpu(), "--method ici")], &log)?;
 
     let particles = log.stage(
         "read",

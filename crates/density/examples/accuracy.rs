@@ -5,11 +5,13 @@
 //! For each scene (knots, shell, plume, cloud1, smoke; default the first three) it samples particles
 //! from the analytic density, estimates the density on one fixed grid with each method, and
 //! prints the relative L2 error against the true density over every grid point
-//! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the grid mass / particle mass, the
+//! (sqrt(sum (rho - rho_true)^2 / sum rho_true^2)), the same over the rim (the grid points
+//! whose true density is below 2% of its maximum), the grid mass / particle mass, the
 //! particles used (mean, std over occupied voxels) and the time. usl runs over an h0 sweep;
 //! asl3 over N* and h_min, each alone and together near the accuracy goal, and with
-//! conserve-mass at N* 32, 96 and at N* 80 with h_min 1.2 voxels. Backend timings (CPU and
-//! GPU, the benchmark scenes) are the `estimate` bench's table.
+//! conserve-mass at N* 32, 96 and at N* 80 with h_min 1.2 voxels; ici at its defaults and
+//! over Gamma. Backend timings (CPU and GPU, the benchmark scenes) are the `estimate`
+//! bench's table.
 
 use std::time::Instant;
 
@@ -33,6 +35,8 @@ fn truth(scene: &Scene, particles: &ParticleSet) -> TrueGrid {
 struct Row {
     label: String,
     l2: f64,
+    /// Over the rim: true density below RIM of its maximum.
+    rim: f64,
     mass: f64,
     used: (f64, f64),
     seconds: f64,
@@ -52,18 +56,22 @@ fn run(particles: &ParticleSet, truth: &TrueGrid, label: String, params: Density
     Row {
         label,
         l2: truth.rel_l2(&out.density),
+        rim: truth.rim_rel_l2(&out.density, RIM),
         mass: out.stats.grid_mass / total,
         used: (out.stats.used_mean, out.stats.used_std),
         seconds,
     }
 }
 
+/// The rim's bound: grid points whose true density is below this fraction of the maximum.
+const RIM: f64 = 0.02;
+
 fn print(rows: &[Row]) {
-    println!("  {:<34} {:>8} {:>8} {:>16} {:>7}", "method", "rel L2", "mass", "used mean/std", "time s");
+    println!("  {:<34} {:>8} {:>8} {:>8} {:>16} {:>7}", "method", "rel L2", "rim L2", "mass", "used mean/std", "time s");
     for r in rows {
         println!(
-            "  {:<34} {:>8.4} {:>8.4} {:>8.1}/{:<7.1} {:>7.2}",
-            r.label, r.l2, r.mass, r.used.0, r.used.1, r.seconds
+            "  {:<34} {:>8.4} {:>8.4} {:>8.4} {:>8.1}/{:<7.1} {:>7.2}",
+            r.label, r.l2, r.rim, r.mass, r.used.0, r.used.1, r.seconds
         );
     }
 }
@@ -96,13 +104,20 @@ fn accuracy(scene: Scene) {
     let best_l2 = usl.iter().map(|r| r.1.l2).fold(f64::INFINITY, f64::min);
     rows.extend(usl.into_iter().map(|r| r.1));
 
-    let mut asl3_default = f64::NAN;
-    for method in [Method::Asl2, Method::Asl3, Method::Knn] {
+    let (mut asl3_default, mut ici_default) = (f64::NAN, f64::NAN);
+    for method in [Method::Asl2, Method::Asl3, Method::Knn, Method::Ici] {
         let row = run(&particles, &truth, format!("{} defaults", method.name()), DensityParams { method, ..base.clone() });
-        if method == Method::Asl3 {
-            asl3_default = row.l2;
+        match method {
+            Method::Asl3 => asl3_default = row.l2,
+            Method::Ici => ici_default = row.l2,
+            _ => {}
         }
         rows.push(row);
+    }
+    // ici's Gamma about its default, and its ladder's rung ratio was chosen the same way (crate
+    // docs): one value for every scene.
+    for confidence in [1.0, 1.25, 1.75, 2.0] {
+        rows.push(run(&particles, &truth, format!("ici gamma={confidence}"), DensityParams { method: Method::Ici, confidence, ..base.clone() }));
     }
     // The sweeps one setting at a time start from the paper's N* 32 and h_min 1 voxel (the
     // defaults until issue #18), as the crate docs' tables do: N* at h_min 1 voxel (h0 auto
@@ -151,12 +166,9 @@ fn accuracy(scene: Scene) {
         rows.push(run(&particles, &truth, format!("knn N*={n_star}"), DensityParams { method: Method::Knn, neighbours: n_star, ..paper.clone() }));
     }
     print(&rows);
-    println!(
-        "  asl3 at defaults: rel L2 {:.4} vs best usl {:.4} ({:+.1}%)",
-        asl3_default,
-        best_l2,
-        (asl3_default / best_l2 - 1.0) * 100.0
-    );
+    for (name, l2) in [("asl3", asl3_default), ("ici", ici_default)] {
+        println!("  {name} at defaults: rel L2 {l2:.4} vs best usl {best_l2:.4} ({:+.1}%)", (l2 / best_l2 - 1.0) * 100.0);
+    }
 }
 
 fn main() {

@@ -339,6 +339,23 @@ impl TrueGrid {
             .sum();
         (err2 / self.norm2).sqrt()
     }
+
+    /// The same over the rim only: the grid points whose true density is below `fraction` of
+    /// the true maximum (where particles are sparse and a narrow kernel leaves separate
+    /// blobs), normalised by the true density there.
+    pub fn rim_rel_l2(&self, density: &Volume<f32>, fraction: f64) -> f64 {
+        let max = self.values.iter().cloned().fold(0.0f64, f64::max);
+        let limit = fraction * max;
+        let (err2, norm2) = (0..self.values.len())
+            .into_par_iter()
+            .filter(|&n| self.values[n] < limit)
+            .map(|n| {
+                let e = density.get(index_of(&self.grid, n)) as f64 - self.values[n];
+                (e * e, self.values[n] * self.values[n])
+            })
+            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        (err2 / norm2).sqrt()
+    }
 }
 
 fn index_of(grid: &Grid, n: usize) -> IVec3 {

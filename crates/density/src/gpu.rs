@@ -64,6 +64,7 @@ fn method_code(method: Method) -> u32 {
         Method::Asl2 => 1,
         Method::Asl3 => 2,
         Method::Knn => 3,
+        Method::Ici => unreachable!("estimate_gpu refuses methods without a GPU twin"),
     }
 }
 
@@ -74,6 +75,7 @@ fn passes(method: Method) -> &'static [&'static str] {
         Method::Asl2 => &["predict", "density"],
         Method::Asl3 => &["predict", "correct", "density"],
         Method::Knn => &["knn", "density"],
+        Method::Ici => unreachable!("estimate_gpu refuses methods without a GPU twin"),
     }
 }
 

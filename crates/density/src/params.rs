@@ -15,10 +15,19 @@ pub enum Method {
     Asl3,
     /// Exact reference: h = (distance to the N*-th nearest particle) / kappa.
     Knn,
+    /// Error-following (issue #21): per grid point the largest length of a ladder from h_min
+    /// to h0 whose estimate stays within the confidence intervals of all shorter ones
+    /// (intersection of confidence intervals, [`crate::kernel::ici_rung`]). One pass.
+    Ici,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [Method::Usl, Method::Asl2, Method::Asl3, Method::Knn];
+    pub const ALL: [Method; 5] = [Method::Usl, Method::Asl2, Method::Asl3, Method::Knn, Method::Ici];
+
+    /// Whether the GPU backend has this method's passes (ici has none yet).
+    pub fn on_gpu(self) -> bool {
+        self != Method::Ici
+    }
 
     pub fn name(self) -> &'static str {
         match self {
@@ -26,6 +35,7 @@ impl Method {
             Method::Asl2 => "asl2",
             Method::Asl3 => "asl3",
             Method::Knn => "knn",
+            Method::Ici => "ici",
         }
     }
 
@@ -77,6 +87,9 @@ pub struct DensityParams {
     pub h_min: HMin,
     /// s in [0, 1], the asl3 relaxation for overestimated lengths.
     pub relax: f32,
+    /// Gamma, ici's confidence interval half-width in standard deviations
+    /// ([`DEFAULT_ICI_CONFIDENCE`]).
+    pub confidence: f32,
     /// Mass of each particle when the set has no `mass` attribute.
     pub mass: f32,
     pub resolution: Resolution,
@@ -146,6 +159,10 @@ pub const DEFAULT_NEIGHBOURS: u32 = 80;
 /// voxel until then): with N* = 80 the setting that also brings the plume within 3%.
 pub const DEFAULT_H_MIN_VOXELS: f64 = 1.2;
 
+/// ici's Gamma: one constant for every scene, chosen on the accuracy example's scenes (crate
+/// docs, issue #21).
+pub const DEFAULT_ICI_CONFIDENCE: f32 = 1.5;
+
 impl Default for DensityParams {
     fn default() -> Self {
         DensityParams {
@@ -154,6 +171,7 @@ impl Default for DensityParams {
             h0: H0::Auto,
             h_min: HMin::Voxels(DEFAULT_H_MIN_VOXELS),
             relax: 0.0,
+            confidence: DEFAULT_ICI_CONFIDENCE,
             mass: 1.0,
             resolution: Resolution::Longest(256),
             bounds: None,
@@ -190,6 +208,9 @@ impl DensityParams {
         }
         if !(0.0..=1.0).contains(&self.relax) {
             return bad("relax", self.relax.to_string(), "must be in [0, 1]");
+        }
+        if !(self.confidence.is_finite() && self.confidence > 0.0) {
+            return bad("confidence", self.confidence.to_string(), "must be positive and finite");
         }
         if !(self.mass.is_finite() && self.mass >= 0.0) {
             return bad("mass", self.mass.to_string(), "must be finite and not negative");

@@ -106,7 +106,7 @@ fn attribute_grids_match_a_direct_sum_over_every_particle() {
     let temperature: Vec<f32> = particles.positions.iter().map(|p| (300.0 + 40.0 * p.x + 10.0 * (p.y * 1.3).sin()) as f32).collect();
     let v: Vec<Vec3> = particles.positions.iter().enumerate().map(|(i, p)| Vec3::new(p.z as f32, (i % 5) as f32 - 2.0, (p.x * p.y) as f32 * 0.1)).collect();
     particles = particles.with_attribute("temperature", Attribute::Float(temperature.clone())).with_attribute("v", Attribute::Vec3(v.clone()));
-    for method in [Method::Usl, Method::Asl3, Method::Knn] {
+    for method in [Method::Usl, Method::Asl3, Method::Knn, Method::Ici] {
         let out = estimate_cpu(&particles, &params(method, &["temperature", "v"])).unwrap();
         let rho: Vec<f64> = particles.positions.iter().map(|&p| out.density.sample_world(p) as f64).collect();
         let (t, vg) = (float_grid(&out, 0), vec3_grid(&out, 1));

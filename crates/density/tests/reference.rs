@@ -4,11 +4,54 @@
 
 use glam::{DVec3, IVec3};
 use nimbus_density::analytic::Rng;
-use nimbus_density::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
+use nimbus_density::kernel::{clamp_h, correct_h, ici_ladder, ici_rung, m4_shape, predict_h1, KAPPA};
 use nimbus_density::*;
 
-/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index).
-fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
+/// ici's per-rung sums by brute force: sum m W and sum (m W)^2 over the particles within
+/// kappa*h_k of the point, in f64.
+fn ladder_sums(r2s: &[(f32, usize)], own: &[f32], ladder: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    ladder
+        .iter()
+        .map(|&h| {
+            let r = KAPPA * h;
+            let (mut sum, mut squares) = (0.0f64, 0.0f64);
+            for &(r2, i) in r2s {
+                if r2 < r * r {
+                    let w = (own[i] * m4_shape(r2.sqrt() / h)) as f64;
+                    sum += w;
+                    squares += w * w;
+                }
+            }
+            (sum as f32, squares as f32)
+        })
+        .unzip()
+}
+
+/// ici's rung from grid point ijk's own ladder, `None` without a particle within kappa*h0.
+fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32], ijk: IVec3) -> Option<usize> {
+    let x = ijk.as_vec3();
+    let r2s: Vec<(f32, usize)> = particles
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            let q = grid.to_index_f32(p);
+            let (dx, dy, dz) = (x.x - q.x, x.y - q.y, x.z - q.z);
+            (dx * dx + dy * dy + dz * dz, i)
+        })
+        .collect();
+    let r0 = KAPPA * pp.h0;
+    if !r2s.iter().any(|(r2, _)| *r2 < r0 * r0) {
+        return None;
+    }
+    let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+    let (sums, squares) = ladder_sums(&r2s, own, &all[..rungs]);
+    Some(ici_rung(&sums, &squares, &all[..rungs], pp.confidence))
+}
+
+/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index);
+/// `own` are the particles' masses (ici's lengths follow them).
+fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
     let x = ijk.as_vec3();
     let r2s: Vec<(f32, usize)> = particles
         .positions
@@ -43,14 +86,40 @@ fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: M
                 clamp_h(sorted[k - 1].0.sqrt() / KAPPA, pp.h_min, pp.h0)
             }
         }
+        Method::Ici => {
+            // The least rung over the point and its neighbours in its 8^3 brick that have a
+            // particle within kappa*h0.
+            let (all, _) = ici_ladder(pp.h_min, pp.h0);
+            let brick = ijk - ijk % 8;
+            let mut least = usize::MAX;
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let q = ijk + IVec3::new(dx, dy, dz);
+                        let in_brick = (q - brick).cmpge(IVec3::ZERO).all() && (q - brick).cmplt(IVec3::splat(8)).all();
+                        let in_grid = q.cmpge(IVec3::ZERO).all() && q.cmplt(grid.dims).all();
+                        if in_brick && in_grid {
+                            if let Some(k) = own_rung(particles, grid, pp, own, q) {
+                                least = least.min(k);
+                            }
+                        }
+                    }
+                }
+            }
+            if least == usize::MAX {
+                pp.h0
+            } else {
+                all[least]
+            }
+        }
     };
     (h, n0, r2s)
 }
 
 /// Brute-force (density, h in index units, used count) at grid point ijk, with the particles'
 /// `masses`.
-fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
-    let (h, n0, r2s) = reference_h(particles, grid, pp, method, ijk);
+fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
+    let (h, n0, r2s) = reference_h(particles, grid, pp, method, own, ijk);
     if n0 == 0 {
         return (0.0, pp.h0, 0);
     }
@@ -69,7 +138,7 @@ fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, metho
 /// m / S, S = sum over every grid point x of W(|x - x_q|, h(x)) dV, for particles whose whole
 /// support (radius kappa*h0) reaches no grid point outside the grid; and how many were.
 fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, params: &DensityParams) -> (Vec<f32>, usize) {
-    let own: Vec<f32> = (0..particles.len()).map(|i| particles.mass(i, params.mass)).collect();
+    let own = own_masses(particles, params);
     if !params.conserve_mass {
         return (own, 0);
     }
@@ -77,7 +146,7 @@ fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, meth
     for k in 0..grid.dims.z {
         for j in 0..grid.dims.y {
             for i in 0..grid.dims.x {
-                let (h, n0, r2s) = reference_h(particles, grid, pp, method, IVec3::new(i, j, k));
+                let (h, n0, r2s) = reference_h(particles, grid, pp, method, &own, IVec3::new(i, j, k));
                 let r = KAPPA * h;
                 for (r2, q) in r2s {
                     if n0 > 0 && r2 < r * r {
@@ -106,6 +175,10 @@ fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, meth
         })
         .collect();
     (masses, normalised)
+}
+
+fn own_masses(particles: &ParticleSet, params: &DensityParams) -> Vec<f32> {
+    (0..particles.len()).map(|i| particles.mass(i, params.mass)).collect()
 }
 
 fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
@@ -175,6 +248,7 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
     let grid = out.grid;
     let pp = PointParams::new(&grid, &params);
     let (masses, normalised) = reference_masses(particles, &grid, &pp, method, &params);
+    let own = own_masses(particles, &params);
     let max = out.stats.max_density;
     assert!(max > 0.0);
     let h_vol = out.smoothing_length.as_ref().unwrap();
@@ -185,7 +259,7 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
         for j in (0..grid.dims.y).step_by(2) {
             for i in (0..grid.dims.x).step_by(2) {
                 let ijk = IVec3::new(i, j, k);
-                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &masses, ijk);
+                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &own, &masses, ijk);
                 let fast = out.density.get(ijk);
                 assert!(
                     (fast - rho).abs() <= 1e-5 * max + 1e-5 * rho,
@@ -231,6 +305,37 @@ fn asl3_relaxed_equals_brute_force() {
 #[test]
 fn knn_equals_brute_force() {
     check_method(Backend::Cpu, Method::Knn, 0.0, H0::Fixed(1.6));
+}
+
+#[test]
+fn ici_equals_brute_force() {
+    check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Cpu, Method::Ici, 0.0, H0::Fixed(2.4));
+    // The clumps and the background take different rungs: the comparison covers the rule,
+    // not one length everywhere.
+    let params = DensityParams { method: Method::Ici, h0: H0::Fixed(2.4), resolution: Resolution::VoxelSize(0.5), smoothing_length: true, ..Default::default() };
+    let out = estimate_cpu(&random_clumpy(1500, 3), &params).unwrap();
+    let mut lengths: Vec<u32> = out.smoothing_length.unwrap().bricks().flat_map(|b| b.values.iter().filter(|&&h| h > 0.0).map(|h| h.to_bits()).collect::<Vec<_>>()).collect();
+    lengths.sort_unstable();
+    lengths.dedup();
+    assert!(lengths.len() >= 4, "ici used {} lengths", lengths.len());
+}
+
+#[test]
+fn ici_with_auto_h0_and_other_confidences_equals_brute_force() {
+    for confidence in [0.5, 3.0] {
+        let params = DensityParams { method: Method::Ici, confidence, resolution: Resolution::VoxelSize(0.5), ..Default::default() };
+        check_params(Backend::Cpu, &random_clumpy(1500, 3), params, 500);
+    }
+}
+
+/// Methods without a GPU twin are refused by name, not run on the CPU behind the caller's back.
+#[test]
+fn gpu_refuses_ici() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let params = DensityParams { method: Method::Ici, resolution: Resolution::VoxelSize(0.5), ..Default::default() };
+    let err = estimate_gpu(ctx, &random_clumpy(200, 3), &params).err().expect("refused");
+    assert!(matches!(err, DensityError::NotOnGpu("ici")), "{err}");
 }
 
 #[test]
@@ -323,7 +428,7 @@ fn gpu_kernel_sums_in_slabs_agree() {
 /// Every method on both backends over every voxel: the same active voxels, counts and
 /// lengths, densities to float tolerance, the same stats.
 fn backends_agree(ctx: &nimbus_gpu::GpuContext, particles: &ParticleSet, params: DensityParams, min_voxels: u32) {
-    for method in Method::ALL {
+    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
         let params = DensityParams { method, smoothing_length: true, neighbour_count: true, ..params.clone() };
         let (particles, params) = (particles, &params);
         let cpu = estimate_cpu(particles, params).unwrap();
@@ -393,7 +498,7 @@ fn conserving_mass_equals_brute_force() {
 
 #[test]
 fn gpu_conserving_mass_equals_brute_force() {
-    for method in Method::ALL {
+    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
         check_conserving(Backend::Gpu, method, None);
     }
 }
@@ -464,7 +569,12 @@ fn mass_is_conserved() {
     // `conserving_mass_holds_the_particles_mass` is the exact alternative. Measured here:
     // blob (smooth) asl2/asl3/knn +1.3% at the defaults, +0.6% at N* 32 with h_min 1 voxel
     // (the paper's setting, the default until then); knots (steep contrast) asl2 +1.3%,
-    // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32.
+    // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32. ici (issue #21,
+    // its length from the ladder h_min..h0 whatever N*) -0.1% on the blob, +11.1% on these
+    // 20k knots: there a sparse point's small rungs hold a few particles, their intervals
+    // (the variance floored from the top rung, which reaches into a knot) are wide, and the
+    // point takes a long kernel into the knot; on the 150k-particle knots of the accuracy
+    // example +3.2%. `--conserve-mass` makes it exact (`conserving_mass_holds_the_particles_mass`).
     let blob = analytic::Scene {
         name: "blob",
         density: analytic::Analytic {
@@ -486,7 +596,11 @@ fn mass_is_conserved() {
     for (scene, voxel, base, setting, adaptive) in cases {
         for (method, ratio) in mass_ratios(scene.clone(), voxel, &base) {
             eprintln!("{}, {setting}, {method:?}: {ratio}", scene.name);
-            let tolerance = if method == Method::Usl { 0.01 } else { adaptive };
+            let tolerance = match method {
+                Method::Usl => 0.01,
+                Method::Ici if scene.name == "knots" => 0.12,
+                _ => adaptive,
+            };
             assert!((ratio - 1.0).abs() < tolerance, "{}, {setting}, {method:?}: grid mass / particle mass {ratio}", scene.name);
         }
     }
