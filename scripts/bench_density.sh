@@ -40,7 +40,7 @@ for scene in cloud1 smoke; do
     if [ "$scene" = cloud1 ]; then args=("${grid[@]}"); what="Cloud1-class (500k particles, 339x42x361)"; else args=("${smoke_grid[@]}"); what="smoke-like (330k particles, 280x255x233)"; fi
     echo "== 1. whole command, $what, median of $runs ($(nproc) cores, load $(cut -d' ' -f1 /proc/loadavg))"
     printf "%-6s %-4s %10s %10s\n" method dev "wall s" "cpu s"
-    for method in usl asl2 asl3 knn; do
+    for method in usl asl2 asl3 knn ici; do
         for dev in cpu gpu; do
             if ! "$p2v" "$work/$scene.ply" "${args[@]}" --method "$method" --device "$dev" -o "$work/out.vdb" 2>"$work/err.txt"; then
                 # Say why (on lavapipe: its loop cap, which the larger supports exceed).
@@ -60,7 +60,7 @@ echo "== 2. growth, cloud1 generator on the same grid, CPU, one run each"
 printf "%10s %-6s %10s %10s %12s\n" particles method "wall s" "cpu s" "max RSS MiB"
 for n in $sizes; do
     [ -s "$work/cloud1_$n.ply" ] || "$gen" cloud1 "$work/cloud1_$n.ply" "$n" 1 2>/dev/null
-    for method in usl asl3; do
+    for method in usl asl3 ici; do
         read -r wall cpu rss < <(measure "$p2v" "$work/cloud1_$n.ply" "${grid[@]}" --method "$method" --device cpu -o "$work/out.vdb")
         printf "%10d %-6s %10.2f %10.2f %12.0f\n" "$n" "$method" "$wall" "$cpu" "$((rss / 1024))"
     done

@@ -3,6 +3,7 @@
 side-by-side table in scripts/bench_density.sh.
 
     bench_sarracen.py PARTICLES.ply TRUTH.npy --bounds X0,Y0,Z0,X1,Y1,Z1 --h0 H [--neighbours 32] [--runs 3]
+                      [--only uniform|knn]
 
 PARTICLES.ply and TRUTH.npy come from the gen_particles example (binary PLY with double x, y, z
 and float mass; the analytic density on the grid as float32, shape (z, y, x)). The grid is
@@ -56,6 +57,7 @@ def main():
     ap.add_argument("--h0", type=float, required=True)
     ap.add_argument("--neighbours", type=int, default=32)
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--only", choices=["uniform", "knn"], help="one choice of h (time the whole script for it: import, JIT, h, grid)")
     args = ap.parse_args()
 
     import sarracen
@@ -85,7 +87,7 @@ def main():
 
     print(f"{'sarracen h':<28} {'median s':>9} {'rel L2':>8} {'mass':>7}")
     voxel_volume = np.prod([(hi[i] - lo[i]) / s for i, s in enumerate((nx, ny, nz))])
-    for label in ("uniform", "knn"):
+    for label in (args.only,) if args.only else ("uniform", "knn"):
         times = []
         for _ in range(args.runs):
             t = time.perf_counter()
