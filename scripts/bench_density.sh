@@ -6,7 +6,9 @@
 #   2. growth from 100k to 5M particles (cloud1 generator, same grid), usl and asl3 on the
 #      CPU: wall time and peak memory (max RSS from /usr/bin/time -v);
 #   3. sarracen's interpolate_3d_grid on the same particles and grid (scripts/bench_sarracen.py),
-#      when a Python with sarracen is found ($SARRACEN_PYTHON, default /work/venv-sarracen).
+#      when a Python with sarracen is found ($SARRACEN_PYTHON, default /work/venv-sarracen;
+#      python3 -m venv /work/venv-sarracen && /work/venv-sarracen/bin/pip install sarracen
+#      scipy scikit-learn: sarracen 1.4 imports sklearn without depending on it).
 # The in-process table (every method, both backends, error against the analytic density) is
 # `cargo bench -p nimbus-density --bench estimate`.
 #
