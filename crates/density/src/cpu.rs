@@ -659,8 +659,8 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
             let l = &s.ladder;
             let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
             let mut used = Box::new([0u32; BRICK_VOXELS]);
-            for v in 0..BRICK_VOXELS {
-                reached[v] &= l.counts[rungs - 1][v] > 0;
+            for (r, &n0) in reached.iter_mut().zip(&l.counts[rungs - 1]) {
+                *r &= n0 > 0;
             }
             let mut rung = choose_rungs(l, &scale[..rungs], &volume[..rungs], pp.confidence);
             // The least rung about each voxel: a neighbour whose ladder broke off sees an edge

@@ -85,10 +85,10 @@
 //!   variance is floored by the top rung's scaled to the rung's volume, so an empty small
 //!   ball is not a confident zero. Then each voxel takes the least rung among itself and its
 //!   26 neighbours in the brick (a neighbour that chose short saw an edge a voxel away; with
-//!   the classic rule, Gamma 1.25, rungs 1.4 apart, the shell 0.314 -> 0.250). The chosen rung's sums are the density
-//!   pass's, term for term, so no further pass runs (conserve-mass keeps the lengths and runs
-//!   its passes as for the other methods). CPU only: `estimate_gpu` refuses it
-//!   ([`DensityError::NotOnGpu`]).
+//!   the classic rule, Gamma 1.25 and rungs 1.4 apart, the shell 0.314 -> 0.250). The chosen
+//!   rung's sums are the density pass's, term for term, so no further pass runs
+//!   (conserve-mass keeps the lengths and runs its passes as for the other methods). CPU
+//!   only: `estimate_gpu` refuses it ([`DensityError::NotOnGpu`]).
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
