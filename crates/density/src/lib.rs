@@ -203,9 +203,9 @@
 //!
 //! Speed, whole `particles2vdb` command on Cloud1-class (`gen_particles cloud1`, 500k, the
 //! 339 x 42 x 361 grid, `--bounds 0,0,0,339,42,361 --voxel-size 1`), medians of 5
-//! alternating runs, wall (CPU) s: usl 0.68 (1.11), asl3 1.05 (1.83), ici 1.03 (1.80), with
-//! both cores free; with the other core busy wall time approaches the CPU time, at or below
-//! the paper's 1.90 s. The ladder pass does about 1.9x usl's kernel evaluations at the same
+//! alternating runs, wall (CPU) s: usl 0.68 (1.11), asl3 1.05 (1.83), ici 1.03 (1.80) with
+//! both cores free; with one taken by another job usl 1.26, asl3 2.01, ici 2.00 (1.80), so
+//! ici is at the paper's 1.90 s only with the machine to itself. The ladder pass does about 1.9x usl's kernel evaluations at the same
 //! h0 (the rungs' supports' areas relative to the top's, 1 + 0.5 + 0.25 + 0.12) with one
 //! square root per (particle, voxel) pair; the rung choice runs vectorised over a brick's
 //! voxels (per voxel and scalar it took 12% of the command).
