@@ -721,8 +721,8 @@ fn choose_rungs(l: &Ladder, scale: &[f32], volume: &[f32], gamma: f32) -> [usize
 /// ici: per voxel, the least rung among it and its 26 neighbours in the brick that any pass
 /// evaluates (`reached`; others hold usize::MAX on return). Within the brick only: the
 /// neighbours' rungs across a face are another brick's work (a voxel on a face takes the least
-/// of fewer, so the rule is brick-aligned; what it leaves lies within the estimates'
-/// confidence intervals). A box minimum is separable: three passes of three along one axis.
+/// of fewer, so the rule is brick-aligned; the rungs it leaves differ by what the rule took
+/// for noise). A box minimum is separable: three passes of three along one axis.
 pub(crate) fn least_rungs_near(rung: &mut [usize; BRICK_VOXELS], reached: &[bool; BRICK_VOXELS]) {
     for v in 0..BRICK_VOXELS {
         if !reached[v] {

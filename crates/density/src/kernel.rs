@@ -225,8 +225,8 @@ mod tests {
         // The widest rung far off the narrower two (a steep edge): the middle one.
         let steep = [1.0, 8.0, 640.0];
         assert_eq!(ici_rung(&steep, &[1e-4, 1e-3, 1e-2], &h, 2.0), 1);
-        // An empty small ball is not a confident zero: the floor from the top rung keeps its
-        // interval open.
+        // An empty small ball is not a confident zero: without the floor from the top rung its
+        // variance would be 0 and its estimate (0) chosen.
         assert_eq!(ici_rung(&[0.0, 8.0, 64.0], &[0.0, 4.0, 32.0], &h, 2.0), 2);
     }
 }
