@@ -480,10 +480,12 @@ fn degenerate_particle_sets() {
     let out = dir.join("d.vdb");
     let csv = dir.join("p.csv");
     std::fs::write(&csv, "x,y,z\n0,0,0\n").unwrap();
-    for method in ["usl", "asl2", "asl3", "knn"] {
+    for method in ["usl", "asl2", "asl3", "knn", "ici"] {
         run_file("particles2vdb", &csv, &["--method", method, "--resolution", "8", "--h0", "0.5"], &out).expect_ok();
         assert_vdb_finite(&out);
     }
+    // ici has no GPU twin yet: an explicit --device gpu is refused rather than ignored.
+    run_file("particles2vdb", &csv, &["--method", "ici", "--device", "gpu", "--resolution", "8", "--h0", "0.5"], &out).expect_error(2, "--method ici is not built for the GPU");
     // One particle with h0 auto: nothing to measure spacing against.
     let r = run_file("particles2vdb", &csv, &["--resolution", "8"], &out);
     if r.ok() {

@@ -22,8 +22,9 @@ struct Args {
     #[arg(long)]
     format: Option<String>,
     /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference),
-    /// ici (a ladder of lengths from --h-min to h0, the longest whose estimate agrees with the
-    /// shorter ones' within their noise; CPU only so far).
+    /// ici (per grid point the length, from a ladder between --h-min and h0, whose estimated
+    /// error is least: bias against the shorter lengths beyond their noise, plus noise; CPU
+    /// only so far).
     #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
     method: String,
     /// Upper bound of the smoothing length (world units), or auto.

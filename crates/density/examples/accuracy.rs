@@ -116,7 +116,7 @@ fn accuracy(scene: Scene) {
     }
     // ici's Gamma about its default, and its ladder's rung ratio was chosen the same way (crate
     // docs): one value for every scene.
-    for confidence in [1.0, 1.25, 1.75, 2.0] {
+    for confidence in [1.0, 1.5, 2.0, 2.5] {
         rows.push(run(&particles, &truth, format!("ici gamma={confidence}"), DensityParams { method: Method::Ici, confidence, ..base.clone() }));
     }
     // The sweeps one setting at a time start from the paper's N* 32 and h_min 1 voxel (the

@@ -15,9 +15,9 @@ pub enum Method {
     Asl3,
     /// Exact reference: h = (distance to the N*-th nearest particle) / kappa.
     Knn,
-    /// Error-following (issue #21): per grid point the largest length of a ladder from h_min
-    /// to h0 whose estimate stays within the confidence intervals of all shorter ones
-    /// (intersection of confidence intervals, [`crate::kernel::ici_rung`]). One pass.
+    /// Error-following (issue #21): per grid point the length of a ladder from h_min to h0
+    /// whose estimated error (bias from the shorter rungs beyond their noise, plus variance)
+    /// is least, Lepski's principle ([`crate::kernel::ici_rung`]). One pass. CPU only.
     Ici,
 }
 
@@ -87,8 +87,8 @@ pub struct DensityParams {
     pub h_min: HMin,
     /// s in [0, 1], the asl3 relaxation for overestimated lengths.
     pub relax: f32,
-    /// Gamma, ici's confidence interval half-width in standard deviations
-    /// ([`DEFAULT_ICI_CONFIDENCE`]).
+    /// Gamma, ici's noise allowance in standard deviations ([`DEFAULT_ICI_CONFIDENCE`],
+    /// [`crate::kernel::ici_rung`]).
     pub confidence: f32,
     /// Mass of each particle when the set has no `mass` attribute.
     pub mass: f32,
@@ -161,7 +161,7 @@ pub const DEFAULT_H_MIN_VOXELS: f64 = 1.2;
 
 /// ici's Gamma: one constant for every scene, chosen on the accuracy example's scenes (crate
 /// docs, issue #21).
-pub const DEFAULT_ICI_CONFIDENCE: f32 = 1.5;
+pub const DEFAULT_ICI_CONFIDENCE: f32 = 1.75;
 
 impl Default for DensityParams {
     fn default() -> Self {

@@ -570,11 +570,11 @@ fn mass_is_conserved() {
     // blob (smooth) asl2/asl3/knn +1.3% at the defaults, +0.6% at N* 32 with h_min 1 voxel
     // (the paper's setting, the default until then); knots (steep contrast) asl2 +1.3%,
     // asl3 +5.0%, knn +6.6% at the defaults, +0.9%, +3.0%, +3.7% at N* 32. ici (issue #21,
-    // its length from the ladder h_min..h0 whatever N*) -0.1% on the blob, +11.1% on these
-    // 20k knots: there a sparse point's small rungs hold a few particles, their intervals
-    // (the variance floored from the top rung, which reaches into a knot) are wide, and the
-    // point takes a long kernel into the knot; on the 150k-particle knots of the accuracy
-    // example +3.2%. `--conserve-mass` makes it exact (`conserving_mass_holds_the_particles_mass`).
+    // its length from the ladder h_min..h0 whatever N*) -0.4% on the blob, +10.4% on these
+    // 20k knots (+7.8% at h_min 1 voxel): there a sparse point's small rungs hold a few
+    // particles, their noise hides the bias, and the point takes a long kernel into a knot;
+    // on the 150k-particle knots of the accuracy example +2.6%. `--conserve-mass` makes it
+    // exact (`conserving_mass_holds_the_particles_mass`).
     let blob = analytic::Scene {
         name: "blob",
         density: analytic::Analytic {
