@@ -6,6 +6,7 @@
 //   asl2  predict, density
 //   asl3  predict, correct, density
 //   knn   knn, density
+//   ici   ladder, ici_pick, density
 // With conserve-mass the host runs the passes before density over every chunk first, keeps
 // the lengths, runs `mass` (one invocation per particle: its kernel sum S over the grid), and
 // then density per chunk with the masses m / S.
@@ -32,6 +33,9 @@ const METHOD_USL: u32 = 0u;
 const METHOD_ASL2: u32 = 1u;
 const METHOD_ASL3: u32 = 2u;
 const METHOD_KNN: u32 = 3u;
+const METHOD_ICI: u32 = 4u;
+// Twin of kernel.rs ICI_MAX_RUNGS.
+const ICI_MAX_RUNGS: u32 = 6u;
 
 struct DensityUniforms {
     cell_origin: vec3<f32>,
@@ -58,7 +62,16 @@ struct DensityUniforms {
     // channels) this dispatch sums.
     attribute_stride: u32,
     attribute_group: u32,
+    // ici: the ladder's rungs, their lengths (index units) and kernel.rs ici_scales'
+    // constants (from the host, so the rule sees the CPU's numbers), and Gamma.
+    ici_rungs: u32,
+    ici_h: array<vec4<f32>, 2>,
+    ici_scale: array<vec4<f32>, 2>,
+    ici_volume: array<vec4<f32>, 2>,
+    ici_gamma: f32,
     _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> u: DensityUniforms;
@@ -239,6 +252,85 @@ fn gather_attributes(x: vec3<f32>, limit2: f32, inv_h: f32) {
     }
 }
 
+// ici's ladder over the same cells: per rung k, the sum of m m4_shape(r / h_k), of its
+// square and the count, over the particles within kappa*h_k (cpu.rs splat_ladder's terms).
+var<private> ladder_sums: array<f32, ICI_MAX_RUNGS>;
+var<private> ladder_squares: array<f32, ICI_MAX_RUNGS>;
+var<private> ladder_counts: array<u32, ICI_MAX_RUNGS>;
+
+fn ici_rung_h(k: u32) -> f32 {
+    return u.ici_h[k / 4u][k % 4u];
+}
+
+fn gather_ladder(x: vec3<f32>) {
+    let rungs = u.ici_rungs;
+    for (var k = 0u; k < ICI_MAX_RUNGS; k++) {
+        ladder_sums[k] = 0.0;
+        ladder_squares[k] = 0.0;
+        ladder_counts[k] = 0u;
+    }
+    let r_top = KAPPA * ici_rung_h(rungs - 1u);
+    let limit2 = r_top * r_top;
+    let cells = cells_within(x, limit2);
+    let lo = cells[0];
+    let hi = cells[1];
+    for (var cz = lo.z; cz <= hi.z; cz++) {
+        for (var cy = lo.y; cy <= hi.y; cy++) {
+            let row = row_particles(lo, hi, cy, cz);
+            for (var i = row.x; i < row.y; i++) {
+                let q = particles[i];
+                let r2 = dist2(x, q.xyz);
+                if (r2 >= limit2) {
+                    continue;
+                }
+                let r = sqrt(r2);
+                // Longest rung first: a particle outside rung k is outside every shorter one.
+                for (var k = rungs; k > 0u; k--) {
+                    let h = ici_rung_h(k - 1u);
+                    let rad = KAPPA * h;
+                    if (r2 >= rad * rad) {
+                        break;
+                    }
+                    let w = q.w * m4_shape(r * (1.0 / h));
+                    ladder_sums[k - 1u] += w;
+                    ladder_squares[k - 1u] += w * w;
+                    ladder_counts[k - 1u] += 1u;
+                }
+            }
+        }
+    }
+}
+
+// kernel.rs ici_rung_scaled: the rung minimising B_k + Gamma^2 var_k (Goldenshluger-Lepski).
+fn ici_rung() -> u32 {
+    let rungs = u.ici_rungs;
+    let top = rungs - 1u;
+    var rho: array<f32, ICI_MAX_RUNGS>;
+    var var_: array<f32, ICI_MAX_RUNGS>;
+    for (var k = 0u; k < rungs; k++) {
+        let c = u.ici_scale[k / 4u][k % 4u];
+        var_[k] = c * c * max(ladder_squares[k], ladder_squares[top] * u.ici_volume[k / 4u][k % 4u]);
+        rho[k] = c * ladder_sums[k];
+    }
+    let g2 = u.ici_gamma * u.ici_gamma;
+    var chosen = 0u;
+    var least = bitcast<f32>(0x7f800000u);
+    for (var k = 0u; k < rungs; k++) {
+        var bias2 = 0.0;
+        for (var j = 0u; j < k; j++) {
+            let d = rho[k] - rho[j];
+            bias2 = max(bias2, d * d - g2 * max(var_[j] - var_[k], 0.0));
+        }
+        // On a tie the longer rung, as the CPU.
+        let error = bias2 + g2 * var_[k];
+        if (error <= least) {
+            chosen = k;
+            least = error;
+        }
+    }
+    return chosen;
+}
+
 fn count_within(x: vec3<f32>, r: f32) -> u32 {
     acc_count = 0u;
     let r2 = r * r;
@@ -344,6 +436,59 @@ fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3
         h = clamp_h(sqrt(kth) / KAPPA, u.h_min, u.h0);
     }
     h_out[i] = h;
+}
+
+// ici pass 1: the ladder at the voxel and its own rung, kept as rung + 1 in used_out (0 where
+// no particle is within the top rung: not reached); ici_pick reads its neighbours'.
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+          @builtin(local_invocation_index) lid: u32) {
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let x = voxel_point(i);
+    var own = 0u;
+    if (x.w != 0) {
+        gather_ladder(vec3<f32>(x.xyz));
+        if (ladder_counts[u.ici_rungs - 1u] > 0u) {
+            own = ici_rung() + 1u;
+        }
+    }
+    used_out[i] = own;
+}
+
+// ici pass 2: the least own rung among the voxel and its 26 neighbours within its brick
+// (cpu.rs least_rungs_near; neighbours no pass reaches do not count), its length, and
+// whether the voxel is reached (n0_out, as the density pass reads it).
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn ici_pick(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+            @builtin(local_invocation_index) lid: u32) {
+    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
+    if (i >= u.voxel_count) {
+        return;
+    }
+    let base = i - i % BRICK_VOXELS;
+    let v = i % BRICK_VOXELS;
+    let c = vec3<i32>(i32(v >> 6u), i32((v >> 3u) & 7u), i32(v & 7u));
+    var least = 0xffffffffu;
+    for (var dx = -1; dx <= 1; dx++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dz = -1; dz <= 1; dz++) {
+                let q = c + vec3<i32>(dx, dy, dz);
+                if (any(q < vec3<i32>(0)) || any(q > vec3<i32>(7))) {
+                    continue;
+                }
+                let own = used_out[base + u32((q.x << 6u) | (q.y << 3u) | q.z)];
+                if (own > 0u) {
+                    least = min(least, own - 1u);
+                }
+            }
+        }
+    }
+    let reached = used_out[i] > 0u;
+    n0_out[i] = select(0u, 1u, reached);
+    h_out[i] = select(u.h0, ici_rung_h(least), reached);
 }
 
 // Every method's last pass: the density with each voxel's h (h0 for usl).

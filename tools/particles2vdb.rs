@@ -286,8 +286,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
     let read: Vec<String> = requested.iter().chain(args.noise_rest.as_ref().filter(|r| !requested.contains(r))).cloned().collect();
     params.validate().map_err(|e| Failure::usage(e.to_string()))?;
     // auto picks a hardware GPU only; --device gpu also takes a software one (lavapipe).
-    // --method ici has no GPU twin yet: --device gpu refuses it, auto takes the CPU.
-    let device = args.common.device_for(&[(!method.on_gpu(), "--method ici")], &log)?;
+    let device = args.common.compute_device(&log)?;
 
     let particles = log.stage(
         "read",

@@ -32,20 +32,6 @@ impl CommonArgs {
         Log::new(tool, Verbosity::from_flags(self.quiet, self.verbose))
     }
 
-    /// The compute device, unless a feature the GPU backends lack yet is needed (`cpu_only`:
-    /// whether each is needed, and what it is): then an explicit `--device gpu` is refused
-    /// (exit 2) rather than ignored, and `auto` takes the CPU, said with -v.
-    pub fn device_for(&self, cpu_only: &[(bool, &str)], log: &Log) -> Result<ComputeDevice, Failure> {
-        let Some((_, what)) = cpu_only.iter().find(|(needed, _)| *needed) else {
-            return self.compute_device(log);
-        };
-        if self.device == DeviceChoice::Gpu {
-            return Err(Failure::usage(format!("{what} is not built for the GPU backends yet (use --device cpu)")));
-        }
-        log.verbose(format!("device: cpu ({what} is CPU-only so far)"));
-        Ok(ComputeDevice::Cpu(nimbus_gpu::CpuReason::Requested))
-    }
-
     /// The compute device, reported with -v.
     pub fn compute_device(&self, log: &Log) -> Result<ComputeDevice, Failure> {
         let device = self.device.resolve().map_err(|e| Failure::runtime(e, "--device"))?;

@@ -55,7 +55,12 @@ struct GpuDensityParams {
     plane_count: u32,
     attribute_stride: u32,
     attribute_group: u32,
-    _pad: u32,
+    ici_rungs: u32,
+    ici_h: [f32; 8],
+    ici_scale: [f32; 8],
+    ici_volume: [f32; 8],
+    ici_gamma: f32,
+    _pad: [u32; 3],
 }
 
 fn method_code(method: Method) -> u32 {
@@ -64,7 +69,7 @@ fn method_code(method: Method) -> u32 {
         Method::Asl2 => 1,
         Method::Asl3 => 2,
         Method::Knn => 3,
-        Method::Ici => unreachable!("estimate_gpu refuses methods without a GPU twin"),
+        Method::Ici => 4,
     }
 }
 
@@ -75,13 +80,17 @@ fn passes(method: Method) -> &'static [&'static str] {
         Method::Asl2 => &["predict", "density"],
         Method::Asl3 => &["predict", "correct", "density"],
         Method::Knn => &["knn", "density"],
-        Method::Ici => unreachable!("estimate_gpu refuses methods without a GPU twin"),
+        // The ladder and each voxel's own rung, the least rung about it, then the density at
+        // that length (the CPU takes it from the ladder's sums: the same terms).
+        Method::Ici => &["ladder", "ici_pick", "density"],
     }
 }
 
 /// The uniforms every pass starts from (per-chunk and per-pass fields 0).
 fn density_uniforms(prep: &Prepared, pp: &PointParams, method: Method) -> GpuDensityParams {
     let cells = &prep.cells;
+    let (ladder, rungs) = crate::kernel::ici_ladder(pp.h_min, pp.h0);
+    let (scale, volume) = crate::kernel::ici_scales(&ladder[..rungs]);
     GpuDensityParams {
         cell_origin: cells.origin.to_array(),
         cell_edge: cells.edge,
@@ -100,7 +109,12 @@ fn density_uniforms(prep: &Prepared, pp: &PointParams, method: Method) -> GpuDen
         plane_count: 0,
         attribute_stride: 0,
         attribute_group: 0,
-        _pad: 0,
+        ici_rungs: rungs as u32,
+        ici_h: std::array::from_fn(|k| if k < rungs { ladder[k] } else { 0.0 }),
+        ici_scale: std::array::from_fn(|k| if k < rungs { scale[k] } else { 0.0 }),
+        ici_volume: std::array::from_fn(|k| if k < rungs { volume[k] } else { 0.0 }),
+        ici_gamma: pp.confidence,
+        _pad: [0; 3],
     }
 }
 
@@ -444,6 +458,8 @@ fn longest_gather(prep: &Prepared, method: Method, pp: &PointParams) -> u64 {
         // about k ln(n/k) insertions for particles in no particular order, each shifting at
         // most k entries.
         Method::Knn => candidates + k * k * ((candidates as f64 / k.max(1) as f64 + 1.0).ln().ceil() as u64),
+        // The ladder's inner loop over the rungs, per candidate.
+        Method::Ici => candidates * (crate::kernel::ICI_MAX_RUNGS as u64 + 1),
         _ => candidates,
     }
 }
@@ -454,12 +470,14 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuDensityParams>(), 96);
+        assert_eq!(size_of::<GpuDensityParams>(), 208);
     }
 
     #[test]
     fn shader_constants_match() {
         assert!(DENSITY_WGSL.contains(&format!("const KNN_MAX: u32 = {KNN_MAX}u;")));
+        assert!(DENSITY_WGSL.contains(&format!("const ICI_MAX_RUNGS: u32 = {}u;", crate::kernel::ICI_MAX_RUNGS)));
+        assert!(crate::kernel::ICI_MAX_RUNGS <= 8, "the uniforms hold eight rungs");
         assert!(DENSITY_WGSL.contains(&format!("const WORKGROUP_SIZE: u32 = {WORKGROUP_SIZE}u;")));
         assert!(DENSITY_WGSL.contains(&format!("const KAPPA: f32 = {:.1};", crate::kernel::KAPPA)));
         assert!(DENSITY_WGSL.contains(&format!("array<vec4<f32>, {}>", ATTRIBUTE_GROUP / 4)));

@@ -94,8 +94,10 @@
 //!   26 neighbours in the brick (a neighbour that chose short saw an edge a voxel away; with
 //!   the classic rule, Gamma 1.25 and rungs 1.4 apart, the shell 0.314 -> 0.250). The chosen
 //!   rung's sums are the density pass's, term for term, so no further pass runs
-//!   (conserve-mass keeps the lengths and runs its passes as for the other methods). CPU
-//!   only: `estimate_gpu` refuses it ([`DensityError::NotOnGpu`]).
+//!   (conserve-mass keeps the lengths and runs its passes as for the other methods). The GPU
+//!   (`ladder`, `ici_pick`, `density` in shaders/density.wgsl) gathers the ladder per voxel,
+//!   keeps each voxel's own rung, takes the least about it in a second pass, and gathers the
+//!   density at that length in a third (the same terms the CPU takes from the ladder).
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
@@ -268,8 +270,6 @@ pub enum DensityError {
     H0Undetermined,
     #[error("no particle attribute `{name}` (available: {available})")]
     UnknownAttribute { name: String, available: String },
-    #[error("--method {0} is not built for the GPU backend yet (use the CPU)")]
-    NotOnGpu(&'static str),
     #[error(transparent)]
     Gpu(#[from] GpuError),
 }
@@ -413,9 +413,6 @@ pub fn estimate_cpu(particles: &ParticleSet, params: &DensityParams) -> Result<D
 /// the same cells, `shaders/density.wgsl`): the same [`prepare`] and finishing step as
 /// [`estimate_cpu`], and the same f32 per-point arithmetic, so the two agree to rounding.
 pub fn estimate_gpu(ctx: &GpuContext, particles: &ParticleSet, params: &DensityParams) -> Result<DensityOutput, DensityError> {
-    if !params.method.on_gpu() {
-        return Err(DensityError::NotOnGpu(params.method.name()));
-    }
     estimate_with(
         particles,
         params,

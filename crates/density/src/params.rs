@@ -24,11 +24,6 @@ pub enum Method {
 impl Method {
     pub const ALL: [Method; 5] = [Method::Usl, Method::Asl2, Method::Asl3, Method::Knn, Method::Ici];
 
-    /// Whether the GPU backend has this method's passes (ici has none yet).
-    pub fn on_gpu(self) -> bool {
-        self != Method::Ici
-    }
-
     pub fn name(self) -> &'static str {
         match self {
             Method::Usl => "usl",

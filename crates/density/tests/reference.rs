@@ -329,13 +329,10 @@ fn ici_with_auto_h0_and_other_confidences_equals_brute_force() {
     }
 }
 
-/// Methods without a GPU twin are refused by name, not run on the CPU behind the caller's back.
 #[test]
-fn gpu_refuses_ici() {
-    let Some(ctx) = nimbus_gpu::test_context() else { return };
-    let params = DensityParams { method: Method::Ici, resolution: Resolution::VoxelSize(0.5), ..Default::default() };
-    let err = estimate_gpu(ctx, &random_clumpy(200, 3), &params).err().expect("refused");
-    assert!(matches!(err, DensityError::NotOnGpu("ici")), "{err}");
+fn gpu_ici_equals_brute_force() {
+    check_method(Backend::Gpu, Method::Ici, 0.0, H0::Fixed(1.6));
+    check_method(Backend::Gpu, Method::Ici, 0.0, H0::Fixed(2.4));
 }
 
 #[test]
@@ -428,7 +425,7 @@ fn gpu_kernel_sums_in_slabs_agree() {
 /// Every method on both backends over every voxel: the same active voxels, counts and
 /// lengths, densities to float tolerance, the same stats.
 fn backends_agree(ctx: &nimbus_gpu::GpuContext, particles: &ParticleSet, params: DensityParams, min_voxels: u32) {
-    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
+    for method in Method::ALL {
         let params = DensityParams { method, smoothing_length: true, neighbour_count: true, ..params.clone() };
         let (particles, params) = (particles, &params);
         let cpu = estimate_cpu(particles, params).unwrap();
@@ -498,7 +495,7 @@ fn conserving_mass_equals_brute_force() {
 
 #[test]
 fn gpu_conserving_mass_equals_brute_force() {
-    for method in Method::ALL.into_iter().filter(|m| m.on_gpu()) {
+    for method in Method::ALL {
         check_conserving(Backend::Gpu, method, None);
     }
 }
