@@ -27,10 +27,10 @@ fn ladder_sums(r2s: &[(f32, usize)], own: &[f32], ladder: &[f32]) -> (Vec<f32>, 
         .unzip()
 }
 
-/// ici's rung from grid point ijk's own ladder, `None` without a particle within kappa*h0.
-fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32], ijk: IVec3) -> Option<usize> {
+/// Every particle's squared distance (index units) from grid point ijk, with its index.
+fn squared_distances(particles: &ParticleSet, grid: &Grid, ijk: IVec3) -> Vec<(f32, usize)> {
     let x = ijk.as_vec3();
-    let r2s: Vec<(f32, usize)> = particles
+    particles
         .positions
         .iter()
         .enumerate()
@@ -39,7 +39,12 @@ fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32],
             let (dx, dy, dz) = (x.x - q.x, x.y - q.y, x.z - q.z);
             (dx * dx + dy * dy + dz * dz, i)
         })
-        .collect();
+        .collect()
+}
+
+/// ici's rung from grid point ijk's own ladder, `None` without a particle within kappa*h0.
+fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32], ijk: IVec3) -> Option<usize> {
+    let r2s = squared_distances(particles, grid, ijk);
     let r0 = KAPPA * pp.h0;
     if !r2s.iter().any(|(r2, _)| *r2 < r0 * r0) {
         return None;
@@ -52,17 +57,7 @@ fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32],
 /// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index);
 /// `own` are the particles' masses (ici's lengths follow them).
 fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
-    let x = ijk.as_vec3();
-    let r2s: Vec<(f32, usize)> = particles
-        .positions
-        .iter()
-        .enumerate()
-        .map(|(i, &p)| {
-            let q = grid.to_index_f32(p);
-            let (dx, dy, dz) = (x.x - q.x, x.y - q.y, x.z - q.z);
-            (dx * dx + dy * dy + dz * dz, i)
-        })
-        .collect();
+    let r2s = squared_distances(particles, grid, ijk);
     let within = |r2s: &[(f32, usize)], h: f32| {
         let r = KAPPA * h;
         r2s.iter().filter(|(r2, _)| *r2 < r * r).count() as u32
