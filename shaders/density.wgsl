@@ -6,7 +6,7 @@
 //   asl2  predict, density
 //   asl3  predict, correct, density
 //   knn   knn, density
-//   ici   ladder, ici_pick, density
+//   ici   ladder, (the host's neighbour rule), density
 // With conserve-mass the host runs the passes before density over every chunk first, keeps
 // the lengths, runs `mass` (one invocation per particle: its kernel sum S over the grid), and
 // then density per chunk with the masses m / S.
@@ -438,8 +438,9 @@ fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3
     h_out[i] = h;
 }
 
-// ici pass 1: the ladder at the voxel and its own rung, kept as rung + 1 in used_out (0 where
-// no particle is within the top rung: not reached); ici_pick reads its neighbours'.
+// ici pass 1: the ladder at the voxel and its own rung's length, and whether the voxel is
+// reached (n0_out: a particle within the top rung). The host then takes the least length
+// about each voxel across bricks (cpu.rs least_lengths_near) before the density pass.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
           @builtin(local_invocation_index) lid: u32) {
@@ -448,47 +449,17 @@ fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
         return;
     }
     let x = voxel_point(i);
-    var own = 0u;
+    var reached = false;
+    var h = u.h0;
     if (x.w != 0) {
         gather_ladder(vec3<f32>(x.xyz));
-        if (ladder_counts[u.ici_rungs - 1u] > 0u) {
-            own = ici_rung() + 1u;
+        reached = ladder_counts[u.ici_rungs - 1u] > 0u;
+        if (reached) {
+            h = ici_rung_h(ici_rung());
         }
     }
-    used_out[i] = own;
-}
-
-// ici pass 2: the least own rung among the voxel and its 26 neighbours within its brick
-// (cpu.rs least_rungs_near; neighbours no pass reaches do not count), its length, and
-// whether the voxel is reached (n0_out, as the density pass reads it).
-@compute @workgroup_size(WORKGROUP_SIZE)
-fn ici_pick(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-            @builtin(local_invocation_index) lid: u32) {
-    let i = dispatch_linear_index(wid, nwg, lid, WORKGROUP_SIZE);
-    if (i >= u.voxel_count) {
-        return;
-    }
-    let base = i - i % BRICK_VOXELS;
-    let v = i % BRICK_VOXELS;
-    let c = vec3<i32>(i32(v >> 6u), i32((v >> 3u) & 7u), i32(v & 7u));
-    var least = 0xffffffffu;
-    for (var dx = -1; dx <= 1; dx++) {
-        for (var dy = -1; dy <= 1; dy++) {
-            for (var dz = -1; dz <= 1; dz++) {
-                let q = c + vec3<i32>(dx, dy, dz);
-                if (any(q < vec3<i32>(0)) || any(q > vec3<i32>(7))) {
-                    continue;
-                }
-                let own = used_out[base + u32((q.x << 6u) | (q.y << 3u) | q.z)];
-                if (own > 0u) {
-                    least = min(least, own - 1u);
-                }
-            }
-        }
-    }
-    let reached = used_out[i] > 0u;
     n0_out[i] = select(0u, 1u, reached);
-    h_out[i] = select(u.h0, ici_rung_h(least), reached);
+    h_out[i] = h;
 }
 
 // Every method's last pass: the density with each voxel's h (h0 for usl).

@@ -94,10 +94,11 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
             .flatten()
             .collect()
     };
-    if !conserve_mass {
+    // ici's neighbour rule reaches into the next brick: its lengths are all kept first.
+    if !conserve_mass && method != Method::Ici {
         return density(&prep.masses, None);
     }
-    let lengths: Vec<Option<Lengths>> = prep
+    let mut lengths: Vec<Option<Lengths>> = prep
         .bricks
         .par_iter()
         .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Lengths)? {
@@ -105,6 +106,12 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
             _ => unreachable!(),
         })
         .collect();
+    if method == Method::Ici {
+        least_lengths_near(prep, &mut lengths);
+        if !conserve_mass {
+            return density(&prep.masses, Some(&lengths));
+        }
+    }
     let partials: Vec<Vec<(u32, f32)>> = prep
         .bricks
         .par_iter()
@@ -129,7 +136,7 @@ type Sums = (Box<[f32; BRICK_VOXELS]>, Box<[f32; BRICK_VOXELS]>, Box<[u32; BRICK
 
 /// A brick's final smoothing lengths (index units), kept between the conserve-mass passes:
 /// 0 at voxels no pass evaluates (outside the grid, or no particle within kappa*h0).
-type Lengths = Box<[f32; BRICK_VOXELS]>;
+pub(crate) type Lengths = Box<[f32; BRICK_VOXELS]>;
 
 /// What one visit of a brick does after gathering its particles.
 #[derive(Clone, Copy)]
@@ -457,17 +464,12 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
     if s.parts.is_empty() {
         return None;
     }
-    let (h, reached, done) = match stage {
+    let (h, reached) = match stage {
         Stage::Density(_, Some(kept)) | Stage::Weights(kept) => {
             let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| kept[v] > 0.0);
-            (Box::new(std::array::from_fn(|v| if reached[v] { kept[v] } else { pp.h0 })), reached, None)
+            (Box::new(std::array::from_fn(|v| if reached[v] { kept[v] } else { pp.h0 })), reached)
         }
         Stage::Density(_, None) | Stage::Lengths => lengths(method, pp, origin, n, s),
-    };
-    let (h, reached) = match (stage, done) {
-        // The density pass would repeat the chosen rung's sums term for term.
-        (Stage::Density(_, None), Some((rho, used))) => return Some(Visit::Sums((rho, h, used))),
-        _ => (h, reached),
     };
     if matches!(stage, Stage::Lengths) {
         return Some(Visit::Lengths(Box::new(std::array::from_fn(|v| if reached[v] { h[v] } else { 0.0 }))));
@@ -563,9 +565,8 @@ fn attributes_impl<const L: usize>(prep: &Prepared, origin: IVec3, h: &[f32; BRI
     sums
 }
 
-/// h per voxel (index units), which voxels any pass evaluates, and the density pass's sums
-/// (rho, used) where the method's passes already made them (ici: the chosen rung's).
-type HReached = (Box<[f32; BRICK_VOXELS]>, [bool; BRICK_VOXELS], Option<(Box<[f32; BRICK_VOXELS]>, Box<[u32; BRICK_VOXELS]>)>);
+/// h per voxel (index units), and which voxels any pass evaluates.
+type HReached = (Box<[f32; BRICK_VOXELS]>, [bool; BRICK_VOXELS]);
 
 /// The method's passes over a gathered brick. A function of its own, compiled per target as
 /// [`brick`] is: inlined into `brick_impl` with the stages' other passes, the counting loops'
@@ -603,7 +604,6 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
     // get radius 0: no pass touches them, and they do not hold a later pass's radius at h0.
     let mut reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| brick_local(v).cmplt(n).all());
     let mut h = Box::new([pp.h0; BRICK_VOXELS]);
-    let mut done = None;
 
     match method {
         Method::Usl => {}
@@ -657,27 +657,20 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
             splat_ladder(&s.parts, ladder, origin, n, &mut s.ladder);
             let (scale, volume) = ici_scales(ladder);
             let l = &s.ladder;
-            let mut rho = Box::new([0.0f32; BRICK_VOXELS]);
-            let mut used = Box::new([0u32; BRICK_VOXELS]);
             for (r, &n0) in reached.iter_mut().zip(&l.counts[rungs - 1]) {
                 *r &= n0 > 0;
             }
-            let mut rung = choose_rungs(l, &scale[..rungs], &volume[..rungs], pp.confidence);
-            // The least rung about each voxel: a neighbour whose ladder broke off sees an edge
-            // within a voxel of this one, which its own noisier estimates may have missed.
-            least_rungs_near(&mut rung, &reached);
+            // Each voxel's own rung; the least about it (least_lengths_near) needs the next
+            // bricks' too, so the lengths are kept and the density pass runs on them.
+            let rung = choose_rungs(l, &scale[..rungs], &volume[..rungs], pp.confidence);
             for v in 0..BRICK_VOXELS {
                 if reached[v] {
-                    let k = rung[v];
-                    h[v] = ladder[k];
-                    rho[v] = l.sums[k][v];
-                    used[v] = l.counts[k][v];
+                    h[v] = ladder[rung[v]];
                 }
             }
-            done = Some((rho, used));
         }
     }
-    (h, reached, done)
+    (h, reached)
 }
 
 /// ici: [`crate::kernel::ici_rung_scaled`] for every voxel of the brick at once, the same
@@ -718,29 +711,65 @@ fn choose_rungs(l: &Ladder, scale: &[f32], volume: &[f32], gamma: f32) -> [usize
     std::array::from_fn(|v| chosen[v] as usize)
 }
 
-/// ici: per voxel, the least rung among it and its 26 neighbours in the brick that any pass
-/// evaluates (`reached`; others hold usize::MAX on return). Within the brick only: the
-/// neighbours' rungs across a face are another brick's work (a voxel on a face takes the least
-/// of fewer, so the rule is brick-aligned; the rungs it leaves differ by what the rule took
-/// for noise). A box minimum is separable: three passes of three along one axis.
-pub(crate) fn least_rungs_near(rung: &mut [usize; BRICK_VOXELS], reached: &[bool; BRICK_VOXELS]) {
-    for v in 0..BRICK_VOXELS {
-        if !reached[v] {
-            rung[v] = usize::MAX;
-        }
-    }
-    for axis in 0..3 {
-        let step = IVec3::AXES[axis];
-        let before = *rung;
-        for (v, out) in rung.iter_mut().enumerate() {
-            let c = brick_local(v);
-            for q in [c - step, c + step] {
-                if q.cmpge(IVec3::ZERO).all() && q.cmplt(IVec3::splat(BRICK_DIM)).all() {
-                    *out = (*out).min(before[brick_offset(q)]);
+/// ici: each voxel's length becomes the least own length (the least rung: the ladder
+/// ascends) among it and its 26 neighbours, across brick faces too (`lengths` per proposed
+/// brick, 0 where no pass evaluates a voxel, which then neither counts nor changes). A
+/// neighbour whose ladder broke off sees an edge within a voxel of this one, which this
+/// voxel's own noisier estimates may have missed. Taken within each brick only, the rule left
+/// a seam at the brick faces (docs/benchmarks.md); the GPU's own lengths come back to the
+/// host for this same function.
+pub(crate) fn least_lengths_near(prep: &Prepared, lengths: &mut [Option<Lengths>]) {
+    // Per brick, its own lengths with a one-voxel apron from the bricks about it (infinite
+    // where none is), then a separable box minimum: 1000 lookups a brick, not 27 a voxel.
+    const A: i32 = BRICK_DIM + 2;
+    let at = |x: i32, y: i32, z: i32| ((x * A + y) * A + z) as usize;
+    let (slot, brick_id) = crate::brick_slots(prep);
+    let dims = prep.grid.dims;
+    let own: Vec<Option<Lengths>> = lengths.to_vec();
+    lengths.par_iter_mut().zip(&prep.bricks).for_each(|(h, &origin)| {
+        let Some(h) = h else { return };
+        let mut apron = [f32::INFINITY; (A * A * A) as usize];
+        for x in 0..A {
+            for y in 0..A {
+                for z in 0..A {
+                    let g = origin + IVec3::new(x, y, z) - IVec3::ONE;
+                    if !(g.cmpge(IVec3::ZERO).all() && g.cmplt(dims).all()) {
+                        continue;
+                    }
+                    let local = g % BRICK_DIM;
+                    let s = slot[brick_id(g - local)];
+                    if let Some(src) = own.get(s as usize).and_then(Option::as_ref) {
+                        let value = src[brick_offset(local)];
+                        if value > 0.0 {
+                            apron[at(x, y, z)] = value;
+                        }
+                    }
                 }
             }
         }
-    }
+        for axis in 0..3 {
+            let before = apron;
+            for x in 0..A {
+                for y in 0..A {
+                    for z in 0..A {
+                        let c = IVec3::new(x, y, z);
+                        for q in [c - IVec3::AXES[axis], c + IVec3::AXES[axis]] {
+                            if q.cmpge(IVec3::ZERO).all() && q.cmplt(IVec3::splat(A)).all() {
+                                let m = &mut apron[at(x, y, z)];
+                                *m = m.min(before[at(q.x, q.y, q.z)]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        for v in 0..BRICK_VOXELS {
+            if h[v] > 0.0 {
+                let c = brick_local(v) + IVec3::ONE;
+                h[v] = h[v].min(apron[at(c.x, c.y, c.z)]);
+            }
+        }
+    });
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

@@ -80,9 +80,9 @@ fn passes(method: Method) -> &'static [&'static str] {
         Method::Asl2 => &["predict", "density"],
         Method::Asl3 => &["predict", "correct", "density"],
         Method::Knn => &["knn", "density"],
-        // The ladder and each voxel's own rung, the least rung about it, then the density at
-        // that length (the CPU takes it from the ladder's sums: the same terms).
-        Method::Ici => &["ladder", "ici_pick", "density"],
+        // The ladder and each voxel's own rung; the host takes the least about each voxel
+        // (cpu::least_lengths_near), then the density at that length.
+        Method::Ici => &["ladder", "density"],
     }
 }
 
@@ -216,7 +216,9 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     };
     let (length_passes, density_pass) = pipelines.split_at(pipelines.len() - 1);
     let chunks: Vec<&[glam::IVec3]> = prep.bricks.chunks(chunk_bricks).collect();
-    if conserve_mass {
+    // ici's neighbour rule reaches into the next brick and chunk: its own lengths come back
+    // to the host, which takes the least about each voxel as the CPU does.
+    if conserve_mass || method == Method::Ici {
         // The lengths of every proposed brick, 0 where nothing is evaluated (as the CPU keeps
         // them); usl's are h0 wherever the mass pass looks (inside the grid).
         let mut lengths = Vec::with_capacity(prep.bricks.len() * BRICK_VOXELS);
@@ -233,10 +235,17 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
             lengths.extend(h_chunk[..voxels].iter().zip(&n0_chunk[..voxels]).map(|(&h, &n)| if n > 0 { h } else { 0.0 }));
             n0_all.extend_from_slice(&n0_chunk[..voxels]);
         }
-        let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &uniform_buffer, &particle_buffer, &lengths)?;
-        let masses = crate::normalised_masses(prep, pp, &sums);
-        let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
-        ctx.queue.write_buffer(&particle_buffer, 0, bytemuck::cast_slice(&particles));
+        if method == Method::Ici {
+            let mut kept: Vec<Option<crate::cpu::Lengths>> = lengths.chunks(BRICK_VOXELS).map(|b| Some(Box::new(b.try_into().expect("one brick")))).collect();
+            crate::cpu::least_lengths_near(prep, &mut kept);
+            lengths = kept.into_iter().flat_map(|b| b.expect("every brick kept").into_iter()).collect();
+        }
+        if conserve_mass {
+            let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &uniform_buffer, &particle_buffer, &lengths)?;
+            let masses = crate::normalised_masses(prep, pp, &sums);
+            let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
+            ctx.queue.write_buffer(&particle_buffer, 0, bytemuck::cast_slice(&particles));
+        }
         // The density pass reads each voxel's h and n0 (reached) from the chunk's buffers.
         if method != Method::Usl {
             for (chunk, origins) in chunks.iter().enumerate() {
@@ -394,10 +403,10 @@ impl<'a> AttributePass<'a> {
                 ctx.dispatch_1d("attributes", &self.pipeline, &[&group, &attribute_group], voxels as u64, WORKGROUP_SIZE)?;
                 let sums: Vec<f32> = ctx.read_buffer(&sum_buffer)?;
                 for (b, brick) in out[chunk * self.chunk_bricks..][..slice.len()].iter_mut().enumerate() {
-                    for c in g * ATTRIBUTE_GROUP..self.channels.min((g + 1) * ATTRIBUTE_GROUP) {
-                        let k = c - g * ATTRIBUTE_GROUP;
-                        for v in 0..BRICK_VOXELS {
-                            brick[c][v] = sums[((b * BRICK_VOXELS + v) * ATTRIBUTE_GROUP) + k];
+                    let group = g * ATTRIBUTE_GROUP..self.channels.min((g + 1) * ATTRIBUTE_GROUP);
+                    for (k, channel) in brick[group].iter_mut().enumerate() {
+                        for (v, value) in channel.iter_mut().enumerate() {
+                            *value = sums[((b * BRICK_VOXELS + v) * ATTRIBUTE_GROUP) + k];
                         }
                     }
                 }

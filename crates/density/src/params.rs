@@ -17,7 +17,8 @@ pub enum Method {
     Knn,
     /// Error-following (issue #21): per grid point the length of a ladder from h_min to h0
     /// whose estimated error (bias from the shorter rungs beyond their noise, plus variance)
-    /// is least, Lepski's principle ([`crate::kernel::ici_rung`]). One pass. CPU only.
+    /// is least, Lepski's principle ([`crate::kernel::ici_rung`]), then the least about each
+    /// voxel; the ladder pass, the neighbour rule, then the density pass. Both backends.
     Ici,
 }
 

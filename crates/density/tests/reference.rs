@@ -82,18 +82,15 @@ fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: M
             }
         }
         Method::Ici => {
-            // The least rung over the point and its neighbours in its 8^3 brick that have a
-            // particle within kappa*h0.
+            // The least rung over the point and its 26 neighbours (across brick faces too)
+            // that have a particle within kappa*h0.
             let (all, _) = ici_ladder(pp.h_min, pp.h0);
-            let brick = ijk - ijk % 8;
             let mut least = usize::MAX;
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
                         let q = ijk + IVec3::new(dx, dy, dz);
-                        let in_brick = (q - brick).cmpge(IVec3::ZERO).all() && (q - brick).cmplt(IVec3::splat(8)).all();
-                        let in_grid = q.cmpge(IVec3::ZERO).all() && q.cmplt(grid.dims).all();
-                        if in_brick && in_grid {
+                        if q.cmpge(IVec3::ZERO).all() && q.cmplt(grid.dims).all() {
                             if let Some(k) = own_rung(particles, grid, pp, own, q) {
                                 least = least.min(k);
                             }
