@@ -159,6 +159,7 @@ fn cell_id(c: vec3<i32>) -> u32 {
 const GATHER_COUNT: u32 = 0u;
 const GATHER_DENSITY: u32 = 1u;
 const GATHER_KNN: u32 = 2u;
+const GATHER_LADDER: u32 = 3u;
 
 // Accumulators of gather(): WGSL has no closures, so the one cell walk switches on a mode and
 // leaves its results here.
@@ -189,6 +190,8 @@ fn row_particles(lo: vec3<i32>, hi: vec3<i32>, cy: i32, cz: i32) -> vec2<u32> {
 //   GATHER_COUNT    acc_count += 1 where also r2 <= le (le = limit2 counts all)
 //   GATHER_DENSITY  acc_rho += m * m4_shape(sqrt(r2) * inv_h), acc_count += 1
 //   GATHER_KNN      acc_count += 1 and the k smallest r2 kept sorted in knn_best
+//   GATHER_LADDER   ici's ladder_sums, ladder_squares, ladder_counts per rung (limit2 the
+//                   top rung's support)
 fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
     let cells = cells_within(x, limit2);
     let lo = cells[0];
@@ -208,6 +211,20 @@ fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
                 } else if (mode == GATHER_DENSITY) {
                     acc_rho += q.w * m4_shape(sqrt(r2) * inv_h);
                     acc_count += 1u;
+                } else if (mode == GATHER_LADDER) {
+                    let r = sqrt(r2);
+                    // Longest rung first: a particle outside rung k is outside every shorter one.
+                    for (var k = u.ici_rungs; k > 0u; k--) {
+                        let h = ici_rung_h(k - 1u);
+                        let rad = KAPPA * h;
+                        if (r2 >= rad * rad) {
+                            break;
+                        }
+                        let w = q.w * m4_shape(r * (1.0 / h));
+                        ladder_sums[k - 1u] += w;
+                        ladder_squares[k - 1u] += w * w;
+                        ladder_counts[k - 1u] += 1u;
+                    }
                 } else {
                     // Insertion into the sorted list of the k smallest so far.
                     let n = acc_count;
@@ -270,35 +287,7 @@ fn gather_ladder(x: vec3<f32>) {
         ladder_counts[k] = 0u;
     }
     let r_top = KAPPA * ici_rung_h(rungs - 1u);
-    let limit2 = r_top * r_top;
-    let cells = cells_within(x, limit2);
-    let lo = cells[0];
-    let hi = cells[1];
-    for (var cz = lo.z; cz <= hi.z; cz++) {
-        for (var cy = lo.y; cy <= hi.y; cy++) {
-            let row = row_particles(lo, hi, cy, cz);
-            for (var i = row.x; i < row.y; i++) {
-                let q = particles[i];
-                let r2 = dist2(x, q.xyz);
-                if (r2 >= limit2) {
-                    continue;
-                }
-                let r = sqrt(r2);
-                // Longest rung first: a particle outside rung k is outside every shorter one.
-                for (var k = rungs; k > 0u; k--) {
-                    let h = ici_rung_h(k - 1u);
-                    let rad = KAPPA * h;
-                    if (r2 >= rad * rad) {
-                        break;
-                    }
-                    let w = q.w * m4_shape(r * (1.0 / h));
-                    ladder_sums[k - 1u] += w;
-                    ladder_squares[k - 1u] += w * w;
-                    ladder_counts[k - 1u] += 1u;
-                }
-            }
-        }
-    }
+    gather(x, r_top * r_top, GATHER_LADDER, 0.0, 0.0);
 }
 
 // kernel.rs ici_rung_scaled: the rung minimising B_k + Gamma^2 var_k (Goldenshluger-Lepski).
