@@ -190,7 +190,7 @@ fn row_particles(lo: vec3<i32>, hi: vec3<i32>, cy: i32, cz: i32) -> vec2<u32> {
 //   GATHER_COUNT    acc_count += 1 where also r2 <= le (le = limit2 counts all)
 //   GATHER_DENSITY  acc_rho += m * m4_shape(sqrt(r2) * inv_h), acc_count += 1
 //   GATHER_KNN      acc_count += 1 and the k smallest r2 kept sorted in knn_best
-//   GATHER_LADDER   ici's ladder_sums, ladder_squares, ladder_counts per rung (limit2 the
+//   GATHER_LADDER   ici's ladder_sums and ladder_squares per rung, acc_count += 1 (limit2 the
 //                   top rung's support)
 fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
     let cells = cells_within(x, limit2);
@@ -212,6 +212,7 @@ fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
                     acc_rho += q.w * m4_shape(sqrt(r2) * inv_h);
                     acc_count += 1u;
                 } else if (mode == GATHER_LADDER) {
+                    acc_count += 1u;
                     let r = sqrt(r2);
                     // Longest rung first: a particle outside rung k is outside every shorter one.
                     for (var k = u.ici_rungs; k > 0u; k--) {
@@ -223,7 +224,6 @@ fn gather(x: vec3<f32>, limit2: f32, mode: u32, inv_h: f32, le: f32) {
                         let w = q.w * m4_shape(r * (1.0 / h));
                         ladder_sums[k - 1u] += w;
                         ladder_squares[k - 1u] += w * w;
-                        ladder_counts[k - 1u] += 1u;
                     }
                 } else {
                     // Insertion into the sorted list of the k smallest so far.
@@ -269,11 +269,11 @@ fn gather_attributes(x: vec3<f32>, limit2: f32, inv_h: f32) {
     }
 }
 
-// ici's ladder over the same cells: per rung k, the sum of m m4_shape(r / h_k), of its
-// square and the count, over the particles within kappa*h_k (cpu.rs splat_ladder's terms).
+// ici's ladder over the same cells: per rung k, the sum of m m4_shape(r / h_k) and of its
+// square over the particles within kappa*h_k (cpu.rs splat_ladder's terms); acc_count is the
+// count within the top rung.
 var<private> ladder_sums: array<f32, ICI_MAX_RUNGS>;
 var<private> ladder_squares: array<f32, ICI_MAX_RUNGS>;
-var<private> ladder_counts: array<u32, ICI_MAX_RUNGS>;
 
 fn ici_rung_h(k: u32) -> f32 {
     return u.ici_h[k / 4u][k % 4u];
@@ -284,8 +284,8 @@ fn gather_ladder(x: vec3<f32>) {
     for (var k = 0u; k < ICI_MAX_RUNGS; k++) {
         ladder_sums[k] = 0.0;
         ladder_squares[k] = 0.0;
-        ladder_counts[k] = 0u;
     }
+    acc_count = 0u;
     let r_top = KAPPA * ici_rung_h(rungs - 1u);
     gather(x, r_top * r_top, GATHER_LADDER, 0.0, 0.0);
 }
@@ -442,7 +442,7 @@ fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     var h = u.h0;
     if (x.w != 0) {
         gather_ladder(vec3<f32>(x.xyz));
-        reached = ladder_counts[u.ici_rungs - 1u] > 0u;
+        reached = acc_count > 0u;
         if (reached) {
             h = ici_rung_h(ici_rung());
         }

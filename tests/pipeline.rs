@@ -16,14 +16,12 @@ fn scratch(name: &str) -> PathBuf {
 fn write_particles(path: &Path, n: usize) {
     let mut rng = common::Lcg::new(7);
     // Uniform in a ball of radius 1, a quarter of them in a knot of radius 0.3.
-    let points: Vec<[f64; 3]> = (0..n)
-        .map(|i| {
-            let (r, c) = if i % 4 == 0 { (0.3, [0.3, 0.0, 0.2]) } else { (1.0, [0.0, 0.0, 0.0]) };
-            let p = rng.in_unit_ball();
-            [c[0] + r * p[0], c[1] + r * p[1], c[2] + r * p[2]]
-        })
-        .collect();
-    common::write_points_ply(path, points.into_iter());
+    let points = (0..n).map(|i| {
+        let (r, c) = if i % 4 == 0 { (0.3, [0.3, 0.0, 0.2]) } else { (1.0, [0.0, 0.0, 0.0]) };
+        let p = rng.in_unit_ball();
+        [c[0] + r * p[0], c[1] + r * p[1], c[2] + r * p[2]]
+    });
+    common::write_points_ply(path, points);
 }
 
 const DENSITY: &[&str] = &["--resolution", "40", "--neighbours", "24"];

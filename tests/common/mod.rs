@@ -128,5 +128,5 @@ pub fn write_points_ply(path: &Path, points: impl ExactSizeIterator<Item = [f64;
 /// particles for every shift, so a sequence of shifts is a ball in motion.
 pub fn write_ball(path: &Path, n: usize, shift: f64) {
     let mut rng = Lcg::new(11);
-    write_points_ply(path, (0..n).map(|_| rng.in_unit_ball()).map(|p| [p[0] + shift, p[1], p[2]]).collect::<Vec<_>>().into_iter());
+    write_points_ply(path, (0..n).map(|_| rng.in_unit_ball()).map(|p| [p[0] + shift, p[1], p[2]]));
 }

@@ -43,7 +43,7 @@ struct Scratch {
     radius2: [f32; BRICK_VOXELS],
     /// knn: squared distances of each voxel's candidates.
     lists: Vec<Vec<f32>>,
-    /// ici: per rung, sum m W, sum (m W)^2 and the count within its support.
+    /// ici: per rung, sum m W and sum (m W)^2; the count within the top rung.
     ladder: Box<Ladder>,
 }
 
@@ -51,7 +51,9 @@ struct Scratch {
 struct Ladder {
     sums: [[f32; BRICK_VOXELS]; ICI_MAX_RUNGS],
     squares: [[f32; BRICK_VOXELS]; ICI_MAX_RUNGS],
-    counts: [[u32; BRICK_VOXELS]; ICI_MAX_RUNGS],
+    /// Particles within the top rung (h0): whether a voxel is reached, as n0 > 0 is for the
+    /// other methods.
+    top_count: [u32; BRICK_VOXELS],
 }
 
 impl Scratch {
@@ -65,7 +67,7 @@ impl Scratch {
             ladder: Box::new(Ladder {
                 sums: [[0.0; BRICK_VOXELS]; ICI_MAX_RUNGS],
                 squares: [[0.0; BRICK_VOXELS]; ICI_MAX_RUNGS],
-                counts: [[0; BRICK_VOXELS]; ICI_MAX_RUNGS],
+                top_count: [0; BRICK_VOXELS],
             }),
         }
     }
@@ -313,8 +315,8 @@ fn splat_density<const L: usize>(
 }
 
 /// ici's ladder pass: for every rung k of `h` (ascending, index units), sums[k][v] += m
-/// m4_shape(r / h_k), squares[k][v] += that term squared and counts[k][v] += 1 where r <
-/// kappa*h_k. One visit of the widest rung's square per particle: the distance's square root
+/// m4_shape(r / h_k) and squares[k][v] += that term squared where r < kappa*h_k, and
+/// top_count[v] += 1 within the top rung. One visit of the widest rung's square per particle: the distance's square root
 /// is shared by the rungs, and a column takes only the rungs whose support its nearest voxel
 /// lies within (the narrow rungs' discs, not the widest square, bound their work).
 ///
@@ -352,8 +354,9 @@ fn ladder_impl<const L: usize>(parts: &[(Vec3, f32)], h: &[f32], origin: IVec3, 
     for k in 0..rungs {
         ladder.sums[k].fill(0.0);
         ladder.squares[k].fill(0.0);
-        ladder.counts[k].fill(0);
     }
+    ladder.top_count.fill(0);
+    let top = rungs - 1;
     let radius2: [f32; ICI_MAX_RUNGS] = std::array::from_fn(|k| if k < rungs { (KAPPA * h[k]) * (KAPPA * h[k]) } else { 0.0 });
     let inv_h: [f32; ICI_MAX_RUNGS] = std::array::from_fn(|k| if k < rungs { 1.0 / h[k] } else { 0.0 });
     let r_top = KAPPA * h[rungs - 1];
@@ -374,13 +377,17 @@ fn ladder_impl<const L: usize>(parts: &[(Vec3, f32)], h: &[f32], origin: IVec3, 
                 let (l, at) = (&mut *ladder, row);
                 let sums: &mut [f32; L] = (&mut l.sums[k][at..at + L]).try_into().unwrap();
                 let squares: &mut [f32; L] = (&mut l.squares[k][at..at + L]).try_into().unwrap();
-                let counts: &mut [u32; L] = (&mut l.counts[k][at..at + L]).try_into().unwrap();
                 for i in 0..L {
                     let inside = ((r2[i] < rad2) as u32).wrapping_neg();
                     let w = m * f32::from_bits(m4_shape(r[i] * ih).to_bits() & inside);
                     sums[i] += w;
                     squares[i] += w * w;
-                    counts[i] += inside & 1;
+                }
+                if k == top {
+                    let counts: &mut [u32; L] = (&mut l.top_count[at..at + L]).try_into().unwrap();
+                    for i in 0..L {
+                        counts[i] += (r2[i] < rad2) as u32;
+                    }
                 }
             }
         });
@@ -657,7 +664,7 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
             splat_ladder(&s.parts, ladder, origin, n, &mut s.ladder);
             let (scale, volume) = ici_scales(ladder);
             let l = &s.ladder;
-            for (r, &n0) in reached.iter_mut().zip(&l.counts[rungs - 1]) {
+            for (r, &n0) in reached.iter_mut().zip(&l.top_count) {
                 *r &= n0 > 0;
             }
             // Each voxel's own rung; the least about it (least_lengths_near) needs the next
