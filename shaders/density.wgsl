@@ -6,7 +6,7 @@
 //   asl2  predict, density
 //   asl3  predict, correct, density
 //   knn   knn, density
-//   ici   ladder, (the host's neighbour rule), density
+//   ici   ladder, (the host's rule over the whole grid, ici.rs), density
 // With conserve-mass the host runs the passes before density over every chunk first, keeps
 // the lengths, runs `mass` (one invocation per particle: its kernel sum S over the grid), and
 // then density per chunk with the masses m / S.
@@ -35,7 +35,7 @@ const METHOD_ASL3: u32 = 2u;
 const METHOD_KNN: u32 = 3u;
 const METHOD_ICI: u32 = 4u;
 // Twin of kernel.rs ICI_MAX_RUNGS.
-const ICI_MAX_RUNGS: u32 = 6u;
+const ICI_MAX_RUNGS: u32 = 8u;
 
 struct DensityUniforms {
     cell_origin: vec3<f32>,
@@ -62,16 +62,9 @@ struct DensityUniforms {
     // channels) this dispatch sums.
     attribute_stride: u32,
     attribute_group: u32,
-    // ici: the ladder's rungs, their lengths (index units) and kernel.rs ici_scales'
-    // constants (from the host, so the rule sees the CPU's numbers), and Gamma.
+    // ici: the ladder's rungs and their lengths (index units).
     ici_rungs: u32,
     ici_h: array<vec4<f32>, 2>,
-    ici_scale: array<vec4<f32>, 2>,
-    ici_volume: array<vec4<f32>, 2>,
-    ici_gamma: f32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> u: DensityUniforms;
@@ -290,36 +283,6 @@ fn gather_ladder(x: vec3<f32>) {
     gather(x, r_top * r_top, GATHER_LADDER, 0.0, 0.0);
 }
 
-// kernel.rs ici_rung_scaled: the rung minimising B_k + Gamma^2 var_k (Goldenshluger-Lepski).
-fn ici_rung() -> u32 {
-    let rungs = u.ici_rungs;
-    let top = rungs - 1u;
-    var rho: array<f32, ICI_MAX_RUNGS>;
-    var var_: array<f32, ICI_MAX_RUNGS>;
-    for (var k = 0u; k < rungs; k++) {
-        let c = u.ici_scale[k / 4u][k % 4u];
-        var_[k] = c * c * max(ladder_squares[k], ladder_squares[top] * u.ici_volume[k / 4u][k % 4u]);
-        rho[k] = c * ladder_sums[k];
-    }
-    let g2 = u.ici_gamma * u.ici_gamma;
-    var chosen = 0u;
-    var least = bitcast<f32>(0x7f800000u);
-    for (var k = 0u; k < rungs; k++) {
-        var bias2 = 0.0;
-        for (var j = 0u; j < k; j++) {
-            let d = rho[k] - rho[j];
-            bias2 = max(bias2, d * d - g2 * max(var_[j] - var_[k], 0.0));
-        }
-        // On a tie the longer rung, as the CPU.
-        let error = bias2 + g2 * var_[k];
-        if (error <= least) {
-            chosen = k;
-            least = error;
-        }
-    }
-    return chosen;
-}
-
 fn count_within(x: vec3<f32>, r: f32) -> u32 {
     acc_count = 0u;
     let r2 = r * r;
@@ -427,9 +390,10 @@ fn knn(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3
     h_out[i] = h;
 }
 
-// ici pass 1: the ladder at the voxel and its own rung's length, and whether the voxel is
-// reached (n0_out: a particle within the top rung). The host then takes the least length
-// about each voxel across bricks (cpu.rs least_lengths_near) before the density pass.
+// ici pass 1: the ladder at the voxel, written to rho_out (sized for it on this method):
+// ICI_MAX_RUNGS sums, then as many sums of squares, per voxel; n0_out is whether the voxel is
+// reached (a particle within the top rung). The host's rule over the whole grid (ici.rs)
+// turns them into lengths for the density pass.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
           @builtin(local_invocation_index) lid: u32) {
@@ -439,16 +403,19 @@ fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
     }
     let x = voxel_point(i);
     var reached = false;
-    var h = u.h0;
+    for (var k = 0u; k < ICI_MAX_RUNGS; k++) {
+        ladder_sums[k] = 0.0;
+        ladder_squares[k] = 0.0;
+    }
     if (x.w != 0) {
         gather_ladder(vec3<f32>(x.xyz));
         reached = acc_count > 0u;
-        if (reached) {
-            h = ici_rung_h(ici_rung());
-        }
+    }
+    for (var k = 0u; k < ICI_MAX_RUNGS; k++) {
+        rho_out[i * 2u * ICI_MAX_RUNGS + k] = ladder_sums[k];
+        rho_out[i * 2u * ICI_MAX_RUNGS + ICI_MAX_RUNGS + k] = ladder_squares[k];
     }
     n0_out[i] = select(0u, 1u, reached);
-    h_out[i] = h;
 }
 
 // Every method's last pass: the density with each voxel's h (h0 for usl).

@@ -41,8 +41,9 @@ struct Args {
     #[arg(long, default_value_t = 0.0)]
     relax: f32,
     /// Smallest smoothing length: a world length, or voxel sizes with the suffix vox (0.8vox),
-    /// which also works where --resolution decides the voxel size.
-    #[arg(long, default_value_t = HMin::Voxels(nimbus_density::DEFAULT_H_MIN_VOXELS), value_parser = parse_h_min)]
+    /// which also works where --resolution decides the voxel size; auto is 1.2vox, and 0.75vox
+    /// for --method ici (its rule goes below 1.2 only where the particles pay for it).
+    #[arg(long, default_value_t = HMin::Auto, value_parser = parse_h_min)]
     h_min: HMin,
     /// Mass of each particle without a mass attribute.
     #[arg(long, default_value_t = 1.0)]
@@ -132,6 +133,9 @@ fn main() -> ExitCode {
 /// `--h-min`: a world length, or a number of voxels with the suffix `vox`.
 fn parse_h_min(text: &str) -> Result<HMin, String> {
     let text = text.trim();
+    if text == "auto" {
+        return Ok(HMin::Auto);
+    }
     let (number, voxels) = match text.strip_suffix("vox") {
         Some(n) => (n.trim_end(), true),
         None => (text, false),

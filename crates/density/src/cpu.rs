@@ -27,7 +27,8 @@ use glam::{IVec3, Vec3};
 use nimbus_volume::{brick_local, brick_offset, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
-use crate::kernel::{clamp_h, correct_h, ici_ladder, ici_scales, m4_shape, predict_h1, ICI_MAX_RUNGS, KAPPA};
+use crate::ici::RungSums;
+use crate::kernel::{clamp_h, correct_h, ici_ladder, m4_shape, predict_h1, ICI_MAX_RUNGS, KAPPA};
 use crate::params::Method;
 use crate::setup::Prepared;
 use crate::{BrickResult, Keep, PointParams};
@@ -100,19 +101,28 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
     if !conserve_mass && method != Method::Ici {
         return density(&prep.masses, None);
     }
-    let mut lengths: Vec<Option<Lengths>> = prep
-        .bricks
-        .par_iter()
-        .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Lengths)? {
-            Visit::Lengths(h) => Some(h),
-            _ => unreachable!(),
-        })
-        .collect();
-    if method == Method::Ici {
-        least_lengths_near(prep, &mut lengths);
-        if !conserve_mass {
-            return density(&prep.masses, Some(&lengths));
-        }
+    let lengths: Vec<Option<Lengths>> = if method == Method::Ici {
+        let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+        let sums: Vec<Option<Box<RungSums>>> = prep
+            .bricks
+            .par_iter()
+            .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Ladder)? {
+                Visit::Rungs(r) => Some(r),
+                _ => unreachable!(),
+            })
+            .collect();
+        crate::ici::choose_lengths(prep, &all[..rungs], &sums, pp.confidence)
+    } else {
+        prep.bricks
+            .par_iter()
+            .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Lengths)? {
+                Visit::Lengths(h) => Some(h),
+                _ => unreachable!(),
+            })
+            .collect()
+    };
+    if method == Method::Ici && !conserve_mass {
+        return density(&prep.masses, Some(&lengths));
     }
     let partials: Vec<Vec<(u32, f32)>> = prep
         .bricks
@@ -148,6 +158,8 @@ enum Stage<'a> {
     Density(&'a [f32], Option<&'a Lengths>),
     /// The method's passes only, their lengths kept (conserve-mass).
     Lengths,
+    /// ici's ladder pass only: every rung's sums, for the rule over the whole grid.
+    Ladder,
     /// Each particle's kernel sum over the brick with the kept lengths (conserve-mass).
     Weights(&'a Lengths),
 }
@@ -156,6 +168,7 @@ enum Stage<'a> {
 enum Visit {
     Sums(Sums),
     Lengths(Lengths),
+    Rungs(Box<RungSums>),
     /// (particle index, partial S) of the particles with a term in the brick.
     Weights(Vec<(u32, f32)>),
 }
@@ -471,12 +484,20 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
     if s.parts.is_empty() {
         return None;
     }
+    if matches!(stage, Stage::Ladder) {
+        let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+        splat_ladder(&s.parts, &all[..rungs], origin, n, &mut s.ladder);
+        let l = &s.ladder;
+        let reached = std::array::from_fn(|v| brick_local(v).cmplt(n).all() && l.top_count[v] > 0);
+        return Some(Visit::Rungs(RungSums::from_sums(&all[..rungs], &l.sums[..rungs], &l.squares[..rungs], reached)));
+    }
     let (h, reached) = match stage {
         Stage::Density(_, Some(kept)) | Stage::Weights(kept) => {
             let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| kept[v] > 0.0);
             (Box::new(std::array::from_fn(|v| if reached[v] { kept[v] } else { pp.h0 })), reached)
         }
         Stage::Density(_, None) | Stage::Lengths => lengths(method, pp, origin, n, s),
+        Stage::Ladder => unreachable!("returned above"),
     };
     if matches!(stage, Stage::Lengths) {
         return Some(Visit::Lengths(Box::new(std::array::from_fn(|v| if reached[v] { h[v] } else { 0.0 }))));
@@ -658,125 +679,10 @@ fn lengths_impl(method: Method, pp: &PointParams, origin: IVec3, n: IVec3, s: &m
                 h[v] = knn_h(&mut s.lists[v], k, pp);
             }
         }
-        Method::Ici => {
-            let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
-            let ladder = &all[..rungs];
-            splat_ladder(&s.parts, ladder, origin, n, &mut s.ladder);
-            let (scale, volume) = ici_scales(ladder);
-            let l = &s.ladder;
-            for (r, &n0) in reached.iter_mut().zip(&l.top_count) {
-                *r &= n0 > 0;
-            }
-            // Each voxel's own rung; the least about it (least_lengths_near) needs the next
-            // bricks' too, so the lengths are kept and the density pass runs on them.
-            let rung = choose_rungs(l, &scale[..rungs], &volume[..rungs], pp.confidence);
-            for v in 0..BRICK_VOXELS {
-                if reached[v] {
-                    h[v] = ladder[rung[v]];
-                }
-            }
-        }
+        // Its lengths come from the whole grid's ladder (crate::ici), never a brick alone.
+        Method::Ici => unreachable!("ici runs Stage::Ladder"),
     }
     (h, reached)
-}
-
-/// ici: [`crate::kernel::ici_rung_scaled`] for every voxel of the brick at once, the same
-/// arithmetic in the same order (so the same rungs, bit for bit), laid out over the voxels so
-/// that it vectorises: per voxel and scalar it took 12% of the Cloud1-class command.
-#[inline(always)]
-fn choose_rungs(l: &Ladder, scale: &[f32], volume: &[f32], gamma: f32) -> [usize; BRICK_VOXELS] {
-    let rungs = scale.len();
-    let top = rungs - 1;
-    let mut rho = [[0.0f32; BRICK_VOXELS]; ICI_MAX_RUNGS];
-    let mut var = [[0.0f32; BRICK_VOXELS]; ICI_MAX_RUNGS];
-    for k in 0..rungs {
-        let (c, vol) = (scale[k], volume[k]);
-        for v in 0..BRICK_VOXELS {
-            var[k][v] = c * c * l.squares[k][v].max(l.squares[top][v] * vol);
-            rho[k][v] = c * l.sums[k][v];
-        }
-    }
-    let g2 = gamma * gamma;
-    let mut chosen = [0u32; BRICK_VOXELS];
-    let mut least = [f32::INFINITY; BRICK_VOXELS];
-    let mut bias2 = [0.0f32; BRICK_VOXELS];
-    for k in 0..rungs {
-        bias2.fill(0.0);
-        for j in 0..k {
-            for v in 0..BRICK_VOXELS {
-                let d = rho[k][v] - rho[j][v];
-                bias2[v] = bias2[v].max(d * d - g2 * (var[j][v] - var[k][v]).max(0.0));
-            }
-        }
-        for v in 0..BRICK_VOXELS {
-            let error = bias2[v] + g2 * var[k][v];
-            let take = error <= least[v];
-            chosen[v] = if take { k as u32 } else { chosen[v] };
-            least[v] = if take { error } else { least[v] };
-        }
-    }
-    std::array::from_fn(|v| chosen[v] as usize)
-}
-
-/// ici: each voxel's length becomes the least own length (the least rung: the ladder
-/// ascends) among it and its 26 neighbours, across brick faces too (`lengths` per proposed
-/// brick, 0 where no pass evaluates a voxel, which then neither counts nor changes). A
-/// neighbour whose ladder broke off sees an edge within a voxel of this one, which this
-/// voxel's own noisier estimates may have missed. Taken within each brick only, the rule left
-/// a seam at the brick faces (docs/benchmarks.md); the GPU's own lengths come back to the
-/// host for this same function.
-pub(crate) fn least_lengths_near(prep: &Prepared, lengths: &mut [Option<Lengths>]) {
-    // Per brick, its own lengths with a one-voxel apron from the bricks about it (infinite
-    // where none is), then a separable box minimum: 1000 lookups a brick, not 27 a voxel.
-    const A: i32 = BRICK_DIM + 2;
-    let at = |x: i32, y: i32, z: i32| ((x * A + y) * A + z) as usize;
-    let (slot, brick_id) = crate::brick_slots(prep);
-    let dims = prep.grid.dims;
-    let own: Vec<Option<Lengths>> = lengths.to_vec();
-    lengths.par_iter_mut().zip(&prep.bricks).for_each(|(h, &origin)| {
-        let Some(h) = h else { return };
-        let mut apron = [f32::INFINITY; (A * A * A) as usize];
-        for x in 0..A {
-            for y in 0..A {
-                for z in 0..A {
-                    let g = origin + IVec3::new(x, y, z) - IVec3::ONE;
-                    if !(g.cmpge(IVec3::ZERO).all() && g.cmplt(dims).all()) {
-                        continue;
-                    }
-                    let local = g % BRICK_DIM;
-                    let s = slot[brick_id(g - local)];
-                    if let Some(src) = own.get(s as usize).and_then(Option::as_ref) {
-                        let value = src[brick_offset(local)];
-                        if value > 0.0 {
-                            apron[at(x, y, z)] = value;
-                        }
-                    }
-                }
-            }
-        }
-        for axis in 0..3 {
-            let before = apron;
-            for x in 0..A {
-                for y in 0..A {
-                    for z in 0..A {
-                        let c = IVec3::new(x, y, z);
-                        for q in [c - IVec3::AXES[axis], c + IVec3::AXES[axis]] {
-                            if q.cmpge(IVec3::ZERO).all() && q.cmplt(IVec3::splat(A)).all() {
-                                let m = &mut apron[at(x, y, z)];
-                                *m = m.min(before[at(q.x, q.y, q.z)]);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        for v in 0..BRICK_VOXELS {
-            if h[v] > 0.0 {
-                let c = brick_local(v) + IVec3::ONE;
-                h[v] = h[v].min(apron[at(c.x, c.y, c.z)]);
-            }
-        }
-    });
 }
 
 /// Squared support radii kappa*h per voxel (0 where no particle is within kappa*h0: nothing

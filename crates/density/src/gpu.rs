@@ -57,10 +57,6 @@ struct GpuDensityParams {
     attribute_group: u32,
     ici_rungs: u32,
     ici_h: [f32; 8],
-    ici_scale: [f32; 8],
-    ici_volume: [f32; 8],
-    ici_gamma: f32,
-    _pad: [u32; 3],
 }
 
 fn method_code(method: Method) -> u32 {
@@ -80,8 +76,8 @@ fn passes(method: Method) -> &'static [&'static str] {
         Method::Asl2 => &["predict", "density"],
         Method::Asl3 => &["predict", "correct", "density"],
         Method::Knn => &["knn", "density"],
-        // The ladder and each voxel's own rung; the host takes the least about each voxel
-        // (cpu::least_lengths_near), then the density at that length.
+        // The ladder; the host's rule over the whole grid (ici.rs) gives the lengths, then the
+        // density at them.
         Method::Ici => &["ladder", "density"],
     }
 }
@@ -90,7 +86,6 @@ fn passes(method: Method) -> &'static [&'static str] {
 fn density_uniforms(prep: &Prepared, pp: &PointParams, method: Method) -> GpuDensityParams {
     let cells = &prep.cells;
     let (ladder, rungs) = crate::kernel::ici_ladder(pp.h_min, pp.h0);
-    let (scale, volume) = crate::kernel::ici_scales(&ladder[..rungs]);
     GpuDensityParams {
         cell_origin: cells.origin.to_array(),
         cell_edge: cells.edge,
@@ -111,10 +106,6 @@ fn density_uniforms(prep: &Prepared, pp: &PointParams, method: Method) -> GpuDen
         attribute_group: 0,
         ici_rungs: rungs as u32,
         ici_h: std::array::from_fn(|k| if k < rungs { ladder[k] } else { 0.0 }),
-        ici_scale: std::array::from_fn(|k| if k < rungs { scale[k] } else { 0.0 }),
-        ici_volume: std::array::from_fn(|k| if k < rungs { volume[k] } else { 0.0 }),
-        ici_gamma: pp.confidence,
-        _pad: [0; 3],
     }
 }
 
@@ -149,7 +140,9 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     }
     let limits = ctx.limits();
     let binding_limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
-    let chunk_bricks = MAX_CHUNK_BRICKS.min((binding_limit / (4 * BRICK_VOXELS as u64)).max(1) as usize);
+    // ici's ladder pass writes every rung's two sums per voxel into the rho buffer.
+    let rho_floats = if method == Method::Ici { 2 * crate::kernel::ICI_MAX_RUNGS as u64 } else { 1 };
+    let chunk_bricks = MAX_CHUNK_BRICKS.min((binding_limit / (4 * rho_floats * BRICK_VOXELS as u64)).max(1) as usize);
     let chunk_voxels = (chunk_bricks.min(prep.bricks.len()) * BRICK_VOXELS) as u64;
 
     let uniforms = density_uniforms(prep, pp, method);
@@ -159,7 +152,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let brick_buffer = brick_buffer(ctx, &prep.bricks)?;
     let n0 = ctx.storage_buffer_zeroed("density n0", chunk_voxels * 4)?;
     let h = ctx.storage_buffer_zeroed("density h", chunk_voxels * 4)?;
-    let rho = ctx.storage_buffer_zeroed("density rho", chunk_voxels * 4)?;
+    let rho = ctx.storage_buffer_zeroed("density rho", chunk_voxels * 4 * rho_floats)?;
     let used = ctx.storage_buffer_zeroed("density used", chunk_voxels * 4)?;
 
     let layout = ctx.bind_group_layout(
@@ -216,13 +209,15 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     };
     let (length_passes, density_pass) = pipelines.split_at(pipelines.len() - 1);
     let chunks: Vec<&[glam::IVec3]> = prep.bricks.chunks(chunk_bricks).collect();
-    // ici's neighbour rule reaches into the next brick and chunk: its own lengths come back
-    // to the host, which takes the least about each voxel as the CPU does.
+    // ici's rule reaches into the next brick and chunk: its ladder comes back to the host,
+    // which chooses the lengths as for the CPU (ici.rs).
     if conserve_mass || method == Method::Ici {
         // The lengths of every proposed brick, 0 where nothing is evaluated (as the CPU keeps
         // them); usl's are h0 wherever the mass pass looks (inside the grid).
         let mut lengths = Vec::with_capacity(prep.bricks.len() * BRICK_VOXELS);
         let mut n0_all = Vec::new();
+        let mut ladders = Vec::new();
+        let (all, rungs) = crate::kernel::ici_ladder(pp.h_min, pp.h0);
         for (chunk, origins) in chunks.iter().enumerate() {
             let voxels = origins.len() * BRICK_VOXELS;
             if method == Method::Usl {
@@ -230,15 +225,28 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
                 continue;
             }
             run(chunk, origins.len(), length_passes)?;
+            if method == Method::Ici {
+                let raw: Vec<f32> = ctx.read_buffer(&rho)?;
+                let n0_chunk: Vec<u32> = ctx.read_buffer(&n0)?;
+                const R: usize = crate::kernel::ICI_MAX_RUNGS;
+                for b in 0..origins.len() {
+                    let at = |v: usize| (b * BRICK_VOXELS + v) * 2 * R;
+                    let sums: Vec<[f32; BRICK_VOXELS]> = (0..rungs).map(|k| std::array::from_fn(|v| raw[at(v) + k])).collect();
+                    let squares: Vec<[f32; BRICK_VOXELS]> = (0..rungs).map(|k| std::array::from_fn(|v| raw[at(v) + R + k])).collect();
+                    let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| n0_chunk[b * BRICK_VOXELS + v] > 0);
+                    ladders.push(reached.iter().any(|&r| r).then(|| crate::ici::RungSums::from_sums(&all[..rungs], &sums, &squares, reached)));
+                }
+                n0_all.extend_from_slice(&n0_chunk[..voxels]);
+                continue;
+            }
             let h_chunk: Vec<f32> = ctx.read_buffer(&h)?;
             let n0_chunk: Vec<u32> = ctx.read_buffer(&n0)?;
             lengths.extend(h_chunk[..voxels].iter().zip(&n0_chunk[..voxels]).map(|(&h, &n)| if n > 0 { h } else { 0.0 }));
             n0_all.extend_from_slice(&n0_chunk[..voxels]);
         }
         if method == Method::Ici {
-            let mut kept: Vec<Option<crate::cpu::Lengths>> = lengths.chunks(BRICK_VOXELS).map(|b| Some(Box::new(b.try_into().expect("one brick")))).collect();
-            crate::cpu::least_lengths_near(prep, &mut kept);
-            lengths = kept.into_iter().flat_map(|b| b.expect("every brick kept").into_iter()).collect();
+            let kept = crate::ici::choose_lengths(prep, &all[..rungs], &ladders, pp.confidence);
+            lengths = kept.into_iter().flat_map(|b| b.map_or([0.0; BRICK_VOXELS], |b| *b)).collect();
         }
         if conserve_mass {
             let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &uniform_buffer, &particle_buffer, &lengths)?;
@@ -479,7 +487,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuDensityParams>(), 208);
+        assert_eq!(size_of::<GpuDensityParams>(), 128);
     }
 
     #[test]

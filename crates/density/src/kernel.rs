@@ -66,14 +66,14 @@ pub fn clamp_h(h: f32, h_min: f32, h0: f32) -> f32 {
     h.max(h_min).min(h0)
 }
 
-/// ici: the most rungs of the ladder of smoothing lengths ([`ici_ladder`]).
-pub const ICI_MAX_RUNGS: usize = 6;
+/// ici: the most rungs of the ladder of smoothing lengths ([`ici_ladder`]); eight fit the
+/// GPU's uniforms and its ladder output (two vec4s of sums and of squares per voxel).
+pub const ICI_MAX_RUNGS: usize = 8;
 
-/// ici: the largest ratio between neighbouring rungs. Measured on the accuracy scenes (crate
-/// docs): 1.4 and 1.7 no better overall than 1.5 (a finer ladder makes more comparisons, so
-/// more early stops from noise alone), and each rung costs a kernel evaluation per (particle,
-/// voxel) pair within its support.
-pub const ICI_RUNG_RATIO: f32 = 1.5;
+/// ici: the largest ratio between neighbouring rungs. The rule interpolates between rungs
+/// (crate docs), so the ladder only has to resolve where the error turns; each rung costs a
+/// kernel evaluation per (particle, voxel) pair within its support.
+pub const ICI_RUNG_RATIO: f32 = 1.4;
 
 /// ici: the ladder of smoothing lengths, h_min to h0 geometrically (h0 exactly the top), the
 /// fewest rungs whose ratio is at most [`ICI_RUNG_RATIO`], at most [`ICI_MAX_RUNGS`]; one
@@ -92,34 +92,8 @@ pub fn ici_ladder(h_min: f32, h0: f32) -> ([f32; ICI_MAX_RUNGS], usize) {
     (h, rungs)
 }
 
-/// ici: the rung a grid point's own estimates choose, by Lepski's principle in
-/// Goldenshluger and Lepski's form: the rung k that minimises B_k + gamma^2 var_k, B_k =
-/// max over shorter rungs j of (rho_k - rho_j)^2 - gamma^2 (var_j - var_k), at least 0 — the
-/// squared bias of k beyond what the noise of its difference from a shorter rung explains
-/// (nested kernel sums share their particles, so that difference's variance is about
-/// var_j - var_k, as for nested balls). `sums[k]` = sum m m4_shape(r / h_k), `squares[k]` =
-/// sum (m m4_shape(r / h_k))^2 over the particles within kappa*h_k, `h` ascending (index
-/// units); rho_k = sums[k] / h_k^3 and var_k on the same scale (the common 1/pi cancels).
-/// [`crate::Method::Ici`] then takes the least rung of a grid point's neighbours (crate docs).
-///
-/// Measured beside the classic intersection-of-confidence-intervals rule (the largest k whose
-/// intervals rho_j +- gamma sd_j, j <= k, share a point; the method's name) on the accuracy
-/// scenes: better on three of four at the best gamma of each (crate docs).
-///
-/// The variance of a kernel sum is sum m^2 W^2, but at a small rung that holds no or one
-/// particle the sample value says nothing (0 where the ball is empty: a confident zero that
-/// keeps the rung, and round blobs about isolated particles). So it is floored by its
-/// expectation in a locally uniform medium, from the top rung: E[sum m^2 W_k^2] scales with
-/// the ball's volume, squares[top] (h_k / h_top)^3. (Measured against no floor, the
-/// one-particle variance and the next rung's: better on the whole.)
-#[inline]
-pub fn ici_rung(sums: &[f32], squares: &[f32], h: &[f32], gamma: f32) -> usize {
-    let (scale, volume) = ici_scales(h);
-    ici_rung_scaled(sums, squares, &scale[..h.len()], &volume[..h.len()], gamma)
-}
-
 /// Per rung of `h`: 1 / h_k^3 (a kernel sum's scale) and (h_k / h_top)^3 (the ball's volume
-/// relative to the top rung's), the per-rung constants of [`ici_rung`].
+/// relative to the top rung's, which scales the variance floor: [`crate::ici`]).
 #[inline]
 pub fn ici_scales(h: &[f32]) -> ([f32; ICI_MAX_RUNGS], [f32; ICI_MAX_RUNGS]) {
     let top = h.len() - 1;
@@ -133,35 +107,24 @@ pub fn ici_scales(h: &[f32]) -> ([f32; ICI_MAX_RUNGS], [f32; ICI_MAX_RUNGS]) {
     (scale, volume)
 }
 
-/// [`ici_rung`] with its per-rung constants from [`ici_scales`]: computed once per brick, not
-/// per voxel (the divisions cost the Cloud1-class scene 0.2 s).
-#[inline]
-pub fn ici_rung_scaled(sums: &[f32], squares: &[f32], scale: &[f32], volume: &[f32], gamma: f32) -> usize {
-    let rungs = scale.len();
-    let top = rungs - 1;
-    let mut rho = [0.0f32; ICI_MAX_RUNGS];
-    let mut var = [0.0f32; ICI_MAX_RUNGS];
-    for k in 0..rungs {
-        let c = scale[k];
-        var[k] = c * c * squares[k].max(squares[top] * volume[k]);
-        rho[k] = c * sums[k];
+/// ici: the variance of the difference of two kernel estimates over the same particles, at
+/// lengths h and `ratio` h (ratio > 1), as a fraction of the shorter one's variance:
+/// int (W_h - W_ratio*h)^2 dV / int W_h^2 dV, for any locally uniform medium and any masses.
+/// Nested balls would give 1 - ratio^-3; smooth kernels share more (0.38 of that at 1.35,
+/// 0.90 at 3), so that form overstated the noise of a difference. Midpoint rule in r, f64.
+pub fn ici_pair_noise(ratio: f32) -> f32 {
+    let k = ratio as f64;
+    let w = |r: f64, h: f64| m4_shape((r / h) as f32) as f64 / (h * h * h);
+    let steps = 4000;
+    let dr = 2.0 * k / steps as f64;
+    let (mut diff, mut own) = (0.0, 0.0);
+    for i in 0..steps {
+        let r = (i as f64 + 0.5) * dr;
+        let (a, b) = (w(r, 1.0), w(r, k));
+        diff += (a - b) * (a - b) * r * r;
+        own += a * a * r * r;
     }
-    let g2 = gamma * gamma;
-    let (mut chosen, mut least) = (0, f32::INFINITY);
-    for k in 0..rungs {
-        let mut bias2 = 0.0f32;
-        for j in 0..k {
-            let d = rho[k] - rho[j];
-            bias2 = bias2.max(d * d - g2 * (var[j] - var[k]).max(0.0));
-        }
-        // On a tie the longer rung: the same estimated error with more particles.
-        let error = bias2 + g2 * var[k];
-        if error <= least {
-            chosen = k;
-            least = error;
-        }
-    }
-    chosen
+    (diff / own) as f32
 }
 
 #[cfg(test)]
@@ -206,7 +169,7 @@ mod tests {
     #[test]
     fn ici_ladder_spans_h_min_to_h0() {
         let (h, n) = ici_ladder(1.2, 3.4);
-        assert_eq!(n, 4);
+        assert_eq!(n, 5);
         assert!((h[0] - 1.2).abs() < 1e-6 && h[n - 1] == 3.4);
         for k in 1..n {
             assert!(h[k] / h[k - 1] <= ICI_RUNG_RATIO + 1e-5 && h[k] > h[k - 1]);
@@ -216,17 +179,12 @@ mod tests {
     }
 
     #[test]
-    fn ici_rung_stops_where_the_bias_shows() {
-        let h = [1.0, 2.0, 4.0];
-        // A constant density (rho 1 at every rung, small noise): the widest rung.
-        let sums = [1.0, 8.0, 64.0];
-        let squares = [0.01, 0.08 * 8.0, 0.64 * 64.0];
-        assert_eq!(ici_rung(&sums, &squares, &h, 2.0), 2);
-        // The widest rung far off the narrower two (a steep edge): the middle one.
-        let steep = [1.0, 8.0, 640.0];
-        assert_eq!(ici_rung(&steep, &[1e-4, 1e-3, 1e-2], &h, 2.0), 1);
-        // An empty small ball is not a confident zero: without the floor from the top rung its
-        // variance would be 0 and its estimate (0) chosen.
-        assert_eq!(ici_rung(&[0.0, 8.0, 64.0], &[0.0, 4.0, 32.0], &h, 2.0), 2);
+    fn a_difference_of_estimates_is_quieter_than_nested_balls_say() {
+        // Far apart rungs share little: the difference's variance tends to the shorter's.
+        assert!((ici_pair_noise(50.0) - 1.0).abs() < 0.01);
+        // Close rungs share most of their particles and weights.
+        let close = ici_pair_noise(1.35);
+        assert!(close > 0.0 && close < 0.4 * (1.0 - 1.35f32.powi(-3)), "{close}");
+        assert!(ici_pair_noise(1.2) < ici_pair_noise(1.5));
     }
 }

@@ -11,7 +11,7 @@ use nimbus_volume::{Transform, BRICK_DIM};
 use rayon::prelude::*;
 
 use crate::kernel::KAPPA;
-use crate::params::{DensityParams, HMin, Resolution, H0};
+use crate::params::{DensityParams, HMin, Method, Resolution, H0, ICI_H0_AUTO_FACTOR};
 use crate::{DensityError, ParticleSet};
 
 /// Fraction of particles (by count) allowed to live in cells sparser than the density
@@ -231,12 +231,12 @@ pub fn plan_grid(particles: &ParticleSet, params: &DensityParams) -> Result<Grid
     // size follows from a voxel count.
     let auto = match params.h0 {
         H0::Fixed(h) => Some(h),
-        H0::Auto => auto_h0(positions, params.neighbours),
+        H0::Auto => auto_h0(positions, params.neighbours).map(|h| if params.method == Method::Ici { h * ICI_H0_AUTO_FACTOR } else { h }),
     };
     let mut h0 = match (auto, params.resolution, params.h_min) {
         (Some(h), ..) => h,
         // One point and no scale: fall back to the one length the user gave.
-        (None, Resolution::VoxelSize(v), h_min) => h_min.resolve(v),
+        (None, Resolution::VoxelSize(v), h_min) => h_min.resolve(params.method, v),
         (None, _, HMin::World(h)) => h,
         (None, ..) => return Err(DensityError::H0Undetermined),
     };
@@ -250,7 +250,7 @@ pub fn plan_grid(particles: &ParticleSet, params: &DensityParams) -> Result<Grid
             Resolution::VoxelSize(v) => v,
             Resolution::Longest(n) => (hi - lo).max_element() / n as f64,
         };
-        let h_min = params.h_min.resolve(voxel);
+        let h_min = params.h_min.resolve(params.method, voxel);
         grid = Some((lo, hi, voxel, h_min));
         if params.h0 == H0::Auto && h0 < h_min {
             h0 = h_min;

@@ -4,28 +4,8 @@
 
 use glam::{DVec3, IVec3};
 use nimbus_density::analytic::Rng;
-use nimbus_density::kernel::{clamp_h, correct_h, ici_ladder, ici_rung, m4_shape, predict_h1, KAPPA};
+use nimbus_density::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
 use nimbus_density::*;
-
-/// ici's per-rung sums by brute force: sum m W and sum (m W)^2 over the particles within
-/// kappa*h_k of the point, in f64.
-fn ladder_sums(r2s: &[(f32, usize)], own: &[f32], ladder: &[f32]) -> (Vec<f32>, Vec<f32>) {
-    ladder
-        .iter()
-        .map(|&h| {
-            let r = KAPPA * h;
-            let (mut sum, mut squares) = (0.0f64, 0.0f64);
-            for &(r2, i) in r2s {
-                if r2 < r * r {
-                    let w = (own[i] * m4_shape(r2.sqrt() / h)) as f64;
-                    sum += w;
-                    squares += w * w;
-                }
-            }
-            (sum as f32, squares as f32)
-        })
-        .unzip()
-}
 
 /// Every particle's squared distance (index units) from grid point ijk, with its index.
 fn squared_distances(particles: &ParticleSet, grid: &Grid, ijk: IVec3) -> Vec<(f32, usize)> {
@@ -42,21 +22,13 @@ fn squared_distances(particles: &ParticleSet, grid: &Grid, ijk: IVec3) -> Vec<(f
         .collect()
 }
 
-/// ici's rung from grid point ijk's own ladder, `None` without a particle within kappa*h0.
-fn own_rung(particles: &ParticleSet, grid: &Grid, pp: &PointParams, own: &[f32], ijk: IVec3) -> Option<usize> {
-    let r2s = squared_distances(particles, grid, ijk);
-    let r0 = KAPPA * pp.h0;
-    if !r2s.iter().any(|(r2, _)| *r2 < r0 * r0) {
-        return None;
-    }
-    let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
-    let (sums, squares) = ladder_sums(&r2s, own, &all[..rungs]);
-    Some(ici_rung(&sums, &squares, &all[..rungs], pp.confidence))
-}
+/// ici's lengths (index units) as the estimate chose them: its rule runs over the whole
+/// grid's ladder (box means about each voxel), so the brute force takes them and checks the
+/// densities at them; the rule has its own tests (ici.rs) and the CPU and GPU agree on it.
+type Chosen<'a> = &'a dyn Fn(IVec3) -> f32;
 
-/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index);
-/// `own` are the particles' masses (ici's lengths follow them).
-fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
+/// Brute-force h (index units) and N0 at grid point ijk, with every particle's (r^2, index).
+fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, chosen: Chosen, ijk: IVec3) -> (f32, u32, Vec<(f32, usize)>) {
     let r2s = squared_distances(particles, grid, ijk);
     let within = |r2s: &[(f32, usize)], h: f32| {
         let r = KAPPA * h;
@@ -81,38 +53,18 @@ fn reference_h(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: M
                 clamp_h(sorted[k - 1].0.sqrt() / KAPPA, pp.h_min, pp.h0)
             }
         }
-        Method::Ici => {
-            // The least rung over the point and its 26 neighbours (across brick faces too)
-            // that have a particle within kappa*h0.
-            let (all, _) = ici_ladder(pp.h_min, pp.h0);
-            let mut least = usize::MAX;
-            for dz in -1..=1 {
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let q = ijk + IVec3::new(dx, dy, dz);
-                        if q.cmpge(IVec3::ZERO).all() && q.cmplt(grid.dims).all() {
-                            if let Some(k) = own_rung(particles, grid, pp, own, q) {
-                                least = least.min(k);
-                            }
-                        }
-                    }
-                }
-            }
-            if least == usize::MAX {
-                pp.h0
-            } else {
-                all[least]
-            }
-        }
+        Method::Ici => chosen(ijk),
     };
     (h, n0, r2s)
 }
 
 /// Brute-force (density, h in index units, used count) at grid point ijk, with the particles'
 /// `masses`.
-fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, own: &[f32], masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
-    let (h, n0, r2s) = reference_h(particles, grid, pp, method, own, ijk);
-    if n0 == 0 {
+fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, chosen: Chosen, masses: &[f32], ijk: IVec3) -> (f32, f32, u32) {
+    let (h, n0, r2s) = reference_h(particles, grid, pp, method, chosen, ijk);
+    // ici's voxels with no particle within their chosen kernel have no density, so the
+    // estimate records no length for them.
+    if n0 == 0 || h == 0.0 {
         return (0.0, pp.h0, 0);
     }
     let r = KAPPA * h;
@@ -129,7 +81,7 @@ fn reference_point(particles: &ParticleSet, grid: &Grid, pp: &PointParams, metho
 /// The masses the density is evaluated with: each particle's own, or with conserve-mass
 /// m / S, S = sum over every grid point x of W(|x - x_q|, h(x)) dV, for particles whose whole
 /// support (radius kappa*h0) reaches no grid point outside the grid; and how many were.
-fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, params: &DensityParams) -> (Vec<f32>, usize) {
+fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, method: Method, chosen: Chosen, params: &DensityParams) -> (Vec<f32>, usize) {
     let own = own_masses(particles, params);
     if !params.conserve_mass {
         return (own, 0);
@@ -138,10 +90,10 @@ fn reference_masses(particles: &ParticleSet, grid: &Grid, pp: &PointParams, meth
     for k in 0..grid.dims.z {
         for j in 0..grid.dims.y {
             for i in 0..grid.dims.x {
-                let (h, n0, r2s) = reference_h(particles, grid, pp, method, &own, IVec3::new(i, j, k));
+                let (h, n0, r2s) = reference_h(particles, grid, pp, method, chosen, IVec3::new(i, j, k));
                 let r = KAPPA * h;
                 for (r2, q) in r2s {
-                    if n0 > 0 && r2 < r * r {
+                    if n0 > 0 && h > 0.0 && r2 < r * r {
                         sums[q] += (m4_shape(r2.sqrt() / h) / (std::f32::consts::PI * h * h * h)) as f64;
                     }
                 }
@@ -239,11 +191,11 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
     let Some(out) = estimate(backend, particles, &params) else { return particles.len() };
     let grid = out.grid;
     let pp = PointParams::new(&grid, &params);
-    let (masses, normalised) = reference_masses(particles, &grid, &pp, method, &params);
-    let own = own_masses(particles, &params);
+    let h_vol = out.smoothing_length.as_ref().unwrap();
+    let chosen = |ijk: IVec3| h_vol.get(ijk) / grid.voxel_size as f32;
+    let (masses, normalised) = reference_masses(particles, &grid, &pp, method, &chosen, &params);
     let max = out.stats.max_density;
     assert!(max > 0.0);
-    let h_vol = out.smoothing_length.as_ref().unwrap();
     let n_vol = out.neighbour_count.as_ref().unwrap();
     let mut compared = 0;
     // Every 2nd point on each axis keeps the O(N*M) reference quick.
@@ -251,7 +203,7 @@ fn check_params(backend: Backend, particles: &ParticleSet, params: DensityParams
         for j in (0..grid.dims.y).step_by(2) {
             for i in (0..grid.dims.x).step_by(2) {
                 let ijk = IVec3::new(i, j, k);
-                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &own, &masses, ijk);
+                let (rho, h, used) = reference_point(particles, &grid, &pp, method, &chosen, &masses, ijk);
                 let fast = out.density.get(ijk);
                 assert!(
                     (fast - rho).abs() <= 1e-5 * max + 1e-5 * rho,
@@ -617,4 +569,47 @@ fn gathers_longer_than_a_software_adapter_runs_are_refused() {
         let out = result.unwrap();
         assert!((out.stats.grid_mass / 100_000.0 - 1.0).abs() < 0.01, "mass {}", out.stats.grid_mass);
     }
+}
+
+#[test]
+fn ici_goes_short_at_a_sheet_and_long_where_the_medium_is_smooth() {
+    // A thin dense sheet (z = 0, sigma 0.15) in a sparse uniform box: the rule must take
+    // short lengths in the sheet, whose bias the longer rungs show, and long ones far from it.
+    let mut rng = Rng::new(7, 0);
+    let positions: Vec<DVec3> = (0..40_000)
+        .map(|i| {
+            let (x, y) = (rng.uniform() * 16.0, rng.uniform() * 16.0);
+            if i % 2 == 0 {
+                DVec3::new(x, y, 0.15 * rng.normal())
+            } else {
+                DVec3::new(x, y, -8.0 + 16.0 * rng.uniform())
+            }
+        })
+        .collect();
+    let particles = ParticleSet { positions, ..Default::default() };
+    let params = DensityParams {
+        method: Method::Ici,
+        resolution: Resolution::VoxelSize(0.25),
+        bounds: Some((DVec3::new(0.0, 0.0, -8.0), DVec3::new(16.0, 16.0, 8.0))),
+        smoothing_length: true,
+        ..Default::default()
+    };
+    let out = estimate_cpu(&particles, &params).unwrap();
+    let h = out.smoothing_length.unwrap();
+    let grid = out.grid;
+    let voxels = |z: f64| {
+        let k = ((z - grid.origin.z) / grid.voxel_size).round() as i32;
+        let mut all = Vec::new();
+        for i in (8..grid.dims.x - 8).step_by(4) {
+            for j in (8..grid.dims.y - 8).step_by(4) {
+                all.push(h.get(IVec3::new(i, j, k)) as f64 / grid.voxel_size);
+            }
+        }
+        all.iter().sum::<f64>() / all.len() as f64
+    };
+    let (sheet, far) = (voxels(0.0), voxels(-5.5));
+    let (h_min, h0) = (grid.h_min / grid.voxel_size, grid.h0 / grid.voxel_size);
+    assert!((h_min - ICI_H_MIN_VOXELS).abs() < 1e-9, "ici's default floor: {h_min}");
+    assert!(sheet < h_min + 0.3 * (h0 - h_min), "in the sheet {sheet} voxels (ladder {h_min}..{h0})");
+    assert!(far > h_min + 0.7 * (h0 - h_min), "far from it {far} voxels (ladder {h_min}..{h0})");
 }
