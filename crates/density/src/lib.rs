@@ -80,26 +80,22 @@
 //!   support's discs: the discs' per-row square roots and varying row lengths cost more than
 //!   the squares' masked corners.)
 //!   Only bricks within kappa*h0 of some particle are proposed.
-//! - ici (issue #21, [`kernel::ici_ladder`], [`kernel::ici_rung`]): a ladder of lengths
-//!   h_1 < .. < h_K from h_min to h0, geometric, at most 1.5 apart (K = 4 on Cloud1-class,
-//!   at most 6). One splat pass over the widest rung's square per particle sums, per rung,
-//!   m W and (m W)^2 (the estimate and its variance; a column takes only the rungs whose
-//!   support its nearest voxel lies in, and the distance's square root is shared). Per voxel
-//!   Lepski's principle in Goldenshluger and Lepski's form picks the rung of least estimated
-//!   error, bias^2 + Gamma^2 var, the bias of rung k being its largest squared difference
-//!   from a shorter rung beyond Gamma^2 times that difference's variance (about var_j - var_k
-//!   for nested kernels); Gamma = 1.75 for every scene ([`DEFAULT_ICI_CONFIDENCE`]). The
-//!   variance is floored by the top rung's scaled to the rung's volume, so an empty small
-//!   ball is not a confident zero. Then each voxel takes the least rung among itself and its
-//!   26 neighbours, across brick faces (a neighbour that chose short saw an edge a voxel
-//!   away; with the classic rule, Gamma 1.25 and rungs 1.4 apart, the shell 0.314 -> 0.250),
-//!   so every brick's own lengths are kept first (`cpu::least_lengths_near`, one host function
-//!   for both backends), and the density pass runs on the final lengths, as conserve-mass's
-//!   does. Taken within each brick, as at first, the rule left a seam: on Cloud1-class the
-//!   error's jump across brick faces was 1.20x that within bricks (asl3 1.005x); now 1.00x,
-//!   for 0.45 s more (the density pass the chosen rung's ladder sums had saved). The GPU's
-//!   `ladder` pass (shaders/density.wgsl) gathers the ladder per voxel and writes its own
-//!   rung's length; the lengths come back to the host for the neighbour rule, then `density`.
+//! - ici (issue #21, [`kernel::ici_ladder`], `ici.rs`): a ladder of lengths h_1 < .. < h_K
+//!   from h_min (0.75 voxel by default, [`ICI_H_MIN_VOXELS`]) to h0 (1.5x h0 auto,
+//!   [`ICI_H0_AUTO_FACTOR`]), geometric, at most 1.4 apart, at most 8. One splat pass over the
+//!   widest rung's square per particle sums, per rung, m W and (m W)^2 (a column takes only
+//!   the rungs whose support its nearest voxel lies in; the distance's square root is
+//!   shared). Then the rule over the whole grid (`ici.rs`, one host function for both
+//!   backends): each rung's bias from its debiased squared differences from the next
+//!   shorter rung and the shortest, averaged over a box of 0.75 h_k about the voxel and
+//!   extrapolated by the h^2 law, the rung of least bias^2 + Gamma^2 var (Gamma = 1,
+//!   [`DEFAULT_ICI_CONFIDENCE`]), the rung index averaged over 5^3 voxels and the length
+//!   interpolated between rungs; then the density pass at those lengths, as conserve-mass's
+//!   does. The GPU's `ladder` pass (shaders/density.wgsl) returns the rung sums to the host.
+//!   Until session 28 the rule was per voxel (Goldenshluger-Lepski's, Gamma 1.75, then the
+//!   least rung among 27 neighbours; the measurements below the new table are that rule's):
+//!   a voxel's own differences are noise-dominated exactly where the bias matters, which
+//!   the box mean of the debiased squares is not.
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
@@ -173,6 +169,32 @@
 //! | knots | 1.0041 -> 1.0000 | 0.1316 -> 0.1312 | 1.0130 -> 0.9999 | 0.1276 -> 0.1263 |
 //! | shell | 1.0220 -> 1.0000 | 0.3132 -> 0.3080 | 1.0408 -> 1.0000 | 0.2226 -> 0.2289 |
 //! | plume | 1.0015 -> 1.0000 | 0.1304 -> 0.1298 | 1.0046 -> 1.0000 | 0.1144 -> 0.1133 |
+//!
+//! ici (issue #21, session 28's rule over the whole grid) at its defaults, against a fine h0
+//! sweep of usl (0.6..8 voxels, 17 lengths; its best at 1.0, 1.75, 1.5 and 3.5 voxels), the
+//! crate's estimate against the analytic density (relative L2; rim = true rho below 2% of the
+//! maximum; 2026-12-03):
+//!
+//! | scene | best usl (fine sweep) | ici, per-voxel rule (session 27) | ici | ici rim | per-voxel rim |
+//! |---|---|---|---|---|---|
+//! | knots | 0.1440 (1.0 vox) | 0.1464 | **0.1084 (-24.7%)** | 0.219 | 0.280 |
+//! | shell | 0.2188 (1.75 vox) | 0.2612 | 0.2210 (+1.0%) | 0.624 | 0.847 |
+//! | plume | 0.0992 (1.5 vox) | 0.0785 | **0.0674 (-32.1%)** | 0.094 | 0.155 |
+//! | Cloud1-class | 0.1429 (3.5 vox) | 0.1573 | **0.1324 (-7.3%)** | 0.462 | 0.497 |
+//!
+//! Mass: 1.022, 1.012, 1.006, 0.993 (a lone kernel 1.093). What the lab measured on the way
+//! (usl estimates at 8 rungs standing in for the ladder): an oracle that picks each voxel's
+//! length from the fine sweep by its true error over a 5^3 box reaches 0.109, 0.208, 0.065,
+//! 0.114, so the room was in the choice; the per-voxel rule's ceiling was its ladder (h_min
+//! 1.2 voxels left the knots 0.140 at best, h0 auto the cloud 0.145); the box mean of the
+//! bias took Cloud1-class from 0.26 (per-voxel squares) to 0.158, the averaged rung index
+//! to 0.136; the nested-ball variance of a difference (1 - ratio^-3) overstates it 1.1-4x
+//! ([`kernel::ici_pair_noise`]); against only the next shorter rung the shell's bias
+//! saturates (0.363), against every shorter rung it is no better than these two. Time: the
+//! 1.5x top rung and the box means cost it 4-5x asl3 (docs/benchmarks.md), so asl3 stays the
+//! default.
+//!
+//! The earlier rule, for the record:
 //!
 //! ici (issue #21), at its defaults beside the best-tuned usl (of the h0 sweep), asl3 and knn
 //! (rel. L2; examples/accuracy.rs, `cargo run --profile ci -p nimbus-density --example
