@@ -277,7 +277,7 @@ use rayon::prelude::*;
 
 /// Seeded Perlin/fBm noise, shared with the renderer's offset noise (it began here).
 pub use nimbus_optics::noise;
-pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_H_MIN_VOXELS, DEFAULT_ICI_CONFIDENCE, DEFAULT_NEIGHBOURS, H0, ICI_H0_AUTO_FACTOR, ICI_H_MIN_VOXELS};
+pub use params::{DensityParams, HMin, Method, NoiseParams, Resolution, DEFAULT_H_MIN_VOXELS, DEFAULT_ICI_CONFIDENCE, DEFAULT_NEIGHBOURS, H0, ICI_H_MIN_VOXELS};
 pub use attributes::{AttributeOutput, AttributeVolume};
 pub use particles::{
     attribute_aliases, available_attributes, find_attribute, read_particles, read_particles_with, read_path, write_ply, Attribute, Format, ParticleSet, ReadError, ReadReport,

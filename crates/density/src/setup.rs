@@ -11,7 +11,7 @@ use nimbus_volume::{Transform, BRICK_DIM};
 use rayon::prelude::*;
 
 use crate::kernel::KAPPA;
-use crate::params::{DensityParams, HMin, Method, Resolution, H0, ICI_H0_AUTO_FACTOR};
+use crate::params::{DensityParams, HMin, Resolution, H0};
 use crate::{DensityError, ParticleSet};
 
 /// Fraction of particles (by count) allowed to live in cells sparser than the density
@@ -231,7 +231,7 @@ pub fn plan_grid(particles: &ParticleSet, params: &DensityParams) -> Result<Grid
     // size follows from a voxel count.
     let auto = match params.h0 {
         H0::Fixed(h) => Some(h),
-        H0::Auto => auto_h0(positions, params.neighbours).map(|h| if params.method == Method::Ici { h * ICI_H0_AUTO_FACTOR } else { h }),
+        H0::Auto => auto_h0(positions, params.neighbours),
     };
     let mut h0 = match (auto, params.resolution, params.h_min) {
         (Some(h), ..) => h,
