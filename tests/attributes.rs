@@ -295,7 +295,9 @@ fn a_particle_temperature_lights_the_render() {
         let px = common::read_rgba(&path);
         px.iter().map(|p| p[0] as f64 + p[1] as f64 + p[2] as f64).sum::<f64>() / px.len() as f64
     };
-    // 1000 to 2000 K at 1 K a unit: a blackbody far brighter than the unit sun's scattering.
+    // 1000 to 2000 K at 1 K a unit: a blackbody far brighter than the unit sun's scattering
+    // (1.70x with ici's lengths, 2.26x with asl3's: ici's longer kernels in the ball's rim pull
+    // the hottest and coolest temperatures there toward the interior's, and T^4 is convex).
     let (a, b) = (mean(&plain), mean(&glow));
-    assert!(b > 2.0 * a, "plain {a}, with the particles' temperature {b}");
+    assert!(b > 1.5 * a, "plain {a}, with the particles' temperature {b}");
 }

@@ -21,11 +21,11 @@ struct Args {
     /// Input format when the extension does not tell (stdin): ply, csv, tsv or vdb.
     #[arg(long)]
     format: Option<String>,
-    /// Smoothing-length method: usl (uniform), asl2, asl3 (adaptive), knn (exact reference),
-    /// ici (per grid point the length, from a ladder between --h-min and h0, whose estimated
-    /// error is least: bias against the shorter lengths beyond their noise, plus noise; CPU
-    /// only so far).
-    #[arg(long, default_value = "asl3", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
+    /// Smoothing-length method: ici (the default: per grid point the length, from a ladder
+    /// between --h-min and h0, whose estimated error is least, the bias from the differences
+    /// between lengths averaged about the point plus the noise), usl (uniform), asl2, asl3
+    /// (adaptive by a neighbour count, the paper's), knn (exact neighbour reference).
+    #[arg(long, default_value = "ici", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
     method: String,
     /// Upper bound of the smoothing length (world units), or auto.
     #[arg(long, default_value = "auto")]

@@ -22,8 +22,8 @@
 //! Kernel: cubic spline M4, support kappa*h with kappa = 2 ([`kernel`]). Methods ([`Method`]):
 //! `usl` h = h0; `asl2` h = h1 from the count N0 within kappa*h0; `asl3` corrects h1 with the
 //! count N1 within kappa*h1; `knn` h = distance to the N*-th nearest / kappa (exact
-//! reference); `ici` (issue #21) h from a ladder by the local error, below. Every h is
-//! clamped to [h_min, h0], h_min defaulting to 1.2 voxels. The
+//! reference); `ici` (issue #21, the default) h from a ladder by the local error, below.
+//! Every h is clamped to [h_min, h0], h_min defaulting to 1.2 voxels (0.75 for ici). The
 //! per-grid-point functions ([`kernel::predict_h1`], [`kernel::correct_h`],
 //! [`kernel::clamp_h`], [`kernel::m4_shape`]) are pure f32 so a WGSL backend can mirror them.
 //!
@@ -80,22 +80,22 @@
 //!   support's discs: the discs' per-row square roots and varying row lengths cost more than
 //!   the squares' masked corners.)
 //!   Only bricks within kappa*h0 of some particle are proposed.
-//! - ici (issue #21, [`kernel::ici_ladder`], `ici.rs`): a ladder of lengths h_1 < .. < h_K
-//!   from h_min (0.75 voxel by default, [`ICI_H_MIN_VOXELS`]) to h0 (1.5x h0 auto,
-//!   [`ICI_H0_AUTO_FACTOR`]), geometric, at most 1.4 apart, at most 8. One splat pass over the
-//!   widest rung's square per particle sums, per rung, m W and (m W)^2 (a column takes only
-//!   the rungs whose support its nearest voxel lies in; the distance's square root is
-//!   shared). Then the rule over the whole grid (`ici.rs`, one host function for both
-//!   backends): each rung's bias from its debiased squared differences from the next
-//!   shorter rung and the shortest, averaged over a box of 0.75 h_k about the voxel and
-//!   extrapolated by the h^2 law, the rung of least bias^2 + Gamma^2 var (Gamma = 1,
-//!   [`DEFAULT_ICI_CONFIDENCE`]), the rung index averaged over 5^3 voxels and the length
-//!   interpolated between rungs; then the density pass at those lengths, as conserve-mass's
-//!   does. The GPU's `ladder` pass (shaders/density.wgsl) returns the rung sums to the host.
-//!   Until session 28 the rule was per voxel (Goldenshluger-Lepski's, Gamma 1.75, then the
-//!   least rung among 27 neighbours; the measurements below the new table are that rule's):
-//!   a voxel's own differences are noise-dominated exactly where the bias matters, which
-//!   the box mean of the debiased squares is not.
+//! - ici, the default (issue #21, [`kernel::ici_ladder`], `ici.rs`): a ladder of lengths
+//!   h_1 < .. < h_K from h_min (0.75 voxel by default, [`ICI_H_MIN_VOXELS`]) to h0,
+//!   geometric, at most 1.5 apart, at most 8. One splat pass over the widest rung's square
+//!   per particle sums, per rung, m W and (m W)^2 (a column takes only the rungs whose
+//!   support its nearest voxel lies in; the distance's square root is shared). Then the rule
+//!   over the whole grid (`ici.rs`, one host function for both backends): each rung's bias
+//!   from its debiased squared differences from the next shorter rung and the shortest,
+//!   averaged over a box of radius h_k about the voxel and extrapolated by the h^2 law, the
+//!   rung of least bias^2 + Gamma^2 var (Gamma = 0.8, [`DEFAULT_ICI_CONFIDENCE`]), the rung
+//!   index averaged over 5^3 voxels and the length interpolated between rungs; then the
+//!   density pass at those lengths, as conserve-mass's does. The GPU's `ladder` pass
+//!   (shaders/density.wgsl) returns the rung sums to the host. Until session 28 the rule was
+//!   per voxel (Goldenshluger-Lepski's, Gamma 1.75, then the least rung among 27
+//!   neighbours; the measurements below the new table are that rule's): a voxel's own
+//!   differences are noise-dominated exactly where the bias matters, which the box mean of
+//!   the debiased squares is not.
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
 //!   voxel; beyond that h would exceed h0 and be clamped to h0, so the bounded search is exact.
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
@@ -170,29 +170,22 @@
 //! | shell | 1.0220 -> 1.0000 | 0.3132 -> 0.3080 | 1.0408 -> 1.0000 | 0.2226 -> 0.2289 |
 //! | plume | 1.0015 -> 1.0000 | 0.1304 -> 0.1298 | 1.0046 -> 1.0000 | 0.1144 -> 0.1133 |
 //!
-//! ici (issue #21, session 28's rule over the whole grid) at its defaults, against a fine h0
-//! sweep of usl (0.6..8 voxels, 17 lengths; its best at 1.0, 1.75, 1.5 and 3.5 voxels), the
-//! crate's estimate against the analytic density (relative L2; rim = true rho below 2% of the
-//! maximum; 2026-12-03):
+//! ici (issue #21, session 28's rule over the whole grid, the default) against a fine h0
+//! sweep of usl (its best at 1.0, 1.75, 1.5 and 3.5 voxels), relative L2 against the
+//! analytic density (rim: true rho below 2% of the maximum; examples/accuracy.rs,
+//! 2026-12-03):
 //!
-//! | scene | best usl (fine sweep) | ici, per-voxel rule (session 27) | ici | ici rim | per-voxel rim |
+//! | scene | best usl | asl3 (80, 1.2) | ici, per-voxel rule (session 27) | ici | ici rim / asl3 rim |
 //! |---|---|---|---|---|---|
-//! | knots | 0.1440 (1.0 vox) | 0.1464 | **0.1084 (-24.7%)** | 0.219 | 0.280 |
-//! | shell | 0.2188 (1.75 vox) | 0.2612 | 0.2210 (+1.0%) | 0.624 | 0.847 |
-//! | plume | 0.0992 (1.5 vox) | 0.0785 | **0.0674 (-32.1%)** | 0.094 | 0.155 |
-//! | Cloud1-class | 0.1429 (3.5 vox) | 0.1573 | **0.1324 (-7.3%)** | 0.462 | 0.497 |
+//! | knots | 0.1440 | 0.1440 | 0.1464 | **0.1078 (-25.1%)** | 0.217 / 0.262 |
+//! | shell | 0.2188 | 0.2322 | 0.2612 | **0.2115 (-3.3%)** | 0.650 / 0.668 |
+//! | plume | 0.0992 | 0.1019 | 0.0785 | **0.0720 (-27.4%)** | 0.139 / 0.235 |
+//! | Cloud1-class | 0.1429 | 0.2292 | 0.1573 | **0.1378 (-3.6%)** | 0.485 / 0.480 |
 //!
-//! Mass: 1.022, 1.012, 1.006, 0.993 (a lone kernel 1.093). What the lab measured on the way
-//! (usl estimates at 8 rungs standing in for the ladder): an oracle that picks each voxel's
-//! length from the fine sweep by its true error over a 5^3 box reaches 0.109, 0.208, 0.065,
-//! 0.114, so the room was in the choice; the per-voxel rule's ceiling was its ladder (h_min
-//! 1.2 voxels left the knots 0.140 at best, h0 auto the cloud 0.145); the box mean of the
-//! bias took Cloud1-class from 0.26 (per-voxel squares) to 0.158, the averaged rung index
-//! to 0.136; the nested-ball variance of a difference (1 - ratio^-3) overstates it 1.1-4x
-//! ([`kernel::ici_pair_noise`]); against only the next shorter rung the shell's bias
-//! saturates (0.363), against every shorter rung it is no better than these two. Time: the
-//! 1.5x top rung and the box means cost it 4-5x asl3 (docs/benchmarks.md), so asl3 stays the
-//! default.
+//! Mass 1.015, 0.998, 1.003, 0.995 (a lone kernel 1.09). At or below the best usl on every
+//! scene with no per-scene setting, so it is the default. How the rule was found and what
+//! else was measured (the oracle, Gamma, the boxes, the ladder's ends) is in
+//! docs/benchmarks.md. Time: 1.8x asl3 on the Cloud1-class command (2.06 s against 1.12 s).
 //!
 //! The earlier rule, for the record:
 //!

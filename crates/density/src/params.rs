@@ -11,14 +11,15 @@ pub enum Method {
     Usl,
     /// Adaptive, predictor only: h = h1 from the count within kappa*h0. Two passes.
     Asl2,
-    /// Adaptive, predictor + corrector. Three passes. The default.
+    /// Adaptive, predictor + corrector. Three passes. The default until issue #21.
     Asl3,
     /// Exact reference: h = (distance to the N*-th nearest particle) / kappa.
     Knn,
-    /// Error-following (issue #21): per grid point the length of a ladder from h_min to h0
-    /// whose estimated error (bias from the shorter rungs beyond their noise, plus variance)
-    /// is least, Lepski's principle ([`crate::kernel::ici_rung`]), then the least about each
-    /// voxel; the ladder pass, the neighbour rule, then the density pass. Both backends.
+    /// Error-following (issue #21), the default: per grid point the length, from a ladder
+    /// between h_min and h0, whose estimated error is least (the bias from the differences
+    /// between rungs averaged about the point, plus the variance; `ici.rs`), averaged over
+    /// its neighbours and interpolated between rungs; the ladder pass, the rule over the
+    /// whole grid, then the density pass. Both backends.
     Ici,
 }
 
@@ -170,11 +171,10 @@ pub const DEFAULT_ICI_CONFIDENCE: f32 = 0.8;
 /// knots' error falls from 0.146 to 0.108 against 1.2 voxels; crate docs).
 pub const ICI_H_MIN_VOXELS: f64 = 0.75;
 
-
 impl Default for DensityParams {
     fn default() -> Self {
         DensityParams {
-            method: Method::Asl3,
+            method: Method::Ici,
             neighbours: DEFAULT_NEIGHBOURS,
             h0: H0::Auto,
             h_min: HMin::Auto,

@@ -416,9 +416,13 @@ mod tests {
         let grid = plan(HMin::Voxels(1.5));
         assert!((grid.h_min / grid.voxel_size - 1.5).abs() < 1e-12, "{grid:?}");
         assert_eq!(plan(HMin::World(0.2)).h_min, 0.2);
-        // The default floor is 1.2 voxels of the grid (design.md section 8, issue #18).
+        // The default floor is 0.75 voxel of the grid for ici (the default method, issue #21)
+        // and 1.2 for the others (design.md section 8, issue #18).
         let default = plan(DensityParams::default().h_min);
-        assert!((default.h_min / default.voxel_size - 1.2).abs() < 1e-12, "{default:?}");
-        assert_eq!(plan(HMin::Voxels(1.2)), default);
+        assert!((default.h_min / default.voxel_size - 0.75).abs() < 1e-12, "{default:?}");
+        assert_eq!(plan(HMin::Voxels(0.75)), default);
+        let asl3 = |h_min| plan_grid(&particles, &DensityParams { method: crate::Method::Asl3, resolution: Resolution::Longest(20), h_min, ..Default::default() }).unwrap();
+        assert!((asl3(HMin::Auto).h_min / asl3(HMin::Auto).voxel_size - 1.2).abs() < 1e-12);
+        assert_eq!(asl3(HMin::Voxels(1.2)), asl3(HMin::Auto));
     }
 }

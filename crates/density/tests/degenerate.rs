@@ -160,7 +160,7 @@ fn noise_is_reproducible_and_free_when_off() {
 #[test]
 fn stats_count_used_particles() {
     let particles = cloud(5000, DVec3::ZERO);
-    let params = DensityParams { resolution: Resolution::VoxelSize(0.3), neighbours: 40, ..Default::default() };
+    let params = DensityParams { method: Method::Asl3, resolution: Resolution::VoxelSize(0.3), neighbours: 40, ..Default::default() };
     let out = estimate_cpu(&particles, &params).unwrap();
     let s = &out.stats;
     assert_eq!(s.particles, 5000);
