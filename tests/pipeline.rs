@@ -180,6 +180,9 @@ fn h_min_is_a_length_or_a_voxel_count() {
     assert!((h_min / voxel - 1.5).abs() < 1e-9, "h_min {h_min}, voxel {voxel}");
     let (h_min, _) = recorded("0.07");
     assert_eq!(h_min, 0.07);
+    // auto: the method's own floor, 0.75 voxel for ici (the default method).
+    let (h_min, voxel) = recorded("auto");
+    assert!((h_min / voxel - 0.75).abs() < 1e-9, "h_min {h_min}, voxel {voxel}");
     std::fs::remove_file(&d).unwrap();
     for bad in ["0vox", "-1", "fast", "vox", "infvox"] {
         let out = Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", &format!("--h-min={bad}")]).arg("-o").arg(&d).output().unwrap();
