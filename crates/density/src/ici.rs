@@ -103,9 +103,15 @@ fn box_sum(field: &mut Field, tmp: &mut Field, near: &[[[Option<u32>; 2]; 3]], r
 }
 
 /// One brick's sums over the 2r+1 voxels along `axis` about each voxel, from the line of
-/// three bricks (before, own, after) through it. Compiled for AVX2 where the CPU has it, as
-/// the splat passes are (cpu.rs): the slabs across the axis are 64 or 8 lanes wide.
+/// three bricks (before, own, after) through it. Compiled for AVX-512 or AVX2 where the CPU
+/// has them, as the splat passes are (cpu.rs): the slabs across the axis are 64 or 8 lanes
+/// wide.
 fn window_sums(line: &[&[f32; BRICK_VOXELS]; 3], axis: usize, r: usize, out: &mut [f32; BRICK_VOXELS]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has just been checked for AVX-512F.
+        return unsafe { window_sums_avx512(line, axis, r, out) };
+    }
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has just been checked for AVX2.
@@ -117,6 +123,12 @@ fn window_sums(line: &[&[f32; BRICK_VOXELS]; 3], axis: usize, r: usize, out: &mu
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn window_sums_avx2(line: &[&[f32; BRICK_VOXELS]; 3], axis: usize, r: usize, out: &mut [f32; BRICK_VOXELS]) {
+    window_sums_impl(line, axis, r, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn window_sums_avx512(line: &[&[f32; BRICK_VOXELS]; 3], axis: usize, r: usize, out: &mut [f32; BRICK_VOXELS]) {
     window_sums_impl(line, axis, r, out)
 }
 
@@ -214,6 +226,7 @@ pub(crate) fn choose_lengths(prep: &Prepared, h: &[f32], sums: &[Option<Box<Rung
         }
     }
     let count = box_sum(&mut chosen, &mut tmp, &near, CHOICE_BOX, top);
+    let ln_ratio: Vec<f32> = h.windows(2).map(|w| (w[1] / w[0]).ln()).collect();
     chosen
         .par_iter()
         .enumerate()
@@ -229,7 +242,7 @@ pub(crate) fn choose_lengths(prep: &Prepared, h: &[f32], sums: &[Option<Box<Rung
                     return h[0];
                 }
                 let u = f - k as f32;
-                h[k] * (h[k + 1] / h[k]).powf(u)
+                h[k] * (ln_ratio[k] * u).exp()
             })))
         })
         .collect()
