@@ -185,7 +185,8 @@
 //! Mass 1.015, 0.998, 1.003, 0.995 (a lone kernel 1.09). At or below the best usl on every
 //! scene with no per-scene setting, so it is the default. How the rule was found and what
 //! else was measured (the oracle, Gamma, the boxes, the ladder's ends) is in
-//! docs/benchmarks.md. Time: 1.8x asl3 on the Cloud1-class command (2.06 s against 1.12 s).
+//! docs/benchmarks.md. Time: 1.8x asl3 on the Cloud1-class command (1.72 s against 0.94 s,
+//! medians of 7 side by side).
 //!
 //! The earlier rule, for the record:
 //!
