@@ -402,11 +402,8 @@ fn ladder(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: v
         return;
     }
     let x = voxel_point(i);
+    // Private variables start at zero: a voxel outside the grid writes zero sums.
     var reached = false;
-    for (var k = 0u; k < ICI_MAX_RUNGS; k++) {
-        ladder_sums[k] = 0.0;
-        ladder_squares[k] = 0.0;
-    }
     if (x.w != 0) {
         gather_ladder(vec3<f32>(x.xyz));
         reached = acc_count > 0u;

@@ -106,7 +106,7 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
         let sums: Vec<Option<Box<RungSums>>> = prep
             .bricks
             .par_iter()
-            .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Ladder)? {
+            .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Ladder(&all[..rungs]))? {
                 Visit::Rungs(r) => Some(r),
                 _ => unreachable!(),
             })
@@ -158,8 +158,9 @@ enum Stage<'a> {
     Density(&'a [f32], Option<&'a Lengths>),
     /// The method's passes only, their lengths kept (conserve-mass).
     Lengths,
-    /// ici's ladder pass only: every rung's sums, for the rule over the whole grid.
-    Ladder,
+    /// ici's ladder pass only, at these rungs (index units): every rung's sums, for the rule
+    /// over the whole grid.
+    Ladder(&'a [f32]),
     /// Each particle's kernel sum over the brick with the kept lengths (conserve-mass).
     Weights(&'a Lengths),
 }
@@ -484,20 +485,19 @@ fn brick_impl<const L: usize>(prep: &Prepared, method: Method, pp: &PointParams,
     if s.parts.is_empty() {
         return None;
     }
-    if matches!(stage, Stage::Ladder) {
-        let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
-        splat_ladder(&s.parts, &all[..rungs], origin, n, &mut s.ladder);
-        let l = &s.ladder;
-        let reached = std::array::from_fn(|v| brick_local(v).cmplt(n).all() && l.top_count[v] > 0);
-        return Some(Visit::Rungs(RungSums::from_sums(&all[..rungs], &l.sums[..rungs], &l.squares[..rungs], reached)));
-    }
     let (h, reached) = match stage {
+        Stage::Ladder(rungs) => {
+            splat_ladder(&s.parts, rungs, origin, n, &mut s.ladder);
+            let l = &s.ladder;
+            let reached = std::array::from_fn(|v| brick_local(v).cmplt(n).all() && l.top_count[v] > 0);
+            let k = rungs.len();
+            return Some(Visit::Rungs(RungSums::from_sums(rungs, &l.sums[..k], &l.squares[..k], reached)));
+        }
         Stage::Density(_, Some(kept)) | Stage::Weights(kept) => {
             let reached: [bool; BRICK_VOXELS] = std::array::from_fn(|v| kept[v] > 0.0);
             (Box::new(std::array::from_fn(|v| if reached[v] { kept[v] } else { pp.h0 })), reached)
         }
         Stage::Density(_, None) | Stage::Lengths => lengths(method, pp, origin, n, s),
-        Stage::Ladder => unreachable!("returned above"),
     };
     if matches!(stage, Stage::Lengths) {
         return Some(Visit::Lengths(Box::new(std::array::from_fn(|v| if reached[v] { h[v] } else { 0.0 }))));

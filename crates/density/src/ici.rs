@@ -24,11 +24,12 @@ use crate::kernel::{ici_pair_noise, ici_scales};
 use crate::Prepared;
 
 /// The bias's averaging box, radius in units of the longer rung of a pair (voxels): 0.5,
-/// 0.75 and 1 measured 0.2325, 0.2223, 0.2188 on the shell at Gamma 1 (Cloud1-class 0.1377,
-/// 0.1361, 0.1363).
+/// 0.75 and 1 measured 0.2325, 0.2223, 0.2188 on the shell (Cloud1-class 0.1377, 0.1361,
+/// 0.1363), at Gamma 1 and rung ratio 1.4.
 const BIAS_BOX: f32 = 1.0;
 /// The rung choice's averaging box, radius in voxels: 1 and 3 measured 0.2270 and 0.2222 on
-/// the shell against 2's 0.2223 (Cloud1-class 0.1372, 0.1357, 0.1361).
+/// the shell against 2's 0.2223 (Cloud1-class 0.1372, 0.1357, 0.1361), at Gamma 1, bias box
+/// 0.75 and rung ratio 1.4.
 const CHOICE_BOX: i32 = 2;
 
 /// A brick's ladder: per rung, the estimate rho_k = sum m W_k and its variance, on the index

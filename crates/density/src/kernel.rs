@@ -67,7 +67,8 @@ pub fn clamp_h(h: f32, h_min: f32, h0: f32) -> f32 {
 }
 
 /// ici: the most rungs of the ladder of smoothing lengths ([`ici_ladder`]); eight fit the
-/// GPU's uniforms and its ladder output (two vec4s of sums and of squares per voxel).
+/// GPU's uniforms (two vec4s of lengths); its ladder pass writes this many sums and as many
+/// sums of squares per voxel.
 pub const ICI_MAX_RUNGS: usize = 8;
 
 /// ici: the largest ratio between neighbouring rungs. The rule interpolates between rungs

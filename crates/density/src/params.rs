@@ -162,13 +162,16 @@ pub const DEFAULT_NEIGHBOURS: u32 = 80;
 pub const DEFAULT_H_MIN_VOXELS: f64 = 1.2;
 
 /// ici's Gamma, the weight of the standard deviation beside the bias: 0.8 on every scene
-/// (crate docs, issue #21; 0.7, 1 and 1.2 measured 0.2150, 0.2188, 0.2288 on the shell,
-/// Cloud1-class 0.1392, 0.1363, 0.1367 with the bias box at 1).
+/// (crate docs, issue #21). The accuracy example at 0.6, 0.8, 1 and 1.2 (knots, shell, plume,
+/// Cloud1-class): 0.1086, 0.2121, 0.0757, 0.1433; 0.1078, 0.2115, 0.0720, 0.1378; 0.1086,
+/// 0.2162, 0.0710, 0.1366; 0.1107, 0.2265, 0.0715, 0.1371. 0.8 is the only one at or below
+/// the best usl on all four.
 pub const DEFAULT_ICI_CONFIDENCE: f32 = 0.8;
 
 /// ici's default floor, the ladder's shortest rung, in voxels: below the other methods' floor,
 /// because its rule goes there only where the particles are dense enough to pay for it (the
-/// knots' error falls from 0.146 to 0.108 against 1.2 voxels; crate docs).
+/// knots' error is 0.1078 against 0.1408 with a 1.2-voxel floor, Cloud1-class 0.1378 against
+/// 0.1381).
 pub const ICI_H_MIN_VOXELS: f64 = 0.75;
 
 impl Default for DensityParams {
