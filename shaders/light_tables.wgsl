@@ -11,7 +11,8 @@
 //   its stored bricks, x-major and z fastest, each entry 1 + the brick's number in
 //   light_table_nodes, 0 where no brick is stored;
 // - light_table_nodes: every stored brick of every light, 512 transmittances each in
-//   nimbus_volume::brick_offset order (x-major, z fastest), the bricks in
+//   nimbus_volume::brick_offset order (x-major, z fastest) followed by the 512 nodes'
+//   densities (nimbus_tracking::TABLE_BRICK_VALUES), the bricks in
 //   LightTablePlan::bricks' order light after light. optical_depth.wgsl writes them (hence
 //   read_write), lookups read them.
 // A node no brick stores holds 1, the CPU table's background: no medium lies toward the
@@ -45,6 +46,8 @@ const LIGHT_TABLE_LOCAL_MASK: i32 = (1 << LIGHT_TABLE_BRICK_LOG2) - 1;
 const LIGHT_TABLE_STEP_Y: u32 = 1u << LIGHT_TABLE_BRICK_LOG2;
 const LIGHT_TABLE_STEP_X: u32 = 1u << (2u * LIGHT_TABLE_BRICK_LOG2);
 const LIGHT_TABLE_BRICK_NODES: u32 = 1u << (3u * LIGHT_TABLE_BRICK_LOG2);
+// A stored brick's values: its nodes' transmittances, then their densities.
+const LIGHT_TABLE_BRICK_VALUES: u32 = 2u * LIGHT_TABLE_BRICK_NODES;
 
 // Where lattice node `node` of table `t` sits in light_table_nodes, or LIGHT_TABLE_NO_SLOT.
 fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
@@ -57,20 +60,35 @@ fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
         return LIGHT_TABLE_NO_SLOT;
     }
     let l = vec3<u32>(node & vec3<i32>(LIGHT_TABLE_LOCAL_MASK));
-    return (entry - 1u) * LIGHT_TABLE_BRICK_NODES + l.x * LIGHT_TABLE_STEP_X + l.y * LIGHT_TABLE_STEP_Y + l.z;
+    return (entry - 1u) * LIGHT_TABLE_BRICK_VALUES + l.x * LIGHT_TABLE_STEP_X + l.y * LIGHT_TABLE_STEP_Y + l.z;
 }
 
-fn light_table_node(t: LightTable, node: vec3<i32>) -> f32 {
+// A node's transmittance (x) and density (y); unstored: 1 and 0, the CPU's backgrounds.
+fn light_table_node(t: LightTable, node: vec3<i32>) -> vec2<f32> {
     let slot = light_table_slot(t, node);
     if (slot == LIGHT_TABLE_NO_SLOT) {
-        return 1.0;
+        return vec2<f32>(1.0, 0.0);
     }
-    return light_table_nodes[slot];
+    return vec2<f32>(light_table_nodes[slot], light_table_nodes[slot + LIGHT_TABLE_BRICK_NODES]);
+}
+
+// nimbus_tracking::along_ray: the transmittance at fraction u from a ray's node k (t0, rho0)
+// to node k + 1 (t1, rho1), their optical depth spread as the integral of the linearly
+// interpolated density.
+fn light_table_along_ray(t0: f32, t1: f32, rho0: f32, rho1: f32, u: f32) -> f32 {
+    let tiny = 1.17549435e-38;
+    let depth = max(log(max(t0, tiny) / max(t1, tiny)), 0.0);
+    let mean = 0.5 * (rho0 + rho1);
+    var shape = u;
+    if (mean > 0.0) {
+        shape = (rho0 * u + 0.5 * (rho1 - rho0) * u * u) / mean;
+    }
+    return t0 * exp(-depth * shape);
 }
 
 // Transmittance toward light `light` from x as its table resolves it
-// (OpticalDepthVolume::lookup): x, trilinear between the lattice nodes around it in
-// Volume::sample_index's corner order and nested lerps; y, the weight of the caller's own
+// (OpticalDepthVolume::lookup): x, along each of the four rays around it by
+// light_table_along_ray, then bilinear across them in Volume::sample_index's corner order; y, the weight of the caller's own
 // shadow ray beside it, 1 where the light has no table, rising across LIGHT_TABLE_SPREAD as
 // the nodes stray from the interpolation (their weighted mean absolute deviation from it) over
 // a shadow edge sharper than the lattice.
@@ -84,6 +102,7 @@ fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
     let w = p - base;
     let c = vec3<i32>(base);
     var v: array<f32, 8>;
+    var r: array<f32, 8>;
     let local = c & vec3<i32>(LIGHT_TABLE_LOCAL_MASK);
     if (all(local < vec3<i32>(LIGHT_TABLE_LOCAL_MASK))) {
         // The whole cell lies in one brick: one index lookup, eight loads (Volume::corners).
@@ -95,15 +114,22 @@ fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
         let sx = LIGHT_TABLE_STEP_X;
         v = array<f32, 8>(light_table_nodes[s], light_table_nodes[s + 1u], light_table_nodes[s + sy], light_table_nodes[s + sy + 1u],
                           light_table_nodes[s + sx], light_table_nodes[s + sx + 1u], light_table_nodes[s + sx + sy], light_table_nodes[s + sx + sy + 1u]);
+        let d = s + LIGHT_TABLE_BRICK_NODES;
+        r = array<f32, 8>(light_table_nodes[d], light_table_nodes[d + 1u], light_table_nodes[d + sy], light_table_nodes[d + sy + 1u],
+                          light_table_nodes[d + sx], light_table_nodes[d + sx + 1u], light_table_nodes[d + sx + sy], light_table_nodes[d + sx + sy + 1u]);
     } else {
         for (var n = 0; n < 8; n = n + 1) {
-            v[n] = light_table_node(t, c + vec3<i32>((n >> 2u) & 1, (n >> 1u) & 1, n & 1));
+            let node = light_table_node(t, c + vec3<i32>((n >> 2u) & 1, (n >> 1u) & 1, n & 1));
+            v[n] = node.x;
+            r[n] = node.y;
         }
     }
-    let l = volume_lerp(
-        volume_lerp(volume_lerp(vec4<f32>(v[0]), vec4<f32>(v[1]), w.z), volume_lerp(vec4<f32>(v[2]), vec4<f32>(v[3]), w.z), w.y),
-        volume_lerp(volume_lerp(vec4<f32>(v[4]), vec4<f32>(v[5]), w.z), volume_lerp(vec4<f32>(v[6]), vec4<f32>(v[7]), w.z), w.y),
-        w.x);
+    // Along the rays (corner bit 0, the lattice z), then bilinear across them.
+    let a00 = light_table_along_ray(v[0], v[1], r[0], r[1], w.z);
+    let a01 = light_table_along_ray(v[2], v[3], r[2], r[3], w.z);
+    let a10 = light_table_along_ray(v[4], v[5], r[4], r[5], w.z);
+    let a11 = light_table_along_ray(v[6], v[7], r[6], r[7], w.z);
+    let l = volume_lerp(volume_lerp(vec4<f32>(a00), vec4<f32>(a01), w.y), volume_lerp(vec4<f32>(a10), vec4<f32>(a11), w.y), w.x);
     var deviation = 0.0;
     for (var n = 0; n < 8; n = n + 1) {
         let f = select(vec3<f32>(1.0) - w, w, vec3<bool>(((n >> 2u) & 1) == 1, ((n >> 1u) & 1) == 1, (n & 1) == 1));

@@ -262,7 +262,7 @@ impl GpuLightTables {
         if index.is_empty() {
             index.push(0);
         }
-        let node_bytes = (bricks.max(1) * BRICK_VOXELS * size_of::<f32>()) as u64;
+        let node_bytes = (bricks.max(1) * crate::TABLE_BRICK_VALUES * size_of::<f32>()) as u64;
         Ok(GpuLightTables {
             tables: ctx.storage_buffer("light tables", &tables)?,
             index: ctx.storage_buffer("light table index", &index)?,
@@ -295,7 +295,7 @@ impl GpuLightTables {
             .iter()
             .map(|entry| {
                 entry.as_ref().map(|(plan, first)| {
-                    let range = first * BRICK_VOXELS..(first + plan.brick_count()) * BRICK_VOXELS;
+                    let range = first * crate::TABLE_BRICK_VALUES..(first + plan.brick_count()) * crate::TABLE_BRICK_VALUES;
                     OpticalDepthVolume::from_nodes(plan, &nodes[range], self.opaque_depth)
                 })
             })

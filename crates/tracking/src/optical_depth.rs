@@ -44,7 +44,7 @@
 
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
 use nimbus_optics::Light;
-use nimbus_volume::{lattice_cell, trilinear, brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
+use nimbus_volume::{lattice_cell, brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
 use crate::DensityMedium;
@@ -63,6 +63,27 @@ use crate::DensityMedium;
 /// scattering (0.95 with shadow rays). On the bundled scenes (optical depth up to 2 a voxel)
 /// few lookups reach it.
 pub const TABLED_SPREAD: [f32; 2] = [0.1, 0.15];
+
+/// Values a stored lattice brick holds: each node's transmittance, then each node's density
+/// (both in [`brick_offset`] order). The GPU's node buffer has the same layout.
+pub const TABLE_BRICK_VALUES: usize = 2 * BRICK_VOXELS;
+
+/// Transmittance at fraction `u` of the way from a ray's node k (transmittance `t0`, density
+/// `rho0`) to node k + 1 (`t1`, `rho1`): the nodes' exact optical depth between them,
+/// `ln(t0 / t1)`, spread along the ray as the integral of the density interpolated linearly
+/// between the nodes. Interpolating the transmittance linearly instead is exact only where
+/// the density is constant along the ray: where a ray enters a medium optically thick within
+/// one node step (a thin dense sheet, or flat voxels, whose dominant axis sets the step), the
+/// transmittance falls as exp(-c s^2), concave, and the chord lies below it (a sheet of
+/// 6 x 0.01 voxels under a grazing sun came out 0.9% dark in single scattering, 2.4% where
+/// the camera grazes it; 0.09% with shadow rays).
+#[inline]
+pub fn along_ray(t0: f32, t1: f32, rho0: f32, rho1: f32, u: f32) -> f32 {
+    let depth = (t0.max(f32::MIN_POSITIVE) / t1.max(f32::MIN_POSITIVE)).ln().max(0.0);
+    let mean = 0.5 * (rho0 + rho1);
+    let shape = if mean > 0.0 { (rho0 * u + 0.5 * (rho1 - rho0) * u * u) / mean } else { u };
+    t0 * (-depth * shape).exp()
+}
 
 /// A light table's answer at a point: the interpolated transmittance and the weight the
 /// caller's own shadow ray takes beside it (0 where the nodes agree, 1 across a shadow edge
@@ -111,6 +132,9 @@ pub struct OpticalDepthVolume {
     /// Transmittance toward the light at each lattice node (1 where nothing is stored: no
     /// medium lies toward the light from there).
     pub transmittance: Volume<f32>,
+    /// The density at each lattice node (0 where nothing is stored): the shape of the optical
+    /// depth between two nodes of a ray ([`along_ray`]).
+    pub node_density: Volume<f32>,
     /// Rays stopped integrating past this optical depth.
     pub opaque_depth: f64,
     /// The lattice it was built on.
@@ -132,26 +156,31 @@ impl OpticalDepthVolume {
     /// The table of `plan` from its nodes integrated elsewhere (the GPU backend): brick after
     /// brick in [`LightTablePlan::bricks`]' order, each in [`brick_offset`] order.
     pub fn from_nodes(plan: &LightTablePlan, nodes: &[f32], opaque_depth: f64) -> OpticalDepthVolume {
-        assert_eq!(nodes.len(), plan.brick_count() * BRICK_VOXELS, "one value per node of the plan's bricks");
-        plan.table(plan.bricks().zip(nodes.chunks_exact(BRICK_VOXELS)), opaque_depth)
+        assert_eq!(nodes.len(), plan.brick_count() * TABLE_BRICK_VALUES, "two values per node of the plan's bricks");
+        plan.table(plan.bricks().zip(nodes.chunks_exact(TABLE_BRICK_VALUES)), opaque_depth)
     }
 
     /// Transmittance toward the light from world point `x`, interpolated.
     #[inline]
     pub fn transmittance(&self, x: DVec3) -> f64 {
-        self.transmittance.sample_world(x) as f64
+        self.lookup(x).table
     }
 
     /// Transmittance toward the light from world point `x` as the lattice resolves it: the
-    /// interpolation, and how much of a shadow ray to take in its place where the eight nodes
-    /// around `x` stray from it across [`TABLED_SPREAD`].
+    /// interpolation ([`along_ray`] along the rays, bilinear across them), and how much of a
+    /// shadow ray to take in its place where the eight nodes around `x` stray from it across
+    /// [`TABLED_SPREAD`].
     #[inline]
     pub fn lookup(&self, x: DVec3) -> TabledTransmittance {
         let p = self.transmittance.transform().to_index(x);
         let Some((cell, uvw)) = lattice_cell(p) else { return TabledTransmittance { table: 1.0, ray_weight: 1.0 } };
         let c = self.transmittance.corners(cell);
-        let table = trilinear(&c, uvw);
+        let rho = self.node_density.corners(cell);
         let uvw = uvw.as_vec3();
+        // Corner n's bit 0 is the lattice z, the light's axis: pairs (n, n + 1) are one ray.
+        let ray = |n: usize| along_ray(c[n], c[n + 1], rho[n], rho[n + 1], uvw.z);
+        let lerp = |a: f32, b: f32, w: f32| a + (b - a) * w;
+        let table = lerp(lerp(ray(0), ray(2), uvw.y), lerp(ray(4), ray(6), uvw.y), uvw.x);
         let weight = |n: usize| {
             let f = |bit: usize, u: f32| if n >> bit & 1 == 1 { u } else { 1.0 - u };
             f(2, uvw.x) * f(1, uvw.y) * f(0, uvw.z)
@@ -298,14 +327,18 @@ impl LightTablePlan {
         self.columns.iter().map(|(_, ks)| ks.len()).sum()
     }
 
-    /// The table holding `bricks` (origin, values in [`brick_offset`] order), in storage order.
+    /// The table holding `bricks` (origin, [`TABLE_BRICK_VALUES`] values: the transmittances
+    /// in [`brick_offset`] order, then the node densities), in storage order.
     fn table<'a>(&self, bricks: impl Iterator<Item = (IVec3, &'a [f32])>, opaque_depth: f64) -> OpticalDepthVolume {
         let mut transmittance = Volume::new(self.transform, 1.0f32);
+        let mut node_density = Volume::new(self.transform, 0.0f32);
         const ALL: [u64; 8] = [u64::MAX; 8];
         for (origin, values) in bricks {
-            transmittance.insert_brick(origin, values, &ALL);
+            let (t, rho) = values.split_at(BRICK_VOXELS);
+            transmittance.insert_brick(origin, t, &ALL);
+            node_density.insert_brick(origin, rho, &ALL);
         }
-        OpticalDepthVolume { transmittance, opaque_depth, lattice: self.geometry.lattice }
+        OpticalDepthVolume { transmittance, node_density, opaque_depth, lattice: self.geometry.lattice }
     }
 }
 
@@ -383,10 +416,10 @@ impl LatticeGeometry {
     }
 
     /// Integrates the 8 x 8 rays of one brick column from its first stored node to its last,
-    /// and returns its bricks of transmittance (values in brick order).
+    /// and returns its bricks: transmittances, then node densities ([`TABLE_BRICK_VALUES`]).
     fn integrate_brick_column(&self, medium: DensityMedium, (bx, by): (i32, i32), ks: &[i32], opaque_depth: f64) -> Vec<(IVec3, Vec<f32>)> {
         let (k0, count) = LightTablePlan::column_nodes(ks);
-        let mut bricks: Vec<(IVec3, Vec<f32>)> = ks.iter().map(|&z| (IVec3::new(bx, by, z), vec![0.0f32; BRICK_VOXELS])).collect();
+        let mut bricks: Vec<(IVec3, Vec<f32>)> = ks.iter().map(|&z| (IVec3::new(bx, by, z), vec![0.0f32; TABLE_BRICK_VALUES])).collect();
         let mut tau = vec![0.0f64; count];
         for li in 0..BRICK_DIM {
             for lj in 0..BRICK_DIM {
@@ -394,7 +427,10 @@ impl LatticeGeometry {
                 ray_optical_depths(medium, start, self.dir_index, self.step, opaque_depth, &mut tau);
                 for (origin, values) in bricks.iter_mut() {
                     for lk in 0..BRICK_DIM {
-                        values[brick_offset(IVec3::new(li, lj, lk))] = (-tau[(origin.z + lk - k0) as usize]).exp() as f32;
+                        let node = IVec3::new(bx + li, by + lj, origin.z + lk);
+                        let offset = brick_offset(IVec3::new(li, lj, lk));
+                        values[offset] = (-tau[(origin.z + lk - k0) as usize]).exp() as f32;
+                        values[BRICK_VOXELS + offset] = medium.density.sample_index(self.to_density.transform_point3(node.as_dvec3())).max(0.0);
                     }
                 }
             }
