@@ -25,6 +25,8 @@ rel=${CARGO_TARGET_DIR:-target}/release
 run "$rel/nimbus-bench" --bin "$rel"
 # Single scattering at the defaults against a brute-force single-scatter march.
 run scripts/bench_single.sh
+# The same on scenes made from formulas that the bundled two are not (issue #30).
+run scripts/bench_unseen.sh out/unseen
 # A 24-frame sequence of the moving plume through nimbus-render, locally and on a one-node
 # Slurm cluster (as root), and frame-to-frame flicker (issue #20).
 run scripts/bench_sequence.sh out/bench/sequence
