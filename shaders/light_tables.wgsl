@@ -3,7 +3,9 @@
 // OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).
 //
 // Composed after volume.wgsl (its volume_lerp) and the host-generated brick layout
-// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2: GpuLightTables::wgsl prepends it).
+// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2, and LIGHT_TABLE_SPREAD and
+// LIGHT_TABLE_ALONG_FLOOR, nimbus_tracking's TABLED_SPREAD and ALONG_RAY_FLOOR:
+// light_tables_wgsl prepends them).
 // Binds group 2, whatever the number of lights:
 // - light_tables: one LightTable per light of the scene, `tabled` 0 where the light has none
 //   (point lights, dark suns, or every light when shadows are traced by rays);
@@ -12,7 +14,7 @@
 //   light_table_nodes, 0 where no brick is stored;
 // - light_table_nodes: every stored brick of every light, 512 transmittances each in
 //   nimbus_volume::brick_offset order (x-major, z fastest) followed by the 512 nodes'
-//   densities (nimbus_tracking::TABLE_BRICK_VALUES), the bricks in
+//   depth rates, extinction x density x node step (nimbus_tracking::TABLE_BRICK_VALUES), the bricks in
 //   LightTablePlan::bricks' order light after light. optical_depth.wgsl writes them (hence
 //   read_write), lookups read them.
 // A node no brick stores holds 1, the CPU table's background: no medium lies toward the
@@ -63,7 +65,7 @@ fn light_table_slot(t: LightTable, node: vec3<i32>) -> u32 {
     return (entry - 1u) * LIGHT_TABLE_BRICK_VALUES + l.x * LIGHT_TABLE_STEP_X + l.y * LIGHT_TABLE_STEP_Y + l.z;
 }
 
-// A node's transmittance (x) and density (y); unstored: 1 and 0, the CPU's backgrounds.
+// A node's transmittance (x) and depth rate (y); unstored: 1 and 0, the CPU's backgrounds.
 fn light_table_node(t: LightTable, node: vec3<i32>) -> vec2<f32> {
     let slot = light_table_slot(t, node);
     if (slot == LIGHT_TABLE_NO_SLOT) {
@@ -72,17 +74,13 @@ fn light_table_node(t: LightTable, node: vec3<i32>) -> vec2<f32> {
     return vec2<f32>(light_table_nodes[slot], light_table_nodes[slot + LIGHT_TABLE_BRICK_NODES]);
 }
 
-// nimbus_tracking::along_ray: the transmittance at fraction u from a ray's node k (t0, rho0)
-// to node k + 1 (t1, rho1), their optical depth spread as the integral of the linearly
-// interpolated density.
-fn light_table_along_ray(t0: f32, t1: f32, rho0: f32, rho1: f32, u: f32) -> f32 {
+// nimbus_tracking::along_ray: the transmittance at fraction u from a ray's node k (t0, depth
+// rate d0) to node k + 1 (t1, d1), their optical depth spread as the integral of the linearly
+// interpolated density, blended into the plain exponential below ALONG_RAY_FLOOR.
+fn light_table_along_ray(t0: f32, t1: f32, d0: f32, d1: f32, u: f32) -> f32 {
     let tiny = 1.17549435e-38;
     let depth = max(log(max(t0, tiny) / max(t1, tiny)), 0.0);
-    let mean = 0.5 * (rho0 + rho1);
-    var shape = u;
-    if (mean > 0.0) {
-        shape = (rho0 * u + 0.5 * (rho1 - rho0) * u * u) / mean;
-    }
+    let shape = (d0 * u + 0.5 * (d1 - d0) * u * u + LIGHT_TABLE_ALONG_FLOOR * u) / (0.5 * (d0 + d1) + LIGHT_TABLE_ALONG_FLOOR);
     return t0 * exp(-depth * shape);
 }
 

@@ -98,15 +98,15 @@ fn light_ray_integral(a: vec4<f32>, s: f32) -> f32 {
 }
 
 // Writes node k of the ray whose first node is lattice node `first`, optical depth `tau`,
-// as the transmittance the table holds, and the density at the node beside it, where a
-// stored brick holds it.
+// as the transmittance the table holds, and the node's depth rate (extinction x density x
+// step) beside it, where a stored brick holds it.
 fn light_ray_store(t: LightTable, first: vec3<i32>, k: u32, tau: f32) {
     let node = first + vec3<i32>(0, 0, i32(k));
     let slot = light_table_slot(t, node);
     if (slot != LIGHT_TABLE_NO_SLOT) {
         light_table_nodes[slot] = exp(-tau);
         let p = rays.across_i * f32(node.x) + rays.across_j * f32(node.y) + rays.along * f32(node.z);
-        light_table_nodes[slot + LIGHT_TABLE_BRICK_NODES] = max(volume_sample_index(p), 0.0);
+        light_table_nodes[slot + LIGHT_TABLE_BRICK_NODES] = rays.extinction * rays.step * max(volume_sample_index(p), 0.0);
     }
 }
 
