@@ -24,7 +24,10 @@ fn arguments(text: &str) -> Vec<(String, String)> {
     let lines: Vec<&str> = text.lines().collect();
     let mut args = Vec::new();
     for (i, line) in lines.iter().enumerate() {
-        let is_header = line.starts_with("  ") && !line.starts_with("   ") && matches!(line.trim_start().chars().next(), Some('-' | '[' | '<'));
+        // clap indents a header 2 spaces (6 for a long flag without a short one) and its
+        // description 10 in the long help.
+        let indent = line.len() - line.trim_start().len();
+        let is_header = (2..=6).contains(&indent) && matches!(line.trim_start().chars().next(), Some('-' | '[' | '<'));
         if !is_header {
             continue;
         }
@@ -34,7 +37,7 @@ fn arguments(text: &str) -> Vec<(String, String)> {
             None => (trimmed.to_string(), String::new()),
         };
         for next in &lines[i + 1..] {
-            if next.starts_with("      ") {
+            if next.starts_with("        ") {
                 description.push(' ');
                 description.push_str(next.trim());
             } else {

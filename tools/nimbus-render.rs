@@ -55,8 +55,7 @@ struct Args {
     /// array tasks each render: scripts/farm/slurm-submit.sh).
     #[arg(long, value_name = "N", requires = "frames", help_heading = "Sequence")]
     print_chunks: Option<usize>,
-    /// Trace a photon map (vdbphoton) and gather it in vdbcache (default: vdbcache's paths,
-    /// no photons).
+    /// Trace a photon map (vdbphoton) and gather it in vdbcache, instead of vdbcache's paths.
     #[arg(long, help_heading = "Quality")]
     photons: bool,
     /// Extra flags for particles2vdb, as one shell-quoted string ('--voxel-size 2'); in a

@@ -85,11 +85,11 @@ struct Args {
     /// With --reference: most scattering events per path.
     #[arg(long, default_value_t = ReferenceParams::DEFAULT_MAX_DEPTH, requires = "reference", help_heading = "Quality")]
     max_depth: u32,
-    /// With --reference: the lights (default: what the file records, else one sun from above).
+    /// The lights, for --reference (the march reads them from the cache).
     #[command(flatten)]
     lights: LightArgs,
     /// The sky or environment map: lights the scene with --reference; camera rays that
-    /// leave the volume see it (default: what the file records).
+    /// leave the volume see it.
     #[command(flatten)]
     environment: EnvironmentArgs,
     /// March step, world units. [default: the --quality preset's multiple of a third of a

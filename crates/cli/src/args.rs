@@ -14,6 +14,7 @@ use crate::{Failure, Log, PipelineMeta, Verbosity};
 
 /// `-q`, `-v`, `--device`.
 #[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "General")]
 pub struct CommonArgs {
     /// Print nothing but errors.
     #[arg(short, long, global = true, conflicts_with = "verbose")]
