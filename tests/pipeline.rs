@@ -549,3 +549,50 @@ fn the_view_transform_changes_only_the_preview() {
     }
     assert!(clipped > 0 && rolled_off == clipped, "{rolled_off} of {clipped} pixels Standard clips stay below white in AgX and Filmic");
 }
+
+/// Framing (issue #31): `-v` prints the density's world bounds and value range, and
+/// `--view-dir` looks at the bounds' centre along the direction from the distance that fits
+/// the bounding sphere in the field of view: the whole ball is in the image, and the image's
+/// border sees through it.
+#[test]
+fn view_dir_frames_the_volume_and_v_prints_its_bounds() {
+    let dir = scratch("framing");
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let (d, c, image) = (dir.join("d.vdb"), dir.join("c.vdb"), dir.join("i.exr"));
+    let out = run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "-v"]).arg("-o").arg(&d));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("density grid 'density': world bounds "), "{}", String::from_utf8_lossy(&out.stderr));
+    let (width, height) = (48u32, 27u32);
+    let out = run(Command::new(bin("vdbcache"))
+        .arg(&d)
+        .args(["--view-dir", "1,0.5,-0.25", "--width", &width.to_string(), "--height", &height.to_string(), "--paths", "2", "-v"])
+        .arg("-o")
+        .arg(&c));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("world bounds ") && err.contains(", values "), "{err}");
+    assert!(err.contains("camera: eye "), "{err}");
+    let file = nimbus_vdb::VdbFile::open(&c).unwrap();
+    let camera = nimbus_cli::PipelineMeta::of(&file).camera().unwrap().expect("the cache records its camera");
+    let (_, density) = nimbus_cli::read_density(&file, None).unwrap();
+    let (lo, hi) = density.world_bounds().unwrap();
+    let centre = 0.5 * (lo + hi);
+    assert!((camera.look_at() - centre).length() < 1e-9, "looks at the centre");
+    let along = glam::DVec3::new(1.0, 0.5, -0.25).normalize();
+    assert!((camera.forward() - along).length() < 1e-9, "looks along --view-dir: {:?}", camera.forward());
+    let half = (20f64.to_radians().tan() * height as f64 / width as f64).atan();
+    let radius = (0.5 * (hi - lo)).length();
+    assert!(((camera.eye() - centre).length() * half.sin() - radius).abs() < 1e-6 * radius, "the bounding sphere fits the narrower angle");
+    // The ball is inside the frame: the border pixels see (nearly) through, the middle not.
+    let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["-v"]).arg("-o").arg(&image));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("world bounds "));
+    let pixels = read_rgba(&image);
+    let (w, h) = (width as usize, height as usize);
+    let border = (0..w).flat_map(|x| [x, (h - 1) * w + x]).chain((0..h).flat_map(|y| [y * w, y * w + w - 1]));
+    let edge = border.map(|i| pixels[i][3]).fold(0.0f32, f32::max);
+    assert!(edge < 0.02, "the volume reaches the image's border: alpha {edge}");
+    assert!(pixels[(h / 2) * w + w / 2][3] > 0.1, "the middle sees the ball");
+    // --view-dir stands in for --eye and --look-at: not with them.
+    let out = Command::new(bin("vdbcache")).arg(&d).args(["--view-dir", "0,1,0", "--eye", "0,-5,0"]).arg("-o").arg(dir.join("x.vdb")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    std::fs::remove_dir_all(&dir).ok();
+}

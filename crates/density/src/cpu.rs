@@ -106,7 +106,7 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
     }
     let lengths: Vec<Option<Lengths>> = if method == Method::Ici {
         let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
-        let task = nimbus_progress::task("ladder", bricks);
+        let task = nimbus_progress::task("smoothing lengths", bricks);
         let sums: Vec<Option<Box<RungSums>>> = prep
             .bricks
             .par_iter()
@@ -118,7 +118,7 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
             .collect();
         crate::ici::choose_lengths(prep, &all[..rungs], &sums, pp.confidence)
     } else {
-        let task = nimbus_progress::task("lengths", bricks);
+        let task = nimbus_progress::task("smoothing lengths", bricks);
         prep.bricks
             .par_iter()
             .inspect(|_| task.advance(1))
