@@ -396,3 +396,48 @@ pub fn given_flags<A: clap::Args>(matches: &clap::ArgMatches) -> Vec<std::ffi::O
     }
     flags
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--view-dir`: the bounding sphere touches the narrower field of view, whatever the
+    /// direction and aspect.
+    #[test]
+    fn fit_view_fits_the_bounding_sphere() {
+        let (lo, hi) = (DVec3::new(-1.0, 0.0, 2.0), DVec3::new(3.0, 1.0, 4.0));
+        let radius = (0.5 * (hi - lo)).length();
+        for (dir, width, height) in [(DVec3::Y, 960, 540), (DVec3::new(1.0, -2.0, 0.5), 100, 300), (-DVec3::Z, 64, 64)] {
+            let (eye, centre) = fit_view(lo, hi, dir, 40.0, width, height);
+            assert_eq!(centre, DVec3::new(1.0, 0.5, 3.0));
+            assert!(((centre - eye).normalize() - dir.normalize()).length() < 1e-12);
+            let tan_x = 20f64.to_radians().tan();
+            let half = tan_x.min(tan_x * height as f64 / width as f64).atan();
+            assert!(((eye - centre).length() * half.sin() - radius).abs() < 1e-9);
+        }
+    }
+
+    #[derive(clap::Parser, Debug)]
+    struct Both {
+        #[command(flatten)]
+        lights: LightArgs,
+        #[command(flatten)]
+        camera: CameraArgs,
+        #[command(flatten)]
+        environment: crate::EnvironmentArgs,
+    }
+
+    /// What nimbus-render passes on is what was written, group by group, checked by the
+    /// typed parser first.
+    #[test]
+    fn given_flags_are_the_flags_as_written() {
+        let argv = ["t", "--sun", "dir=0,0,-1,irradiance=2", "--eye=-5,0,1", "--sun", "dir=1,0,0,irradiance=1", "--no-environment", "--fov", "30"];
+        let (both, matches) = parse_args_from::<Both>(argv);
+        assert_eq!(both.lights.sun.len(), 2);
+        let text = |f: Vec<std::ffi::OsString>| f.iter().map(|s| s.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ");
+        assert_eq!(text(given_flags::<LightArgs>(&matches)), "--sun dir=0,0,-1,irradiance=2 --sun dir=1,0,0,irradiance=1");
+        assert_eq!(text(given_flags::<CameraArgs>(&matches)), "--eye -5,0,1 --fov 30");
+        assert_eq!(text(given_flags::<crate::EnvironmentArgs>(&matches)), "--no-environment");
+        assert!(command::<Both>().try_get_matches_from(["t", "--fov", "-40"]).is_ok(), "negative numbers are values");
+    }
+}
