@@ -99,22 +99,15 @@ struct Args {
     common: CommonArgs,
 }
 
-/// The command line, with the shared flags kept as given for the tools they go to.
-fn parse(args: impl IntoIterator<Item = impl Into<OsString> + Clone>, parse: fn(Vec<OsString>) -> (Args, clap::ArgMatches)) -> Args {
-    let (mut parsed, matches) = parse(args.into_iter().map(Into::into).collect());
-    parsed.lighting_flags = [given_flags::<LightArgs>(&matches), given_flags::<EnvironmentArgs>(&matches), given_flags::<MediumArgs>(&matches)].concat();
-    parsed.camera_flags = given_flags::<CameraArgs>(&matches);
-    parsed
+/// The parsed command line, with the shared flags kept as given for the tools they go to.
+fn with_shared_flags((mut args, matches): (Args, clap::ArgMatches)) -> Args {
+    args.lighting_flags = [given_flags::<LightArgs>(&matches), given_flags::<EnvironmentArgs>(&matches), given_flags::<MediumArgs>(&matches)].concat();
+    args.camera_flags = given_flags::<CameraArgs>(&matches);
+    args
 }
 
 fn main() -> ExitCode {
-    let args = parse(std::env::args_os(), |argv| {
-        let parsed = nimbus_cli::parse_args_from::<Args>(argv);
-        if std::env::var_os("NIMBUS_PARSE_ONLY").is_some() {
-            std::process::exit(0);
-        }
-        parsed
-    });
+    let args = with_shared_flags(nimbus_cli::parse_args::<Args>());
     run(move || nimbus_render(args))
 }
 
@@ -437,7 +430,7 @@ mod tests {
     use super::{flags_for, shell_words, Args, Tool};
 
     fn flags(args: &[&str], chain: &[Tool]) -> Vec<String> {
-        let args = super::parse([&["nimbus-render", "in.ply", "-o", "out.exr"], args].concat(), nimbus_cli::parse_args_from::<Args>);
+        let args = super::with_shared_flags(nimbus_cli::parse_args_from::<Args>([&["nimbus-render", "in.ply", "-o", "out.exr"], args].concat()));
         chain.iter().enumerate().map(|(i, _)| flags_for(&args, chain, i, None).iter().map(|f| f.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ")).collect()
     }
 
