@@ -19,7 +19,7 @@ pub struct CommonArgs {
     /// Print nothing but errors.
     #[arg(short, long, global = true, conflicts_with = "verbose")]
     pub quiet: bool,
-    /// Print each stage's time and counts.
+    /// Print each stage's time and counts, and the density grid's world bounds and values.
     #[arg(short, long, global = true)]
     pub verbose: bool,
     /// Compute backend: auto uses a hardware GPU when there is one, else the CPU;
