@@ -120,13 +120,20 @@ fn bad_input_is_a_clear_error_with_exit_code_2_and_no_file() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `dir/d.vdb`: the density of 2000 particles at resolution 24, and what particles2vdb said.
+fn ball_density(dir: &Path, extra: &[&str]) -> (PathBuf, std::process::Output) {
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let d = dir.join("d.vdb");
+    let out = run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).args(extra).arg("-o").arg(&d));
+    (d, out)
+}
+
 #[test]
 fn metadata_carries_parameters_down_the_chain() {
     let dir = scratch("meta");
-    let ply = dir.join("ball.ply");
-    write_particles(&ply, 2000);
-    let (d, p, c) = (dir.join("d.vdb"), dir.join("p.vdb"), dir.join("c.vdb"));
-    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
+    let (d, _) = ball_density(&dir, &[]);
+    let (p, c) = (dir.join("p.vdb"), dir.join("c.vdb"));
     run(Command::new(bin("vdbphoton")).arg(&d).args(["--photons", "1000", "--albedo", "0.5", "--g", "0.4"]).arg("-o").arg(&p));
     // A different albedo than the photons were traced with draws a warning.
     let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--albedo", "0.7", "--width", "16", "--height", "16"]).arg("-o").arg(&c));
@@ -557,10 +564,8 @@ fn the_view_transform_changes_only_the_preview() {
 #[test]
 fn view_dir_frames_the_volume_and_v_prints_its_bounds() {
     let dir = scratch("framing");
-    let ply = dir.join("ball.ply");
-    write_particles(&ply, 2000);
-    let (d, c, image) = (dir.join("d.vdb"), dir.join("c.vdb"), dir.join("i.exr"));
-    let out = run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24", "-v"]).arg("-o").arg(&d));
+    let (d, out) = ball_density(&dir, &["-v"]);
+    let (c, image) = (dir.join("c.vdb"), dir.join("i.exr"));
     assert!(String::from_utf8_lossy(&out.stderr).contains("density grid 'density': world bounds "), "{}", String::from_utf8_lossy(&out.stderr));
     let (width, height) = (48u32, 27u32);
     let out = run(Command::new(bin("vdbcache"))
