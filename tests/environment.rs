@@ -210,3 +210,24 @@ fn a_missing_or_bad_map_is_a_clear_error() {
     assert_eq!(run_on_file("vdbcache", &input, &["--sky", "1", "--environment", map.to_str().unwrap()]).status.code(), Some(2));
     assert_eq!(run_on_file("vdbcache", &input, &["--sky=-1"]).status.code(), Some(2));
 }
+
+/// A map that is not 2:1 (a 16:9 frame, say) is still read as equirectangular, with a warning
+/// (issue #31).
+#[test]
+fn a_map_that_is_not_two_to_one_draws_a_warning() {
+    let dir = scratch("environment", "aspect");
+    let input = dir.join("ball.vdb");
+    std::fs::write(&input, ball_vdb()).unwrap();
+    let wide = dir.join("wide.exr");
+    exr::prelude::write_rgb_file(&wide, 32, 18, |_, _| (0.5f32, 0.5, 0.5)).unwrap();
+    let square = dir.join("latlong.exr");
+    exr::prelude::write_rgb_file(&square, 32, 16, |_, _| (0.5f32, 0.5, 0.5)).unwrap();
+    let flags = ["--paths", "1", "--width", "16", "--height", "9"];
+    let out = run_on_file("vdbcache", &input, &[&["--environment", wide.to_str().unwrap()], &flags[..]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning: the environment map is 32 x 18 pixels, not 2:1") && err.contains("wide.exr"), "{err}");
+    let out = run_on_file("vdbcache", &input, &[&["--environment", square.to_str().unwrap()], &flags[..]].concat());
+    assert!(out.status.success() && !String::from_utf8_lossy(&out.stderr).contains("2:1"), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -120,13 +120,20 @@ fn bad_input_is_a_clear_error_with_exit_code_2_and_no_file() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `dir/d.vdb`: the density of 2000 particles at resolution 24, and what particles2vdb said.
+fn ball_density(dir: &Path, extra: &[&str]) -> (PathBuf, std::process::Output) {
+    let ply = dir.join("ball.ply");
+    write_particles(&ply, 2000);
+    let d = dir.join("d.vdb");
+    let out = run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).args(extra).arg("-o").arg(&d));
+    (d, out)
+}
+
 #[test]
 fn metadata_carries_parameters_down_the_chain() {
     let dir = scratch("meta");
-    let ply = dir.join("ball.ply");
-    write_particles(&ply, 2000);
-    let (d, p, c) = (dir.join("d.vdb"), dir.join("p.vdb"), dir.join("c.vdb"));
-    run(Command::new(bin("particles2vdb")).arg(&ply).args(["--resolution", "24"]).arg("-o").arg(&d));
+    let (d, _) = ball_density(&dir, &[]);
+    let (p, c) = (dir.join("p.vdb"), dir.join("c.vdb"));
     run(Command::new(bin("vdbphoton")).arg(&d).args(["--photons", "1000", "--albedo", "0.5", "--g", "0.4"]).arg("-o").arg(&p));
     // A different albedo than the photons were traced with draws a warning.
     let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--albedo", "0.7", "--width", "16", "--height", "16"]).arg("-o").arg(&c));
@@ -548,4 +555,49 @@ fn the_view_transform_changes_only_the_preview() {
         }
     }
     assert!(clipped > 0 && rolled_off == clipped, "{rolled_off} of {clipped} pixels Standard clips stay below white in AgX and Filmic");
+}
+
+/// Framing (issue #31): `-v` prints the density's world bounds and value range, and
+/// `--view-dir` looks at the bounds' centre along the direction from the distance that fits
+/// the bounding sphere in the field of view: the whole ball is in the image, and the image's
+/// border sees through it.
+#[test]
+fn view_dir_frames_the_volume_and_v_prints_its_bounds() {
+    let dir = scratch("framing");
+    let (d, out) = ball_density(&dir, &["-v"]);
+    let (c, image) = (dir.join("c.vdb"), dir.join("i.exr"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("density grid 'density': world bounds "), "{}", String::from_utf8_lossy(&out.stderr));
+    let (width, height) = (48u32, 27u32);
+    let out = run(Command::new(bin("vdbcache"))
+        .arg(&d)
+        .args(["--view-dir", "1,0.5,-0.25", "--width", &width.to_string(), "--height", &height.to_string(), "--paths", "2", "-v"])
+        .arg("-o")
+        .arg(&c));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("world bounds ") && err.contains(", values "), "{err}");
+    assert!(err.contains("camera: eye "), "{err}");
+    let file = nimbus_vdb::VdbFile::open(&c).unwrap();
+    let camera = nimbus_cli::PipelineMeta::of(&file).camera().unwrap().expect("the cache records its camera");
+    let (_, density) = nimbus_cli::read_density(&file, None).unwrap();
+    let (lo, hi) = density.world_bounds().unwrap();
+    let centre = 0.5 * (lo + hi);
+    assert!((camera.look_at() - centre).length() < 1e-9, "looks at the centre");
+    let along = glam::DVec3::new(1.0, 0.5, -0.25).normalize();
+    assert!((camera.forward() - along).length() < 1e-9, "looks along --view-dir: {:?}", camera.forward());
+    let half = (20f64.to_radians().tan() * height as f64 / width as f64).atan();
+    let radius = (0.5 * (hi - lo)).length();
+    assert!(((camera.eye() - centre).length() * half.sin() - radius).abs() < 1e-6 * radius, "the bounding sphere fits the narrower angle");
+    // The ball is inside the frame: the border pixels see (nearly) through, the middle not.
+    let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["-v"]).arg("-o").arg(&image));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("world bounds "));
+    let pixels = read_rgba(&image);
+    let (w, h) = (width as usize, height as usize);
+    let border = (0..w).flat_map(|x| [x, (h - 1) * w + x]).chain((0..h).flat_map(|y| [y * w, y * w + w - 1]));
+    let edge = border.map(|i| pixels[i][3]).fold(0.0f32, f32::max);
+    assert!(edge < 0.02, "the volume reaches the image's border: alpha {edge}");
+    assert!(pixels[(h / 2) * w + w / 2][3] > 0.1, "the middle sees the ball");
+    // --view-dir stands in for --eye and --look-at: not with them.
+    let out = Command::new(bin("vdbcache")).arg(&d).args(["--view-dir", "0,1,0", "--eye", "0,-5,0"]).arg("-o").arg(dir.join("x.vdb")).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    std::fs::remove_dir_all(&dir).ok();
 }

@@ -210,6 +210,32 @@ fn nimbus_render_runs_the_chain_over_a_sequence() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--preview PATTERN` (expanded as the output) and a pattern passed through `--vdbmarch`
+/// (expanded per frame too) both write a PNG per frame (issue #31).
+#[test]
+fn nimbus_render_writes_previews() {
+    let dir = scratch("preview");
+    for f in [1, 2] {
+        write_ball(&dir.join(format!("p.{f:04}.ply")), 1200, 0.2 * f as f64);
+    }
+    run(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "a/i.$F4.exr", "--preview", "a/p.$F4.png", "--frames", "1-2", "-q"]).args(RENDER));
+    run(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "b/i.$F4.exr", "--frames", "1-2", "-q", "--vdbmarch", "--preview b/q.$F4.png"]).args(RENDER));
+    for f in [1, 2] {
+        for png in [format!("a/p.{f:04}.png"), format!("b/q.{f:04}.png")] {
+            let bytes = std::fs::read(dir.join(&png)).unwrap_or_else(|e| panic!("{png}: {e}"));
+            assert!(bytes.starts_with(b"\x89PNG"), "{png} is a PNG");
+        }
+        assert_eq!(std::fs::read(dir.join(format!("a/p.{f:04}.png"))).unwrap(), std::fs::read(dir.join(format!("b/q.{f:04}.png"))).unwrap());
+    }
+    // Both at once, or a preview without a pattern in a sequence, are usage errors.
+    let out = output(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "c/i.$F4.exr", "--preview", "c/p.$F4.png", "--frames", "1", "--vdbmarch", "--preview c/q.$F4.png"]).args(RENDER));
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let out = output(tool("nimbus-render", &dir).args(["p.$F4.ply", "-o", "c/i.$F4.exr", "--preview", "c/p.png", "--frames", "1-2"]).args(RENDER));
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("c/p.png"), "{}", stderr(&out));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn nimbus_render_usage_errors_exit_2() {
     let dir = scratch("render-usage");

@@ -555,3 +555,47 @@ fn path_traced_multiple_scattering_under_extremes() {
     run_file("vdbcache", &cube, &["--paths", "4", "--multiple-scale", "0"], &dir.join("bad.vdb")).expect_error(2, "multiple-scale");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A tool that fails in a pipe writes nothing; the next tool says once that its input was
+/// empty because of that (exit 2), and the tools after it say nothing more (issue #31).
+#[test]
+fn a_failure_in_a_pipe_is_reported_once_downstream() {
+    let dir = scratch("pipe-failure");
+    let image = dir.join("out.exr");
+    let mut first = Command::new(bin("particles2vdb")).arg(dir.join("missing.ply")).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut second = Command::new(bin("vdbcache")).stdin(first.stdout.take().unwrap()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let third = Command::new(bin("vdbmarch")).arg("-o").arg(&image).stdin(second.stdout.take().unwrap()).stderr(Stdio::piped()).spawn().unwrap();
+    let outs = [first.wait_with_output().unwrap(), second.wait_with_output().unwrap(), third.wait_with_output().unwrap()];
+    let err: Vec<String> = outs.iter().map(|o| String::from_utf8_lossy(&o.stderr).into_owned()).collect();
+    assert_eq!(outs.iter().map(|o| o.status.code()).collect::<Vec<_>>(), [Some(2); 3], "{err:?}");
+    assert!(err[0].contains("missing.ply"), "{}", err[0]);
+    assert_eq!(err[1].lines().count(), 1, "{}", err[1]);
+    assert!(err[1].starts_with("error: empty input: the tool before this one in the pipe wrote nothing"), "{}", err[1]);
+    assert!(err[2].is_empty(), "the third tool adds nothing: {}", err[2]);
+    assert!(!image.exists());
+    // An empty input from any other program is said as plainly.
+    let out = Command::new(bin("vdbmarch")).arg("-").arg("-o").arg(&image).stdin(Stdio::null()).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("empty input"), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A negative number reaches the tool's own check ("must be positive") instead of clap's tip
+/// to write `-- -1` (issue #31).
+#[test]
+fn negative_numbers_reach_the_tools_checks() {
+    let dir = scratch("negative");
+    let csv = dir.join("p.csv");
+    std::fs::write(&csv, "x,y,z\n0,0,0\n1,1,1\n0.5,0.2,0.7\n").unwrap();
+    let out = dir.join("d.vdb");
+    let r = run_file("particles2vdb", &csv, &["--voxel-size", "-1"], &out);
+    r.expect_error(2, "must be positive");
+    assert!(!r.stderr.contains("-- -1"), "{}", r.stderr);
+    density_vdb(&dir.join("cube.vdb"), 4, uniform(1.0), 1.0, DVec3::ZERO);
+    for (flag, value) in [("--fov", "-10"), ("--cache-scale", "-2"), ("--step", "-1")] {
+        let r = run_file("vdbcache", &dir.join("cube.vdb"), &[flag, value], &out);
+        assert_eq!(r.code, Some(2), "{flag} {value}: {}", r.stderr);
+        assert!(!r.stderr.contains("-- -"), "{flag} {value}: {}", r.stderr);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -23,113 +23,91 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
 
 use clap::{Parser, ValueEnum};
-use nimbus_cli::{for_each_frame, parse_dvec3, parse_rgb, run, CommonArgs, Failure, Log, Quality, SequenceArgs, Verbosity};
-use nimbus_optics::Light;
+use nimbus_cli::{for_each_frame, given_flags, run, CameraArgs, CommonArgs, EnvironmentArgs, Failure, FramePattern, LightArgs, Log, MediumArgs, Quality, SequenceArgs, Verbosity};
 use nimbus_vdb::{GridKind, VdbFile};
 
 #[derive(Parser, Debug, Clone)]
 #[command(
     name = "nimbus-render",
     version,
-    about = "Particles (or a density VDB) -> EXR through the whole nimbus chain, frame by frame over a sequence"
+    about = "Particles (or a density VDB) -> EXR through the whole nimbus chain, frame by frame over a sequence",
+    after_help = "Example:\n  nimbus-render 'smoke.$F4.ply' -o 'frames/smoke.$F4.exr' --preview 'frames/smoke.$F4.png' --frames 1-240 --sun dir=0.5,0.3,-0.8,irradiance=4 --sky 0.15,0.24,0.42 --extinction 30 --albedo 0.95 --view-dir 0,1,-0.3 --quality preview --particles2vdb '--voxel-size 2'"
 )]
 struct Args {
     /// Particle file (.ply, .csv, .tsv, .vdb points) or density .vdb; with a frame pattern
     /// (####, %04d, $F4) for a sequence.
+    #[arg(help_heading = "Input")]
     input: PathBuf,
     /// Output EXR, with a frame pattern for a sequence.
-    #[arg(short, long, value_name = "FILE.exr")]
+    #[arg(short, long, value_name = "FILE.exr", help_heading = "Output")]
     output: PathBuf,
+    /// Also write vdbmarch's PNG preview here, with a frame pattern for a sequence (expanded
+    /// as the output's is).
+    #[arg(long, value_name = "FILE.png", help_heading = "Output")]
+    preview: Option<PathBuf>,
     #[command(flatten)]
     sequence: SequenceArgs,
     /// Keep each frame's intermediate VDBs in DIR, named by the output's frame
     /// (DIR/smoke.0001.density.vdb, .photons.vdb, .cache.vdb); without it they are piped.
-    #[arg(long, value_name = "DIR")]
+    #[arg(long, value_name = "DIR", help_heading = "Output")]
     keep_intermediates: Option<PathBuf>,
     /// Print the frames in chunks of N frames, one frame set a line, and exit (what a farm's
     /// array tasks each render: scripts/farm/slurm-submit.sh).
-    #[arg(long, value_name = "N", requires = "frames")]
+    #[arg(long, value_name = "N", requires = "frames", help_heading = "Sequence")]
     print_chunks: Option<usize>,
-    /// Trace a photon map (vdbphoton) and gather it in vdbcache (default: vdbcache's paths,
-    /// no photons).
-    #[arg(long)]
+    /// Trace a photon map (vdbphoton) and gather it in vdbcache, instead of vdbcache's paths.
+    #[arg(long, help_heading = "Quality")]
     photons: bool,
-    /// Extra flags for particles2vdb, as one shell-quoted string ('--voxel-size 2').
-    #[arg(long = "particles2vdb", value_name = "ARGS", allow_hyphen_values = true)]
+    /// Extra flags for particles2vdb, as one shell-quoted string ('--voxel-size 2'); in a
+    /// sequence, frame patterns in them are expanded per frame.
+    #[arg(long = "particles2vdb", value_name = "ARGS", allow_hyphen_values = true, help_heading = "Tools")]
     particles2vdb_args: Option<String>,
     /// Extra flags for vdbphoton (with --photons).
-    #[arg(long = "vdbphoton", value_name = "ARGS", allow_hyphen_values = true)]
+    #[arg(long = "vdbphoton", value_name = "ARGS", allow_hyphen_values = true, help_heading = "Tools")]
     vdbphoton_args: Option<String>,
     /// Extra flags for vdbcache.
-    #[arg(long = "vdbcache", value_name = "ARGS", allow_hyphen_values = true)]
+    #[arg(long = "vdbcache", value_name = "ARGS", allow_hyphen_values = true, help_heading = "Tools")]
     vdbcache_args: Option<String>,
     /// Extra flags for vdbmarch.
-    #[arg(long = "vdbmarch", value_name = "ARGS", allow_hyphen_values = true)]
+    #[arg(long = "vdbmarch", value_name = "ARGS", allow_hyphen_values = true, help_heading = "Tools")]
     vdbmarch_args: Option<String>,
-    /// A sun: dir=X,Y,Z,irradiance=R,G,B (repeatable; to the lighting tool).
-    #[arg(long, value_name = "SPEC", value_parser = check(Light::parse_sun))]
-    sun: Vec<String>,
-    /// A point light: pos=X,Y,Z,intensity=R,G,B (repeatable; to the lighting tool).
-    #[arg(long, value_name = "SPEC", value_parser = check(Light::parse_point))]
-    point: Vec<String>,
-    /// Uniform sky radiance R,G,B (to the lighting tool).
-    #[arg(long, value_name = "R,G,B", value_parser = check(parse_rgb))]
-    sky: Option<String>,
-    /// An equirectangular HDR environment map (to the lighting tool).
-    #[arg(long, value_name = "FILE.exr")]
-    environment: Option<PathBuf>,
-    /// The environment map's strength.
-    #[arg(long, value_name = "S", requires = "environment")]
-    environment_strength: Option<f32>,
-    /// The environment map's turn about +Z, degrees.
-    #[arg(long, value_name = "DEG", requires = "environment", allow_negative_numbers = true)]
-    environment_rotation: Option<f32>,
-    /// Extinction per unit density (to the lighting tool).
-    #[arg(long, allow_negative_numbers = true)]
-    extinction: Option<f32>,
-    /// Single-scattering albedo, grey or R,G,B (to the lighting tool).
-    #[arg(long, value_parser = check(parse_rgb))]
-    albedo: Option<String>,
-    /// Henyey-Greenstein asymmetry (to the lighting tool).
-    #[arg(long, allow_negative_numbers = true)]
-    g: Option<f32>,
-    /// Camera position X,Y,Z (to vdbcache, which records it for vdbmarch).
-    #[arg(long, value_parser = check(parse_dvec3), allow_hyphen_values = true)]
-    eye: Option<String>,
-    /// Camera target X,Y,Z.
-    #[arg(long, value_parser = check(parse_dvec3), allow_hyphen_values = true)]
-    look_at: Option<String>,
-    /// Camera up X,Y,Z.
-    #[arg(long, value_parser = check(parse_dvec3), allow_hyphen_values = true)]
-    up: Option<String>,
-    /// Horizontal field of view, degrees.
-    #[arg(long)]
-    fov: Option<f64>,
-    #[arg(long)]
-    width: Option<u32>,
-    #[arg(long)]
-    height: Option<u32>,
-    /// Random seed (default 0, the same for every frame: noise does not crawl between frames).
-    #[arg(long)]
+    /// Lights, sky and environment: to the lighting tool (vdbphoton, else vdbcache).
+    #[command(flatten)]
+    lights: LightArgs,
+    #[command(flatten)]
+    environment: EnvironmentArgs,
+    /// The medium: to the lighting tool.
+    #[command(flatten)]
+    medium: MediumArgs,
+    /// The camera: to vdbcache, which records it for vdbmarch.
+    #[command(flatten)]
+    camera: CameraArgs,
+    /// The lights', environment's and medium's flags as given, passed on unchanged.
+    #[arg(skip)]
+    lighting_flags: Vec<OsString>,
+    /// The camera's flags as given.
+    #[arg(skip)]
+    camera_flags: Vec<OsString>,
+    /// Random seed, the same for every frame (noise does not crawl between frames). [default:
+    /// 0]
+    #[arg(long, help_heading = "Quality")]
     seed: Option<u64>,
     /// Preset for vdbphoton, vdbcache and vdbmarch: draft, preview or final.
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, help_heading = "Quality")]
     quality: Option<Quality>,
     #[command(flatten)]
     common: CommonArgs,
 }
 
-/// A value parser that checks the text with `parse` and keeps the text, passed on as given.
-fn check<T, E: std::fmt::Display>(parse: fn(&str) -> Result<T, E>) -> impl Fn(&str) -> Result<String, String> + Clone + Send + Sync + 'static
-where
-    T: 'static,
-    E: 'static,
-{
-    move |s: &str| parse(s).map(|_| s.to_string()).map_err(|e| e.to_string())
+/// The parsed command line, with the shared flags kept as given for the tools they go to.
+fn with_shared_flags((mut args, matches): (Args, clap::ArgMatches)) -> Args {
+    args.lighting_flags = [given_flags::<LightArgs>(&matches), given_flags::<EnvironmentArgs>(&matches), given_flags::<MediumArgs>(&matches)].concat();
+    args.camera_flags = given_flags::<CameraArgs>(&matches);
+    args
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
+    let args = with_shared_flags(nimbus_cli::parse_args::<Args>());
     run(move || nimbus_render(args))
 }
 
@@ -297,11 +275,33 @@ fn nimbus_render(args: Args) -> Result<(), Failure> {
     if let Some(dir) = &args.keep_intermediates {
         std::fs::create_dir_all(dir).map_err(|e| Failure::runtime(format!("cannot create the directory: {e}"), dir.display()))?;
     }
+    if args.preview.is_some() && extra.get(&Tool::Vdbmarch).is_some_and(|w| w.iter().any(|w| w == "--preview" || w.starts_with("--preview="))) {
+        return Err(Failure::usage("--preview is given twice: as nimbus-render's and in --vdbmarch"));
+    }
+    // The passthrough words holding a frame pattern (a `--vdbmarch '--preview p.$F4.png'`
+    // file name): expanded per frame like the outputs, by the same parser.
+    let patterned: Vec<(Tool, usize, PathBuf)> = extra
+        .iter()
+        .flat_map(|(&tool, words)| words.iter().enumerate().map(move |(i, w)| (tool, i, w)))
+        .filter(|(_, _, w)| FramePattern::parse(w).is_ok_and(|p| p.is_sequence()))
+        .map(|(tool, i, w)| (tool, i, PathBuf::from(w)))
+        .collect();
+    let mut outputs: Vec<Option<&Path>> = vec![Some(&args.output), args.preview.as_deref()];
+    outputs.extend(patterned.iter().map(|(_, _, w)| Some(w.as_path())));
     let verbosity = log.verbosity();
     drop(log);
-    for_each_frame("nimbus-render", &args.sequence, verbosity, Some(&args.input), &[Some(&args.output)], |input, outputs| {
+    for_each_frame("nimbus-render", &args.sequence, verbosity, Some(&args.input), &outputs, |input, outputs| {
         let input = input.expect("nimbus-render has an input");
         let output = outputs[0].clone().expect("nimbus-render has an output");
+        let mut extra = extra.clone();
+        for ((tool, i, _), name) in patterned.iter().zip(&outputs[2..]) {
+            if let (Some(words), Some(name)) = (extra.get_mut(tool), name) {
+                words[*i] = name.display().to_string();
+            }
+        }
+        if let Some(preview) = &outputs[1] {
+            extra.entry(Tool::Vdbmarch).or_default().extend(["--preview".to_string(), preview.display().to_string()]);
+        }
         if !input.exists() {
             return Err(Failure::input("no such file", input.display()));
         }
@@ -325,57 +325,18 @@ fn nimbus_render(args: Args) -> Result<(), Failure> {
 fn flags_for(args: &Args, chain: &[Tool], index: usize, extra: Option<&Vec<String>>) -> Vec<OsString> {
     let tool = chain[index];
     let mut f: Vec<OsString> = Vec::new();
+    // The tool that lights the volume records lights, environment and medium.
+    let lighting = if chain.contains(&Tool::Vdbphoton) { Tool::Vdbphoton } else { Tool::Vdbcache };
+    if tool == lighting {
+        f.extend(args.lighting_flags.iter().cloned());
+    }
+    if tool == Tool::Vdbcache {
+        f.extend(args.camera_flags.iter().cloned());
+    }
     let mut push = |name: &str, value: String| {
         f.push(format!("--{name}").into());
         f.push(value.into());
     };
-    // The tool that lights the volume records lights, environment and medium.
-    let lighting = if chain.contains(&Tool::Vdbphoton) { Tool::Vdbphoton } else { Tool::Vdbcache };
-    if tool == lighting {
-        for s in &args.sun {
-            push("sun", s.clone());
-        }
-        for p in &args.point {
-            push("point", p.clone());
-        }
-        if let Some(s) = &args.sky {
-            push("sky", s.clone());
-        }
-        if let Some(e) = &args.environment {
-            push("environment", e.display().to_string());
-        }
-        if let Some(s) = args.environment_strength {
-            push("environment-strength", s.to_string());
-        }
-        if let Some(r) = args.environment_rotation {
-            push("environment-rotation", r.to_string());
-        }
-        if let Some(x) = args.extinction {
-            push("extinction", x.to_string());
-        }
-        if let Some(a) = &args.albedo {
-            push("albedo", a.clone());
-        }
-        if let Some(g) = args.g {
-            push("g", g.to_string());
-        }
-    }
-    if tool == Tool::Vdbcache {
-        for (name, value) in [("eye", &args.eye), ("look-at", &args.look_at), ("up", &args.up)] {
-            if let Some(v) = value {
-                push(name, v.clone());
-            }
-        }
-        if let Some(v) = args.fov {
-            push("fov", v.to_string());
-        }
-        if let Some(v) = args.width {
-            push("width", v.to_string());
-        }
-        if let Some(v) = args.height {
-            push("height", v.to_string());
-        }
-    }
     // particles2vdb and vdbphoton record the seed (nimbus:seed) and the rest take it from the
     // file; vdbcache does not record it, so where the chain starts at vdbcache (a density
     // input, no photons) vdbmarch gets it too.
@@ -467,10 +428,9 @@ fn render_frame(stages: &[Stage], input: &Path, output: &Path, keep: Option<&Pat
 #[cfg(test)]
 mod tests {
     use super::{flags_for, shell_words, Args, Tool};
-    use clap::Parser;
 
     fn flags(args: &[&str], chain: &[Tool]) -> Vec<String> {
-        let args = Args::parse_from([&["nimbus-render", "in.ply", "-o", "out.exr"], args].concat());
+        let args = super::with_shared_flags(nimbus_cli::parse_args_from::<Args>([&["nimbus-render", "in.ply", "-o", "out.exr"], args].concat()));
         chain.iter().enumerate().map(|(i, _)| flags_for(&args, chain, i, None).iter().map(|f| f.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ")).collect()
     }
 

@@ -12,93 +12,104 @@ use nimbus_density::{estimate_cpu, estimate_gpu, read_particles_with, Attribute,
 use nimbus_vdb::{GridClass, PointAttribute, VdbFile, VectorType};
 
 #[derive(Parser, Debug, Clone)]
-#[command(name = "particles2vdb", version, about = "Particles -> OpenVDB density grid by adaptive SPH density estimation")]
+#[command(
+    name = "particles2vdb",
+    version,
+    about = "Particles -> OpenVDB density grid by adaptive SPH density estimation",
+    after_help = "Examples:\n  particles2vdb smoke.ply --voxel-size 2 | vdbcache --sun dir=0.5,0.3,-0.8,irradiance=4 | vdbmarch -o smoke.exr --preview smoke.png\n  particles2vdb 'smoke.$F4.ply' --frames 1-240 --voxel-size 2 -o 'density/smoke.$F4.vdb'"
+)]
 struct Args {
-    /// Particle file (.ply, .csv, .tsv, .vdb with points), or - for stdin.
+    /// Particle file (.ply, .csv, .tsv, .vdb with points), or - for stdin. [default: stdin
+    /// when it is not a terminal]
+    #[arg(help_heading = "Input")]
     input: Option<PathBuf>,
+    /// Input format when the extension does not tell (stdin): ply, csv, tsv or vdb.
+    /// [default: from the extension]
+    #[arg(long, help_heading = "Input")]
+    format: Option<String>,
+    /// OpenVDB points input only: read just the points of this point group (Houdini's groups;
+    /// without it every point is read, whatever its groups).
+    #[arg(long, help_heading = "Input")]
+    group: Option<String>,
+    /// Mass of each particle without a mass attribute.
+    #[arg(long, default_value_t = 1.0, help_heading = "Input")]
+    mass: f32,
     #[command(flatten)]
     out: VdbOutputArgs,
-    /// Input format when the extension does not tell (stdin): ply, csv, tsv or vdb.
-    #[arg(long)]
-    format: Option<String>,
-    /// Smoothing-length method: ici (the default: per grid point the length, from a ladder
+    /// Smoothing-length method: ici (per grid point the length, from a ladder
     /// between --h-min and h0, whose estimated error is least, the bias from the differences
     /// between lengths averaged about the point plus the noise), usl (uniform), asl2, asl3
     /// (adaptive by a neighbour count, the paper's), knn (exact neighbour reference).
-    #[arg(long, default_value = "ici", value_parser = ["usl", "asl2", "asl3", "knn", "ici"])]
+    #[arg(long, default_value = "ici", value_parser = ["usl", "asl2", "asl3", "knn", "ici"], help_heading = "Quality")]
     method: String,
-    /// Upper bound of the smoothing length (world units), or auto.
-    #[arg(long, default_value = "auto")]
+    /// Upper bound of the smoothing length (world units), or auto (from a histogram of the
+    /// particles' number density; -v prints the choice).
+    #[arg(long, default_value = "auto", help_heading = "Quality")]
     h0: String,
-    /// N*: target neighbour count of the adaptive methods (and of --h0 auto). The default 80,
-    /// with --h-min 1.2vox, comes within 3% of a hand-tuned --method usl on steep-contrast test
-    /// scenes and a smooth plume, and puts 1-4% more mass into the grid than the particles
-    /// carry where lengths vary steeply (--conserve-mass makes it exact); 32 takes about 0.6x
-    /// the time; smooth media are less noisy with larger N*.
-    #[arg(long, default_value_t = nimbus_density::DEFAULT_NEIGHBOURS)]
+    /// N*: target neighbour count of the adaptive methods (and of --h0 auto). At 80, with
+    /// --h-min 1.2vox, asl3 comes within 3% of a hand-tuned --method usl on steep-contrast
+    /// test scenes and a smooth plume, and puts 1-4% more mass into the grid than the
+    /// particles carry where lengths vary steeply (--conserve-mass makes it exact); 32 takes
+    /// about 0.6x the time; smooth media are less noisy with larger N*.
+    #[arg(long, default_value_t = nimbus_density::DEFAULT_NEIGHBOURS, help_heading = "Quality")]
     neighbours: u32,
     /// asl3 relaxation s in [0,1] for overestimated lengths.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, help_heading = "Quality")]
     relax: f32,
     /// Smallest smoothing length: a world length, or voxel sizes with the suffix vox (0.8vox),
     /// which also works where --resolution decides the voxel size; auto is 1.2vox, and 0.75vox
     /// for --method ici (its rule goes below 1.2 only where the particles pay for it).
-    #[arg(long, default_value_t = HMin::Auto, value_parser = parse_h_min)]
+    #[arg(long, default_value_t = HMin::Auto, value_parser = parse_h_min, help_heading = "Quality")]
     h_min: HMin,
-    /// Mass of each particle without a mass attribute.
-    #[arg(long, default_value_t = 1.0)]
-    mass: f32,
     /// Normalise each particle's mass by its kernel's sum over the grid, so the grid holds
     /// exactly the particles' mass where smoothing lengths vary steeply (one more kernel pass).
-    #[arg(long)]
+    #[arg(long, help_heading = "Quality")]
     conserve_mass: bool,
-    /// Voxel edge (world units).
-    #[arg(long, conflicts_with = "resolution")]
+    /// Voxel edge (world units). [default: from --resolution]
+    #[arg(long, conflicts_with = "resolution", help_heading = "Output")]
     voxel_size: Option<f64>,
-    /// Voxels along the longest axis of the bounds (default 256).
-    #[arg(long)]
+    /// Voxels along the longest axis of the bounds (instead of --voxel-size). [default: 256]
+    #[arg(long, help_heading = "Output")]
     resolution: Option<u32>,
-    /// Grid bounds as MINX,MINY,MINZ,MAXX,MAXY,MAXZ (default: the particles padded by the kernel).
-    /// (Hyphen values: a list such as -1,-1,-1,1,1,1 is not a negative number to clap.)
-    #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
+    /// Grid bounds as MINX,MINY,MINZ,MAXX,MAXY,MAXZ (a list such as -1,-1,-1,1,1,1 is taken
+    /// as one value). [default: the particles' bounds padded by the kernel]
+    #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true, help_heading = "Output")]
     bounds: Option<(DVec3, DVec3)>,
     /// Refuse grids whose bounding box would exceed this many voxels.
-    #[arg(long, default_value_t = 1u64 << 30)]
+    #[arg(long, default_value_t = 1u64 << 30, help_heading = "Output")]
     max_voxels: u64,
     /// fBm noise amplitude on the density (0 = off).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, help_heading = "Medium")]
     noise: f32,
     /// Noise feature size (world units).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, help_heading = "Medium")]
     noise_scale: f64,
-    #[arg(long, default_value_t = 4)]
+    /// Octaves of the fBm noise, each twice the frequency and half the amplitude of the last.
+    #[arg(long, default_value_t = 4, help_heading = "Medium")]
     noise_octaves: u32,
     /// Evaluate the noise at this vec3 particle attribute (a rest position, Houdini's `rest`)
     /// interpolated like `--attribute`, instead of at the world position: the pattern then
     /// moves and deforms with the particles instead of the particles moving through it.
-    #[arg(long, value_name = "ATTRIBUTE")]
+    #[arg(long, value_name = "ATTRIBUTE", help_heading = "Medium")]
     noise_rest: Option<String>,
-    #[arg(long, default_value_t = 0)]
+    /// Random seed of the noise (recorded for the later tools, whose random choices it keys).
+    #[arg(long, default_value_t = 0, help_heading = "Medium")]
     seed: u64,
     /// Also write `smoothing_length` and `neighbour_count` grids. They are not fog volumes, so
     /// `--compression zip` applies to them (OpenVDB leaves fog volumes alone) and their write
     /// takes seconds on a few million voxels, about 10x the default blosc's.
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     aux: bool,
     /// Print the paper's Table 2 statistics (particles used per occupied grid point).
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     stats: bool,
     /// Also write particle attribute NAME as a grid (repeatable; NAME:GRID renames it), by SPH
     /// interpolation with the density's smoothing lengths, normalised by the kernel sum. A
     /// vec3 is NAME_x NAME_y NAME_z (or NAMEx.., NAME.x.., NAME[0]..) in PLY and CSV. `v`
     /// (also found as `vel`, `velocity`) becomes the velocity grid `v`, `Cd` (`color`,
     /// `colour`) the grid `color`; other names keep theirs (`temperature`, `heat`). CPU only.
-    #[arg(long = "attribute", value_name = "NAME[:GRID]")]
+    #[arg(long = "attribute", value_name = "NAME[:GRID]", help_heading = "Output")]
     attributes: Vec<String>,
-    /// OpenVDB points input only: read just the points of this point group (Houdini's groups;
-    /// without it every point is read, whatever its groups).
-    #[arg(long)]
-    group: Option<String>,
     #[command(flatten)]
     sequence: SequenceArgs,
     #[command(flatten)]
@@ -119,7 +130,7 @@ fn parse_bounds(s: &str) -> Result<(DVec3, DVec3), String> {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
+    let (args, _) = nimbus_cli::parse_args::<Args>();
     // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
     run(move || {
         let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
@@ -325,6 +336,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         e @ nimbus_density::DensityError::Gpu(_) => Failure::runtime(e, "--device gpu"),
         e => Failure::usage(e),
     })?;
+    log.verbose(nimbus_cli::describe_density("density", &output.density));
     let s = &output.stats;
     log.verbose(format!(
         "method {}, h0 {:.6} ({}), voxel {:.6}, conserve mass {}, grid mass {:.6}, max density {:.6}",

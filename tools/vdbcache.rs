@@ -15,15 +15,22 @@ use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
 
 #[derive(Parser, Debug, Clone)]
-#[command(name = "vdbcache", version, about = "Photon VDB -> illumination cache grids (single + multiple scattering) baked for a camera")]
+#[command(
+    name = "vdbcache",
+    version,
+    about = "Density (or photon) VDB -> illumination cache grids (single + multiple scattering) baked for a camera",
+    after_help = "Example:\n  particles2vdb smoke.ply --voxel-size 2 | vdbcache --extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4 --sky 0.15,0.25,0.45 --view-dir 0,1,-0.3 | vdbmarch -o smoke.exr --preview smoke.png"
+)]
 struct Args {
-    /// Input VDB from vdbphoton (or any fog volume, for single scattering), or - for stdin.
+    /// Input VDB: any fog volume (or vdbphoton's output), or - for stdin. [default: stdin
+    /// when it is not a terminal]
+    #[arg(help_heading = "Input")]
     input: Option<PathBuf>,
+    /// The density grid. [default: what the input records, else density]
+    #[arg(long, help_heading = "Input")]
+    grid: Option<String>,
     #[command(flatten)]
     out: VdbOutputArgs,
-    /// The density grid (default: what the file records, else `density`).
-    #[arg(long)]
-    grid: Option<String>,
     #[command(flatten)]
     medium: MediumArgs,
     #[command(flatten)]
@@ -34,58 +41,58 @@ struct Args {
     camera: CameraArgs,
     /// Simpson step toward the lights, as a fraction of the smallest voxel edge (Simpson
     /// panels also split at voxel boundaries, so the trilinear density is integrated exactly).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, help_heading = "Quality")]
     step: f64,
-    /// Li_single's cache voxel edge in density voxels (default 1: single scattering's
-    /// shadows are as sharp as the density; or the --quality preset's).
-    #[arg(long)]
+    /// Li_single's cache voxel edge in density voxels (1: single scattering's shadows are as
+    /// sharp as the density). [default: the --quality preset's, else 1]
+    #[arg(long, help_heading = "Quality")]
     cache_scale: Option<f64>,
-    /// Li_multiple's own cache voxel edge in density voxels (default 2, or the --quality
-    /// preset's): multiple scattering is smoother than single, so a coarser lattice holds it
-    /// at an eighth of the voxels.
-    #[arg(long, value_name = "SCALE")]
+    /// Li_multiple's own cache voxel edge in density voxels: multiple scattering is smoother
+    /// than single, so a coarser lattice holds it at an eighth of the voxels. [default: the
+    /// --quality preset's, else 2]
+    #[arg(long, value_name = "SCALE", help_heading = "Quality")]
     multiple_scale: Option<f64>,
-    /// Photons per multiple-scattering estimate, adaptive radius (default 64, or the
-    /// --quality preset's).
-    #[arg(long, conflicts_with = "radius")]
+    /// Gather vdbphoton's photons for multiple scattering, K per estimate, adaptive radius
+    /// (instead of --paths). [default: the --quality preset's, else 64, with --radius unset]
+    #[arg(long, value_name = "K", conflicts_with = "radius", help_heading = "Quality")]
     gather_neighbours: Option<u32>,
     /// Preset: draft, preview or final (lattices and --paths; flags override, and
     /// --gather-neighbours or --radius gathers photons instead of tracing paths).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, help_heading = "Quality")]
     quality: Option<Quality>,
     /// Fixed gather radius (world units) instead of --gather-neighbours.
-    #[arg(long)]
+    #[arg(long, help_heading = "Quality")]
     radius: Option<f64>,
-    /// Paths traced from the cache voxels for multiple scattering, N per voxel on average
-    /// (default 64, or the --quality preset's): unbiased, and needs no photons (vdbphoton can
-    /// be left out of the chain). They start where the camera's rays read each voxel and go
-    /// where the image depends most on it (seen through clear air, in dense medium, by many
-    /// pixels); voxels no ray reads get none.
-    #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"])]
+    /// Paths traced from the cache voxels for multiple scattering, N per voxel on average:
+    /// unbiased, and needs no photons (vdbphoton can be left out of the chain). They start
+    /// where the camera's rays read each voxel and go where the image depends most on it
+    /// (seen through clear air, in dense medium, by many pixels); voxels no ray reads get
+    /// none. [default: the --quality preset's, else 64]
+    #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"], help_heading = "Quality")]
     paths: Option<u32>,
-    /// Random seed of --paths (default: what the file records, else 0).
-    #[arg(long)]
+    /// Random seed of --paths. [default: what the input records, else 0]
+    #[arg(long, help_heading = "Quality")]
     seed: Option<u64>,
     /// Largest adaptive gather radius, in density voxels.
-    #[arg(long, default_value_t = 12.0)]
+    #[arg(long, default_value_t = 12.0, help_heading = "Quality")]
     max_radius: f64,
     /// Shadow rays stop below this transmittance.
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(long, default_value_t = 1e-4, help_heading = "Quality")]
     min_transmittance: f64,
     /// Transmittance toward the lights: `table` integrates each sun's optical depth once on
     /// a light-aligned lattice (rays half a voxel apart) and looks it up; `rays` traces a
     /// shadow ray per cache voxel and path vertex (the old way, for comparison). Point lights
     /// always trace rays.
-    #[arg(long, default_value = "table", value_parser = ["table", "rays"])]
+    #[arg(long, default_value = "table", value_parser = ["table", "rays"], help_heading = "Quality")]
     shadows: String,
     /// Skip single scattering.
-    #[arg(long)]
+    #[arg(long, help_heading = "Quality")]
     no_single: bool,
     /// Skip multiple scattering.
-    #[arg(long)]
+    #[arg(long, help_heading = "Quality")]
     no_multiple: bool,
     /// Copy the photons grid to the output too.
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     keep_photons: bool,
     /// The medium's emission, which the paths gather so a fire lights its own smoke (the
     /// emission vdbmarch adds along camera rays is the same; pass it the same flags).
@@ -98,7 +105,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
+    let (args, _) = nimbus_cli::parse_args::<Args>();
     // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
     run(move || {
         let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
@@ -150,7 +157,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
     let (grid, density) = read_density(&file, args.grid.as_deref())?;
     let photons = read_photons(&file)?;
-    log.verbose(format!("density '{grid}': {} active voxels; {} photons", density.active_voxel_count(), photons.len()));
+    log.verbose(format!("{}; {} photons", nimbus_cli::describe_density(&grid, &density), photons.len()));
     let meta = PipelineMeta::of(&file);
     let traced = (!photons.is_empty()).then_some("the photons were traced with");
     let voxel = density.transform().voxel_size().min_element();

@@ -43,30 +43,36 @@ impl From<View> for ViewTransform {
 }
 
 #[derive(Parser, Debug, Clone)]
-#[command(name = "vdbmarch", version, about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups")]
+#[command(
+    name = "vdbmarch",
+    version,
+    about = "Cache VDB -> EXR image by ray marching with illumination-cache lookups",
+    after_help = "Examples:\n  particles2vdb smoke.ply --voxel-size 2 | vdbcache | vdbmarch -o smoke.exr --preview smoke.png --exposure 0.5\n  vdbmarch --reference density.vdb --sun dir=0.5,0.3,-0.8,irradiance=4 --spp 256 -o reference.exr"
+)]
 struct Args {
-    /// Input VDB from vdbcache, or - for stdin.
+    /// Input VDB from vdbcache, or - for stdin. [default: stdin when it is not a terminal]
+    #[arg(help_heading = "Input")]
     input: Option<PathBuf>,
-    /// Output EXR file, or - for stdout.
-    #[arg(short, long, value_name = "FILE.exr")]
+    /// The density grid. [default: what the input records, else density]
+    #[arg(long, help_heading = "Input")]
+    grid: Option<String>,
+    /// Output EXR file, or - for stdout. [default: stdout when it is not a terminal]
+    #[arg(short, long, value_name = "FILE.exr", help_heading = "Output")]
     output: Option<PathBuf>,
     /// Also write an 8-bit sRGB PNG preview here (RGB, over the background; no alpha).
-    #[arg(long, value_name = "FILE.png")]
+    #[arg(long, value_name = "FILE.png", help_heading = "Output")]
     preview: Option<PathBuf>,
     /// Preview exposure in stops: the scene values are multiplied by 2^EV before the view
     /// transform, as Blender's Exposure (the EXR is not changed).
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, help_heading = "Output")]
     exposure: f32,
     /// The preview's view transform, as Blender's colour management shows an image on an
     /// sRGB display (the EXR stays linear, scene-referred, and does not record it).
-    #[arg(long, value_enum, default_value_t = View::Agx)]
+    #[arg(long, value_enum, default_value_t = View::Agx, help_heading = "Output")]
     view: View,
     /// Add the layers single, multiple, transmittance and depth to the EXR.
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     aovs: bool,
-    /// The density grid (default: what the file records, else `density`).
-    #[arg(long)]
-    grid: Option<String>,
     #[command(flatten)]
     medium: MediumArgs,
     #[command(flatten)]
@@ -74,50 +80,51 @@ struct Args {
     /// Render the ground truth instead: an unbiased path tracer (delta tracking, next-event
     /// estimation with ratio tracking, all orders of scattering) over the density alone;
     /// the input needs no photons or cache. Slow: use --spp 64 and up.
-    #[arg(long)]
+    #[arg(long, help_heading = "Quality")]
     reference: bool,
     /// With --reference: most scattering events per path.
-    #[arg(long, default_value_t = ReferenceParams::DEFAULT_MAX_DEPTH, requires = "reference")]
+    #[arg(long, default_value_t = ReferenceParams::DEFAULT_MAX_DEPTH, requires = "reference", help_heading = "Quality")]
     max_depth: u32,
-    /// With --reference: the lights (default: what the file records, else one sun from above).
+    /// The lights, for --reference (the march reads them from the cache).
     #[command(flatten)]
     lights: LightArgs,
     /// The sky or environment map: lights the scene with --reference; camera rays that
-    /// leave the volume see it (default: what the file records).
+    /// leave the volume see it.
     #[command(flatten)]
     environment: EnvironmentArgs,
-    /// March step, world units (default one third of a voxel diagonal).
-    #[arg(long)]
+    /// March step, world units. [default: the --quality preset's multiple of a third of a
+    /// density voxel's diagonal, else a third of it]
+    #[arg(long, help_heading = "Quality")]
     step: Option<f64>,
     /// Most the step is lengthened where the density is optically thin (1 = a fixed step):
     /// in each majorant cell, by the largest whole factor keeping a step's optical depth at
-    /// the cell's density bound within 1/4 (default 1: longer steps sample the cache's
-    /// shadow edges too sparsely; 2 saves 15% of the march).
-    #[arg(long)]
+    /// the cell's density bound within 1/4 (longer steps sample the cache's shadow edges too
+    /// sparsely; 2 saves 15% of the march). [default: 1]
+    #[arg(long, help_heading = "Quality")]
     max_step_factor: Option<u32>,
-    /// Samples per pixel, stratified (default: enough for a pixel's samples to lie half a
-    /// density voxel apart at the volume, 1 to 16; or the --quality preset's). Paths per
-    /// pixel with --reference (default 1).
-    #[arg(long)]
+    /// Samples per pixel, stratified; paths per pixel with --reference. [default: the
+    /// --quality preset's, else enough for a pixel's samples to lie half a density voxel
+    /// apart at the volume, 1 to 16; 1 with --reference]
+    #[arg(long, help_heading = "Quality")]
     spp: Option<u32>,
     /// Preset: draft, preview or final (march step and spp; flags override).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, help_heading = "Quality")]
     quality: Option<Quality>,
-    /// Background radiance R,G,B (or one grey value) seen through the volume (default: the
-    /// environment where there is one, as Blender shows the World, else black).
-    #[arg(long, value_parser = parse_rgb)]
+    /// Background radiance R,G,B (or one grey value) seen through the volume. [default: the
+    /// environment where there is one, as Blender shows the World, else black]
+    #[arg(long, value_parser = parse_rgb, value_name = "R,G,B", help_heading = "Lights")]
     background: Option<Vec3>,
     /// Amplitude of the Perlin offset noise on sample positions, world units (0 = off).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, help_heading = "Medium")]
     offset_noise: f64,
-    /// Feature size of the offset noise, world units (default four voxels).
-    #[arg(long)]
+    /// Feature size of the offset noise, world units. [default: four density voxels]
+    #[arg(long, help_heading = "Medium")]
     noise_scale: Option<f64>,
     /// Rays stop below this transmittance.
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(long, default_value_t = 1e-4, help_heading = "Quality")]
     min_transmittance: f64,
-    /// Random seed (default: what the file records, else 0).
-    #[arg(long)]
+    /// Random seed. [default: what the input records, else 0]
+    #[arg(long, help_heading = "Quality")]
     seed: Option<u64>,
     #[command(flatten)]
     emission: EmissionArgs,
@@ -130,7 +137,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
+    let (args, _) = nimbus_cli::parse_args::<Args>();
     // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
     run(move || {
         let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
@@ -151,7 +158,8 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
         }
     }
     let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
-    let (_, density) = read_density(&file, args.grid.as_deref())?;
+    let (grid, density) = read_density(&file, args.grid.as_deref())?;
+    log.verbose(nimbus_cli::describe_density(&grid, &density));
     let velocity = args.motion.resolve(&file, &log)?;
     let (mut image, emission) =
         if args.reference { reference(&args, &file, &density, velocity.as_ref(), &log)? } else { march(&args, &file, &density, velocity.as_ref(), &log)? };

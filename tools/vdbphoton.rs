@@ -15,15 +15,21 @@ use nimbus_photon::{trace_cpu_emitting, trace_gpu_emitting, DistanceSampling, Ph
 use nimbus_vdb::PointSet;
 
 #[derive(Parser, Debug, Clone)]
-#[command(name = "vdbphoton", version, about = "Density VDB -> photon map (OpenVDB points) by photon tracing")]
+#[command(
+    name = "vdbphoton",
+    version,
+    about = "Density VDB -> photon map (OpenVDB points) by photon tracing",
+    after_help = "Example (the paper's photon-map chain):\n  particles2vdb smoke.ply --voxel-size 2 | vdbphoton --sun dir=0.5,0.3,-0.8,irradiance=4 --extinction 30 | vdbcache --gather-neighbours 64 | vdbmarch -o smoke.exr"
+)]
 struct Args {
-    /// Input VDB with a fog volume, or - for stdin.
+    /// Input VDB with a fog volume, or - for stdin. [default: stdin when it is not a terminal]
+    #[arg(help_heading = "Input")]
     input: Option<PathBuf>,
+    /// The density grid. [default: what the input records, else density]
+    #[arg(long, help_heading = "Input")]
+    grid: Option<String>,
     #[command(flatten)]
     out: VdbOutputArgs,
-    /// The density grid (default: what the file records, else `density`).
-    #[arg(long)]
-    grid: Option<String>,
     #[command(flatten)]
     medium: MediumArgs,
     #[command(flatten)]
@@ -31,29 +37,29 @@ struct Args {
     /// The sky or environment map: photons also leave it, stored from their first interaction.
     #[command(flatten)]
     environment: EnvironmentArgs,
-    /// Free-path sampling: delta (delta tracking, unbiased; the default: 1.4-2.1x more
+    /// Free-path sampling: delta (delta tracking, unbiased: 1.4-2.1x more
     /// accurate than simpson at equal time), simpson (the paper's Eq. 2) or exponential
-    /// (Eq. 1, biased); the last two for comparison.
-    #[arg(long)]
+    /// (Eq. 1, biased); the last two for comparison. [default: delta]
+    #[arg(long, help_heading = "Quality")]
     distance: Option<DistanceSampling>,
     /// Simpson step (and exponential search step), as a fraction of the smallest voxel edge;
     /// delta tracking takes none.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, help_heading = "Quality")]
     step: f64,
-    /// Photons to store (default 200000, or the --quality preset's).
-    #[arg(long)]
+    /// Photons to store. [default: the --quality preset's, else 200000]
+    #[arg(long, help_heading = "Quality")]
     photons: Option<u64>,
     /// Preset: draft, preview or final (photon count and distance mode; flags override).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, help_heading = "Quality")]
     quality: Option<Quality>,
     /// Stop emitting after this many photons even if fewer were stored.
-    #[arg(long, default_value_t = 50_000_000)]
+    #[arg(long, default_value_t = 50_000_000, help_heading = "Quality")]
     max_emitted: u64,
     /// Interactions after which a path ends.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, help_heading = "Quality")]
     max_interactions: u32,
-    /// Random seed (default: what the file records, else 0).
-    #[arg(long)]
+    /// Random seed. [default: what the input records, else 0]
+    #[arg(long, help_heading = "Quality")]
     seed: Option<u64>,
     /// The medium's emission: photons also leave the emitting voxels, stored from their first
     /// interaction on (a fire lights its own smoke through the photon gather).
@@ -66,7 +72,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
+    let (args, _) = nimbus_cli::parse_args::<Args>();
     // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
     run(move || {
         let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
@@ -82,7 +88,7 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let input = Input::from_arg(args.input.as_deref())?;
     let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
     let (grid, density) = read_density(&file, args.grid.as_deref())?;
-    log.verbose(format!("density grid '{grid}': {} active voxels in {} bricks", density.active_voxel_count(), density.brick_count()));
+    log.verbose(nimbus_cli::describe_density(&grid, &density));
     let meta = PipelineMeta::of(&file);
     let preset = args.quality.map(Quality::settings);
     let environment = args.environment.resolve(&meta, &log, None)?;

@@ -269,17 +269,27 @@ pub fn bake_cpu_emitting(
 
     let mut nonfinite = 0;
     // f(voxel index in plan order, position, w_out, scratch).
-    let mut bake = |plan: &CachePlan, f: &(dyn Fn(usize, DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+    // Progress counts a voxel's `weights` (its paths), else 1 a voxel.
+    let mut bake = |what: &str, plan: &CachePlan, weights: Option<&[u32]>, f: &(dyn Fn(usize, DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
         let positions = plan.voxel_positions();
-        let values: Vec<Vec3> =
-            positions.par_iter().enumerate().map_init(Vec::new, |scratch, (i, &x)| f(i, x, toward_eye(camera, x), scratch)).collect();
+        let weight = |i: usize| weights.map_or(1, |w| w[i] as u64);
+        let task = nimbus_progress::task(what, (0..positions.len()).map(weight).sum());
+        let values: Vec<Vec3> = positions
+            .par_iter()
+            .enumerate()
+            .map_init(Vec::new, |scratch, (i, &x)| {
+                let value = f(i, x, toward_eye(camera, x), scratch);
+                task.advance(weight(i));
+                value
+            })
+            .collect();
         let (volume, bad) = plan.volume_of(&values);
         nonfinite += bad;
         volume
     };
     let started = std::time::Instant::now();
     let li_single = params.bakes_single().then(|| {
-        bake(&plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
+        bake("single scattering", &plan, None, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
     });
     stats.stages.push(("single", started.elapsed().as_millis() as u64));
     let li_multiple = match params.estimator {
@@ -288,7 +298,7 @@ pub fn bake_cpu_emitting(
             let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
             let gathered = AtomicU64::new(0);
             let empty_below = empty_ball_density(&majorant);
-            let volume = bake(multiple_plan, &|_, x, w_out, scratch| {
+            let volume = bake("photon gather", multiple_plan, None, &|_, x, w_out, scratch| {
                 let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
                 gathered.fetch_add(used as u64, Ordering::Relaxed);
                 li
@@ -302,7 +312,7 @@ pub fn bake_cpu_emitting(
             let traced = AtomicU64::new(0);
             let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
             let started = std::time::Instant::now();
-            let volume = bake(multiple_plan, &|i, _, _, _| {
+            let volume = bake("paths", multiple_plan, Some(&path_plan.counts), &|i, _, _, _| {
                 let paths = path_plan.counts[i];
                 traced.fetch_add(paths as u64, Ordering::Relaxed);
                 let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);

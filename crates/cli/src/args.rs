@@ -14,11 +14,12 @@ use crate::{Failure, Log, PipelineMeta, Verbosity};
 
 /// `-q`, `-v`, `--device`.
 #[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "General")]
 pub struct CommonArgs {
     /// Print nothing but errors.
     #[arg(short, long, global = true, conflicts_with = "verbose")]
     pub quiet: bool,
-    /// Print each stage's time and counts.
+    /// Print each stage's time and counts, and the density grid's world bounds and values.
     #[arg(short, long, global = true)]
     pub verbose: bool,
     /// Compute backend: auto uses a hardware GPU when there is one, else the CPU;
@@ -42,8 +43,9 @@ impl CommonArgs {
 
 /// Where a VDB goes and how it is written.
 #[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "Output")]
 pub struct VdbOutputArgs {
-    /// Output VDB file, or - for stdout (the default when stdout is not a terminal).
+    /// Output VDB file, or - for stdout. [default: stdout when it is not a terminal]
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     /// VDB compression: blosc (what Blender and Houdini write, and much faster than zip; the
@@ -80,14 +82,17 @@ impl VdbOutputArgs {
 
 /// `--extinction --albedo --g`.
 #[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Medium")]
 pub struct MediumArgs {
-    /// Extinction per unit density (default 1, or what the input file records).
+    /// Extinction per unit density. [default: what the input records, else 1]
     #[arg(long, allow_negative_numbers = true)]
     pub extinction: Option<f32>,
-    /// Single-scattering albedo, one grey value or R,G,B (default 0.9).
-    #[arg(long, value_parser = parse_rgb)]
+    /// Single-scattering albedo, one grey value or R,G,B. [default: what the input records,
+    /// else 0.9]
+    #[arg(long, value_parser = parse_rgb, value_name = "R,G,B", allow_hyphen_values = true)]
     pub albedo: Option<Vec3>,
-    /// Henyey-Greenstein asymmetry in (-1,1), > 0 forward (default 0).
+    /// Henyey-Greenstein asymmetry in (-1,1), > 0 forward. [default: what the input records,
+    /// else 0]
     #[arg(long, allow_negative_numbers = true)]
     pub g: Option<f32>,
 }
@@ -115,8 +120,11 @@ impl MediumArgs {
 
 /// `--sun` and `--point`, repeatable.
 #[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Lights")]
 pub struct LightArgs {
-    /// A sun: dir=X,Y,Z,irradiance=R,G,B (dir is where the light travels; repeatable).
+    /// A sun: dir=X,Y,Z,irradiance=R,G,B[,angle=DEG] (dir is where the light travels, angle
+    /// the disc's diameter; repeatable). [default: what the input records, else one sun from
+    /// above, dir=0,0,-1, where no --sky or --environment lights the scene]
     #[arg(long, value_name = "SPEC", value_parser = Light::parse_sun)]
     pub sun: Vec<Light>,
     /// A point light: pos=X,Y,Z,intensity=R,G,B (repeatable).
@@ -146,31 +154,42 @@ impl LightArgs {
     }
 }
 
-/// `--eye --look-at --up --fov --width --height`. The X,Y,Z flags take hyphen values: clap's
-/// allow_negative_numbers only knows single numbers, so it refused `--eye -5,0,1`.
+/// `--eye --look-at --up --view-dir --fov --width --height`. The X,Y,Z flags take hyphen
+/// values: clap's allow_negative_numbers only knows single numbers, so it refused
+/// `--eye -5,0,1`.
 #[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Camera")]
 pub struct CameraArgs {
-    /// Camera position X,Y,Z (default: frames the volume from -Y).
-    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
+    /// Camera position X,Y,Z. [default: what the input records, else framing the volume's
+    /// bounding box from -Y]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub eye: Option<DVec3>,
-    /// Point the camera looks at, X,Y,Z (default: the volume's centre).
-    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
+    /// Point the camera looks at, X,Y,Z. [default: what the input records, else the volume's
+    /// centre]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub look_at: Option<DVec3>,
-    /// Up direction X,Y,Z (default 0,0,1).
-    #[arg(long, value_parser = parse_dvec3, allow_hyphen_values = true)]
+    /// Look at the volume's centre along X,Y,Z (where the camera looks: 0,1,0 views from
+    /// -Y), from the distance that fits the volume's bounding sphere in the field of view;
+    /// instead of --eye and --look-at.
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_direction, allow_hyphen_values = true, conflicts_with_all = ["eye", "look_at"])]
+    pub view_dir: Option<DVec3>,
+    /// Up direction X,Y,Z. [default: what the input records, else 0,0,1]
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_dvec3, allow_hyphen_values = true)]
     pub up: Option<DVec3>,
-    /// Horizontal field of view in degrees (default 40).
-    #[arg(long)]
+    /// Horizontal field of view in degrees. [default: what the input records, else 40]
+    #[arg(long, value_name = "DEG")]
     pub fov: Option<f64>,
-    #[arg(long)]
+    /// Image width in pixels. [default: what the input records, else 960]
+    #[arg(long, value_name = "PIXELS")]
     pub width: Option<u32>,
-    #[arg(long)]
+    /// Image height in pixels. [default: what the input records, else 540]
+    #[arg(long, value_name = "PIXELS")]
     pub height: Option<u32>,
 }
 
 impl CameraArgs {
     fn any(&self) -> bool {
-        self.eye.is_some() || self.look_at.is_some() || self.up.is_some() || self.fov.is_some() || self.width.is_some() || self.height.is_some()
+        self.eye.is_some() || self.look_at.is_some() || self.view_dir.is_some() || self.up.is_some() || self.fov.is_some() || self.width.is_some() || self.height.is_some()
     }
 
     /// Flags over the recorded camera over the default camera for `bounds`.
@@ -184,15 +203,20 @@ impl CameraArgs {
         if !self.any() {
             return Ok(base);
         }
-        let camera = Camera::new(
-            self.eye.unwrap_or(base.eye()),
-            self.look_at.unwrap_or(base.look_at()),
-            self.up.unwrap_or(base.up()),
-            self.fov.unwrap_or(base.fov_deg()),
-            self.width.unwrap_or(base.width()),
-            self.height.unwrap_or(base.height()),
-        )
-        .map_err(|e| Failure::usage(format!("{e} (camera flags)")))?;
+        let (fov, width, height) = (self.fov.unwrap_or(base.fov_deg()), self.width.unwrap_or(base.width()), self.height.unwrap_or(base.height()));
+        let (eye, look_at, up) = match self.view_dir {
+            Some(dir) => {
+                let (lo, hi) = bounds.unwrap_or((DVec3::splat(-1.0), DVec3::ONE));
+                let up = self.up.unwrap_or(DVec3::Z);
+                let (eye, centre) = fit_view(lo, hi, dir, fov, width, height);
+                // Looking straight along the up vector leaves no image up: take +Y then.
+                let up = if dir.normalize().cross(up.normalize()).length() < 1e-6 { DVec3::Y } else { up };
+                log.verbose(format!("camera: eye {:.6},{:.6},{:.6} looking along {dir} at the centre {:.6},{:.6},{:.6}", eye.x, eye.y, eye.z, centre.x, centre.y, centre.z));
+                (eye, centre, up)
+            }
+            None => (self.eye.unwrap_or(base.eye()), self.look_at.unwrap_or(base.look_at()), self.up.unwrap_or(base.up())),
+        };
+        let camera = Camera::new(eye, look_at, up, fov, width, height).map_err(|e| Failure::usage(format!("{e} (camera flags)")))?;
         if let (Some(recorded), Some(what)) = (recorded, consistency) {
             // Resolution alone does not change what the cache holds.
             let moved = recorded.eye() != camera.eye() || recorded.look_at() != camera.look_at() || recorded.fov_deg() != camera.fov_deg() || recorded.up() != camera.up();
@@ -202,6 +226,28 @@ impl CameraArgs {
         }
         Ok(camera)
     }
+}
+
+/// The eye that sees the box `lo..hi` along `dir` from the distance that fits its bounding
+/// sphere in the field of view (`fov` degrees across `width`, so the narrower of the two
+/// angles binds), and the box's centre it looks at (design.md section 4, `--view-dir`).
+pub fn fit_view(lo: DVec3, hi: DVec3, dir: DVec3, fov: f64, width: u32, height: u32) -> (DVec3, DVec3) {
+    let centre = 0.5 * (lo + hi);
+    let radius = (0.5 * (hi - lo)).length();
+    let tan_x = (0.5 * fov).to_radians().tan();
+    let tan_y = tan_x * height as f64 / width.max(1) as f64;
+    let half_angle = tan_x.min(tan_y).atan();
+    let distance = if radius > 0.0 { radius / half_angle.sin() } else { 1.0 };
+    (centre - dir.normalize() * distance, centre)
+}
+
+/// `X,Y,Z`, not zero.
+pub fn parse_direction(s: &str) -> Result<DVec3, String> {
+    let v = parse_dvec3(s)?;
+    if v.length() < 1e-12 {
+        return Err(format!("'{s}': a direction cannot be zero"));
+    }
+    Ok(v)
 }
 
 /// `R,G,B` or one grey value.
@@ -302,5 +348,96 @@ impl Quality {
     /// The settings of `quality`, or the defaults without one.
     pub fn settings_or_default(quality: Option<Quality>) -> QualitySettings {
         quality.map_or(QualitySettings::DEFAULT, Quality::settings)
+    }
+}
+
+/// A tool's command line as every tool parses it: numeric flags take negative numbers as
+/// values (`--voxel-size -1` reaches the tool's own check, "must be positive", instead of
+/// clap's tip about `-- -1`), and clap's errors and `--help` exit as clap does.
+pub fn parse_args_from<T: clap::Parser>(args: impl IntoIterator<Item = impl Into<std::ffi::OsString> + Clone>) -> (T, clap::ArgMatches) {
+    let matches = command::<T>().get_matches_from(args);
+    let parsed = T::from_arg_matches(&matches).unwrap_or_else(|e| e.format(&mut command::<T>()).exit());
+    (parsed, matches)
+}
+
+/// [`parse_args_from`] over the process's arguments. With the environment variable
+/// `NIMBUS_PARSE_ONLY` set, the tool exits 0 once its flags parsed, running nothing: how
+/// `tests/help.rs` checks that the examples in `--help` are accepted.
+pub fn parse_args<T: clap::Parser>() -> (T, clap::ArgMatches) {
+    let parsed = parse_args_from::<T>(std::env::args_os());
+    if std::env::var_os("NIMBUS_PARSE_ONLY").is_some() {
+        std::process::exit(0);
+    }
+    parsed
+}
+
+/// `T`'s command with every value-taking flag allowing negative numbers.
+pub fn command<T: clap::CommandFactory>() -> clap::Command {
+    T::command().mut_args(|a| if a.get_action().takes_values() { a.allow_negative_numbers(true) } else { a })
+}
+
+/// The flags of the group `A` (one of the shared Args structs) given on the command line, as
+/// they were given (`--sun SPEC`, `--no-environment`): what nimbus-render passes on to a
+/// tool, unchanged, after its own parser checked them.
+pub fn given_flags<A: clap::Args>(matches: &clap::ArgMatches) -> Vec<std::ffi::OsString> {
+    let group = A::augment_args(clap::Command::new("group"));
+    let mut flags = Vec::new();
+    for arg in group.get_arguments() {
+        let id = arg.get_id().as_str();
+        let (Some(long), Some(clap::parser::ValueSource::CommandLine)) = (arg.get_long(), matches.value_source(id)) else { continue };
+        if !arg.get_action().takes_values() {
+            flags.push(format!("--{long}").into());
+            continue;
+        }
+        for value in matches.get_raw(id).into_iter().flatten() {
+            flags.push(format!("--{long}").into());
+            flags.push(value.to_os_string());
+        }
+    }
+    flags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--view-dir`: the bounding sphere touches the narrower field of view, whatever the
+    /// direction and aspect.
+    #[test]
+    fn fit_view_fits_the_bounding_sphere() {
+        let (lo, hi) = (DVec3::new(-1.0, 0.0, 2.0), DVec3::new(3.0, 1.0, 4.0));
+        let radius = (0.5 * (hi - lo)).length();
+        for (dir, width, height) in [(DVec3::Y, 960, 540), (DVec3::new(1.0, -2.0, 0.5), 100, 300), (-DVec3::Z, 64, 64)] {
+            let (eye, centre) = fit_view(lo, hi, dir, 40.0, width, height);
+            assert_eq!(centre, DVec3::new(1.0, 0.5, 3.0));
+            assert!(((centre - eye).normalize() - dir.normalize()).length() < 1e-12);
+            let tan_x = 20f64.to_radians().tan();
+            let half = tan_x.min(tan_x * height as f64 / width as f64).atan();
+            assert!(((eye - centre).length() * half.sin() - radius).abs() < 1e-9);
+        }
+    }
+
+    #[derive(clap::Parser, Debug)]
+    struct Both {
+        #[command(flatten)]
+        lights: LightArgs,
+        #[command(flatten)]
+        camera: CameraArgs,
+        #[command(flatten)]
+        environment: crate::EnvironmentArgs,
+    }
+
+    /// What nimbus-render passes on is what was written, group by group, checked by the
+    /// typed parser first.
+    #[test]
+    fn given_flags_are_the_flags_as_written() {
+        let argv = ["t", "--sun", "dir=0,0,-1,irradiance=2", "--eye=-5,0,1", "--sun", "dir=1,0,0,irradiance=1", "--no-environment", "--fov", "30"];
+        let (both, matches) = parse_args_from::<Both>(argv);
+        assert_eq!(both.lights.sun.len(), 2);
+        let text = |f: Vec<std::ffi::OsString>| f.iter().map(|s| s.to_string_lossy().into_owned()).collect::<Vec<_>>().join(" ");
+        assert_eq!(text(given_flags::<LightArgs>(&matches)), "--sun dir=0,0,-1,irradiance=2 --sun dir=1,0,0,irradiance=1");
+        assert_eq!(text(given_flags::<CameraArgs>(&matches)), "--eye -5,0,1 --fov 30");
+        assert_eq!(text(given_flags::<crate::EnvironmentArgs>(&matches)), "--no-environment");
+        assert!(command::<Both>().try_get_matches_from(["t", "--fov", "-40"]).is_ok(), "negative numbers are values");
     }
 }

@@ -18,25 +18,28 @@ use crate::{parse_rgb, read_density, Failure, Log};
 /// from a temperature grid, with Cycles' Principled Volume meaning (`nimbus_optics::Emission`).
 /// Without these flags, a file with Blender's or Houdini's fire grids renders with fire.
 #[derive(clap::Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Medium")]
 pub struct EmissionArgs {
-    /// The grid whose value scales the emission (e.g. Blender's `flame`).
+    /// The grid whose value scales the emission (e.g. Blender's `flame`). [default: a
+    /// recognised fire grid (flame, heat), else none]
     #[arg(long, value_name = "NAME")]
     pub emission_grid: Option<String>,
-    /// Emission strength S (default 1 with --emission-grid).
+    /// Emission strength S. [default: 1]
     #[arg(long, value_name = "S")]
     pub emission_strength: Option<f32>,
-    /// Emission colour R,G,B (default white).
+    /// Emission colour R,G,B. [default: 1,1,1]
     #[arg(long, value_parser = parse_rgb, value_name = "R,G,B")]
     pub emission_color: Option<Vec3>,
     /// The grid holding temperature, in units of --temperature-scale (e.g. `temperature`).
+    /// [default: a recognised `temperature` grid, else none]
     #[arg(long, value_name = "NAME")]
     pub temperature_grid: Option<String>,
-    /// Kelvin per temperature-grid unit (Cycles' Temperature; default 1000, or 1 for a grid
-    /// already in kelvin).
+    /// Kelvin per temperature-grid unit (Cycles' Temperature). [default: 1000, or 1 for a
+    /// grid whose largest value is 100 or more (kelvin already)]
     #[arg(long, value_name = "K")]
     pub temperature_scale: Option<f32>,
     /// Blackbody intensity B: 1 is physically accurate radiance sigma T^4 / pi (in Cycles'
-    /// scale), coloured by the blackbody's chromaticity (default 1 with --temperature-grid).
+    /// scale), coloured by the blackbody's chromaticity. [default: 1]
     #[arg(long, value_name = "B")]
     pub blackbody_intensity: Option<f32>,
     /// No emission, even where the file has fire grids.

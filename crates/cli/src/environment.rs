@@ -13,21 +13,24 @@ use crate::{Failure, Log, PipelineMeta};
 /// `--sky`, `--environment`, `--environment-strength`, `--environment-rotation`,
 /// `--no-environment`.
 #[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Lights")]
 pub struct EnvironmentArgs {
     /// Uniform sky radiance R,G,B (or one grey value) arriving from every direction, as a
-    /// Blender World's Background colour.
+    /// Blender World's Background colour. [default: what the input records, else none]
     #[arg(long, value_parser = parse_rgb, value_name = "R,G,B", conflicts_with = "environment")]
     pub sky: Option<Vec3>,
     /// An equirectangular HDR map (EXR, linear RGB) lighting the scene from every direction,
     /// mapped as Blender's World Environment Texture: +Z up, the image's centre looking
-    /// along +X.
+    /// along +X; its width should be twice its height (a warning says where it is not).
+    /// [default: what the input records]
     #[arg(long, value_name = "FILE.exr")]
     pub environment: Option<PathBuf>,
-    /// The map's strength (Blender's Background Strength; default 1).
+    /// The map's strength (Blender's Background Strength). [default: what the input records,
+    /// else 1]
     #[arg(long, value_name = "S", requires = "environment")]
     pub environment_strength: Option<f32>,
     /// Turns the map about +Z by DEG degrees, as a Mapping node's Z rotation in front of the
-    /// Environment Texture (default 0).
+    /// Environment Texture. [default: what the input records, else 0]
     #[arg(long, value_name = "DEG", requires = "environment", allow_negative_numbers = true)]
     pub environment_rotation: Option<f32>,
     /// No environment light, even where the input records one.
@@ -66,6 +69,15 @@ impl EnvironmentArgs {
             Some(Environment::uniform(sky).map_err(|e| Failure::usage(format!("--sky: {e}")))?)
         } else if let Some(path) = &self.environment {
             let map = read_environment_map(path)?;
+            // Only a flag's map draws the warning: later tools read the recorded one again.
+            if map.width() != 2 * map.height() {
+                log.warn(format!(
+                    "the environment map is {} x {} pixels, not 2:1: it is read as an equirectangular (latitude-longitude) map all the same ({})",
+                    map.width(),
+                    map.height(),
+                    path.display()
+                ));
+            }
             // Recorded absolute, so a later tool in another directory finds it.
             let absolute = std::fs::canonicalize(path).unwrap_or_else(|_| path.clone());
             let env = Environment::map(map, absolute.display().to_string(), self.environment_strength.unwrap_or(1.0), self.environment_rotation.unwrap_or(0.0))

@@ -19,6 +19,12 @@ impl Failure {
         Failure { code: 2, message: what.to_string() }
     }
 
+    /// A failure already reported on stderr (by another tool of the pipe): the exit code
+    /// only, no line of its own.
+    pub fn reported(code: u8) -> Failure {
+        Failure { code, message: String::new() }
+    }
+
     /// Something went wrong while running (exit code 1).
     pub fn runtime(what: impl fmt::Display, place: impl fmt::Display) -> Failure {
         Failure { code: 1, message: format!("{what} ({place})") }
@@ -64,7 +70,9 @@ pub fn run(body: impl FnOnce() -> Result<(), Failure> + std::panic::UnwindSafe) 
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(failure) => {
-            eprintln!("error: {failure}");
+            if !failure.message.is_empty() {
+                eprintln!("error: {failure}");
+            }
             ExitCode::from(failure.code)
         }
     }

@@ -222,6 +222,7 @@ impl fmt::Display for FrameSet {
 
 /// `--frames`, `--frame`, `--skip-existing`.
 #[derive(Args, Debug, Clone, Default)]
+#[command(next_help_heading = "Sequence")]
 pub struct SequenceArgs {
     /// Render a sequence: the frames as 1-240, 1-240x2 (every second), 1,5,9 or a mix
     /// (1-10,20); the input and output names then hold a frame pattern: ####, %04d or $F4

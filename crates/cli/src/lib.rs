@@ -29,7 +29,7 @@ pub mod meta;
 mod motion;
 mod vdbio;
 
-pub use args::{parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
+pub use args::{command, fit_view, given_flags, parse_args, parse_args_from, parse_direction, parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
 pub use environment::{read_environment_map, EnvironmentArgs};
 pub use emission::{EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};
@@ -38,4 +38,4 @@ pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
 pub use motion::{MotionArgs, Velocity, VELOCITY_GRIDS};
-pub use vdbio::{read_density, read_vdb, read_vec3_grid, write_vdb};
+pub use vdbio::{describe_density, read_density, UPSTREAM_FAILED, read_vdb, read_vec3_grid, write_vdb};

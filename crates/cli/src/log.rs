@@ -1,5 +1,6 @@
 use std::io::IsTerminal;
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -70,8 +71,20 @@ pub struct Log {
 }
 
 impl Log {
+    /// The tool's log; where bars may show (stderr a terminal, not `-q`), it also installs
+    /// the bars as the engines' progress sink ([`nimbus_progress`]), so their long loops
+    /// show one bar each.
     pub fn new(tool: &'static str, verbosity: Verbosity) -> Log {
-        Log { tool, verbosity, times: Mutex::new(StageTimes::default()), started: Instant::now() }
+        let log = Log { tool, verbosity, times: Mutex::new(StageTimes::default()), started: Instant::now() };
+        if log.bars_visible() {
+            nimbus_progress::install(Some(std::sync::Arc::new(Bars { tool, current: Mutex::new(None) })));
+        }
+        log
+    }
+
+    /// Bars are drawn only on a terminal, and not with `-q` (design.md section 7).
+    fn bars_visible(&self) -> bool {
+        self.verbosity > Verbosity::Quiet && std::io::stderr().is_terminal() && std::env::var_os("NIMBUS_NO_PROGRESS").is_none()
     }
 
     pub fn verbosity(&self) -> Verbosity {
@@ -124,23 +137,52 @@ impl Log {
 
     /// A progress bar over `len` steps, drawn only when stderr is a terminal and not `-q`.
     pub fn progress(&self, what: &str, len: u64) -> Progress {
-        let visible = self.verbosity > Verbosity::Quiet && std::io::stderr().is_terminal();
-        let bar = if visible {
-            let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
-            bar.set_style(
-                ProgressStyle::with_template("{prefix} {msg:<12} [{bar:32}] {percent:>3}% {eta}")
-                    .expect("valid template")
-                    .progress_chars("=> "),
-            );
-            bar.set_prefix(self.tool);
-            bar.set_message(what.to_string());
-            // Steps shorter than a second never show a bar.
-            bar.enable_steady_tick(Duration::from_millis(250));
-            bar
-        } else {
-            ProgressBar::hidden()
-        };
-        Progress { bar }
+        let visible = self.bars_visible();
+        let bar = if visible { new_bar(self.tool, what, len) } else { ProgressBar::hidden() };
+        Progress { bar, visible, shown: Arc::new(AtomicBool::new(false)), started: Instant::now() }
+    }
+}
+
+/// A bar that starts hidden: [`Progress::inc`] shows it once its step has run a second, so
+/// steps shorter than that never flash one (design.md section 7).
+fn new_bar(tool: &str, what: &str, len: u64) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::hidden());
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} {msg:<17} [{bar:32}] {percent:>3}% {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(tool.to_string());
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// The engines' progress sink on a terminal: one bar per task.
+struct Bars {
+    tool: &'static str,
+    current: Mutex<Option<Progress>>,
+}
+
+impl nimbus_progress::Sink for Bars {
+    fn begin(&self, what: &str, total: u64) {
+        let bar = Progress { bar: new_bar(self.tool, what, total), visible: true, shown: Arc::new(AtomicBool::new(false)), started: Instant::now() };
+        if let Some(old) = self.current.lock().unwrap_or_else(|e| e.into_inner()).replace(bar) {
+            old.finish();
+        }
+    }
+
+    fn advance(&self, n: u64) {
+        // Cloned out of the lock: a bar's handle is an Arc.
+        let bar = self.current.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        if let Some(bar) = bar {
+            bar.inc(n);
+        }
+    }
+
+    fn end(&self) {
+        if let Some(bar) = self.current.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            bar.finish();
+        }
     }
 }
 
@@ -148,11 +190,22 @@ impl Log {
 #[derive(Clone)]
 pub struct Progress {
     bar: ProgressBar,
+    /// Whether the bar may show at all (a terminal, not -q).
+    visible: bool,
+    shown: Arc<AtomicBool>,
+    started: Instant,
 }
 
 impl Progress {
     pub fn inc(&self, n: u64) {
         self.bar.inc(n);
+        if !self.visible || self.shown.load(Ordering::Relaxed) || self.started.elapsed() < Duration::from_secs(1) {
+            return;
+        }
+        if !self.shown.swap(true, Ordering::Relaxed) {
+            self.bar.set_draw_target(ProgressDrawTarget::stderr());
+            self.bar.enable_steady_tick(Duration::from_millis(250));
+        }
     }
 
     pub fn finish(&self) {

@@ -17,22 +17,23 @@ use crate::{Failure, Log};
 pub const VELOCITY_GRIDS: [&str; 3] = ["v", "vel", "velocity"];
 
 #[derive(Args, Debug, Clone)]
+#[command(next_help_heading = "Camera")]
 pub struct MotionArgs {
     /// Blur the medium along its velocity grid over the shutter (Eulerian motion blur: each
     /// camera sample looks the volume up at its position moved back along the velocity).
     #[arg(long)]
     pub motion_blur: bool,
-    /// Shutter time in frames, centred on the frame (Blender's Shutter; default 0.5).
+    /// Shutter time in frames, centred on the frame (Blender's Shutter). [default: 0.5]
     #[arg(long, requires = "motion_blur")]
     pub shutter: Option<f64>,
-    /// Frames per second (default 24).
+    /// Frames per second. [default: 24]
     #[arg(long, requires = "motion_blur")]
     pub fps: Option<f64>,
-    /// The velocity grid, a vec3 grid (default: v, vel or velocity, the first present).
+    /// The velocity grid, a vec3 grid. [default: v, vel or velocity, the first present]
     #[arg(long, requires = "motion_blur")]
     pub velocity_grid: Option<String>,
-    /// Multiplies the velocity grid to world units per second (default 1: the grid is in
-    /// world units per second, as Houdini's and OpenVDB's; the fps for a grid per frame).
+    /// Multiplies the velocity grid to world units per second (1: the grid is in world units
+    /// per second, as Houdini's and OpenVDB's; the fps for a grid per frame). [default: 1]
     #[arg(long, requires = "motion_blur")]
     pub velocity_scale: Option<f64>,
 }

@@ -13,11 +13,37 @@ pub fn read_vdb(input: &Input) -> Result<VdbFile, Failure> {
         Input::Path(p) => VdbFile::open(p).map_err(|e| Failure::input(e, p.display())),
         Input::Stdin => {
             let bytes = input.read_all()?;
+            // A tool before this one in a pipe wrote nothing: it failed and said why. This
+            // tool says so once; the tools after it, handed the marker, say nothing more.
             if bytes.is_empty() {
-                return Err(Failure::input("empty input: expected a VDB", "stdin"));
+                pass_on_upstream_failure();
+                return Err(Failure::input("empty input: the tool before this one in the pipe wrote nothing (it likely failed: see its error above)", "stdin"));
+            }
+            if bytes == UPSTREAM_FAILED {
+                pass_on_upstream_failure();
+                return Err(Failure::reported(2));
             }
             VdbFile::from_bytes(&bytes, "stdin").map_err(|e| Failure::input(e, "stdin"))
         }
+    }
+}
+
+/// What a tool writes to a piped stdout in place of a VDB when its own input was empty: the
+/// next tool then fails quietly (exit 2) instead of repeating the first tool's complaint.
+/// Not a VDB (whose files begin with the bytes ` BDV`), and only ever written to a pipe.
+pub const UPSTREAM_FAILED: &[u8] = b"nimbus: an earlier tool in the pipe failed\n";
+
+/// Writes [`UPSTREAM_FAILED`] to stdout where stdout is a pipe (the next tool's stdin).
+fn pass_on_upstream_failure() {
+    use std::io::Write;
+    // SAFETY: fstat on fd 1 with a zeroed stat buffer of the right type.
+    let piped = unsafe {
+        let mut st: libc::stat = std::mem::zeroed();
+        libc::fstat(1, &mut st) == 0 && (st.st_mode & libc::S_IFMT) == libc::S_IFIFO
+    };
+    if piped {
+        let mut out = std::io::stdout().lock();
+        let _ = out.write_all(UPSTREAM_FAILED).and_then(|_| out.flush());
     }
 }
 
@@ -70,3 +96,33 @@ pub fn write_vdb(file: &VdbFile, args: &VdbOutputArgs) -> Result<(), Failure> {
     }
 }
 
+
+/// The `-v` line of a density grid a tool read (issue #31, framing): the world bounds of its
+/// active voxels (each voxel's whole cell, what the default camera frames), the range of the
+/// active values, and the counts.
+pub fn describe_density(name: &str, volume: &Volume<f32>) -> String {
+    let counts = format!("{} active voxels in {} bricks", volume.active_voxel_count(), volume.brick_count());
+    let Some((lo, hi)) = volume.world_bounds() else {
+        return format!("density grid '{name}': no active voxels ({counts})");
+    };
+    let (min, max) = volume
+        .par_bricks()
+        .map(|b| (0..b.values.len()).filter(|&o| b.is_active(o)).fold((f32::INFINITY, f32::NEG_INFINITY), |(a, z), o| (a.min(b.values[o]), z.max(b.values[o]))))
+        .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    let size = hi - lo;
+    format!(
+        "density grid '{name}': world bounds {:.6},{:.6},{:.6} to {:.6},{:.6},{:.6} (size {:.6} x {:.6} x {:.6}, centre {:.6},{:.6},{:.6}), values {min} to {max}, {counts}",
+        lo.x,
+        lo.y,
+        lo.z,
+        hi.x,
+        hi.y,
+        hi.z,
+        size.x,
+        size.y,
+        size.z,
+        0.5 * (lo.x + hi.x),
+        0.5 * (lo.y + hi.y),
+        0.5 * (lo.z + hi.z)
+    )
+}

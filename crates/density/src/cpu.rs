@@ -82,11 +82,14 @@ impl Scratch {
 /// lists, the lists are summed per particle in brick order (fixed, so runs are
 /// bit-identical), and the density pass then reads the kept lengths and the masses m / S.
 pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bool, pp: &PointParams, keep: &Keep) -> Vec<BrickResult> {
+    let bricks = prep.bricks.len() as u64;
     let density = |masses: &[f32], lengths: Option<&[Option<Lengths>]>| -> Vec<BrickResult> {
+        let task = nimbus_progress::task("density", bricks);
         prep.bricks
             .par_iter()
             .enumerate()
             .map_init(Scratch::new, |scratch, (i, &origin)| {
+                task.advance(1);
                 let known = match lengths {
                     Some(all) => Some(all[i].as_ref()?),
                     None => None,
@@ -103,9 +106,11 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
     }
     let lengths: Vec<Option<Lengths>> = if method == Method::Ici {
         let (all, rungs) = ici_ladder(pp.h_min, pp.h0);
+        let task = nimbus_progress::task("smoothing lengths", bricks);
         let sums: Vec<Option<Box<RungSums>>> = prep
             .bricks
             .par_iter()
+            .inspect(|_| task.advance(1))
             .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Ladder(&all[..rungs]))? {
                 Visit::Rungs(r) => Some(r),
                 _ => unreachable!(),
@@ -113,8 +118,10 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
             .collect();
         crate::ici::choose_lengths(prep, &all[..rungs], &sums, pp.confidence)
     } else {
+        let task = nimbus_progress::task("smoothing lengths", bricks);
         prep.bricks
             .par_iter()
+            .inspect(|_| task.advance(1))
             .map_init(Scratch::new, |scratch, &origin| match brick(prep, method, pp, origin, scratch, Stage::Lengths)? {
                 Visit::Lengths(h) => Some(h),
                 _ => unreachable!(),
@@ -124,9 +131,11 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
     if method == Method::Ici && !conserve_mass {
         return density(&prep.masses, Some(&lengths));
     }
+    let task = nimbus_progress::task("mass weights", bricks);
     let partials: Vec<Vec<(u32, f32)>> = prep
         .bricks
         .par_iter()
+        .inspect(|_| task.advance(1))
         .zip(&lengths)
         .map_init(Scratch::new, |scratch, (&origin, h)| match brick(prep, method, pp, origin, scratch, Stage::Weights(h.as_ref()?))? {
             Visit::Weights(list) => Some(list),
@@ -139,6 +148,7 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
         sums[q as usize] += partial as f64;
     }
     drop(partials);
+    drop(task);
     let masses = crate::normalised_masses(prep, pp, &sums);
     density(&masses, Some(&lengths))
 }

@@ -286,7 +286,8 @@ fn render_tiles<M: Marcher>(params: &MarchParams, march: &M) -> Vec<RayResult> {
     let mut pixels = vec![RayResult::default(); w * h];
     #[cfg(target_arch = "x86_64")]
     let fused = Fused::detect();
-    pixels.par_chunks_mut(w * TILE).enumerate().for_each(|(band, rows)| {
+    let task = nimbus_progress::task("march", h as u64);
+    pixels.par_chunks_mut(w * TILE).enumerate().inspect(|(_, rows)| task.advance((rows.len() / w.max(1)) as u64)).for_each(|(band, rows)| {
         #[cfg(target_arch = "x86_64")]
         if let Some(fused) = fused {
             // SAFETY: `Fused` exists only where the CPU has AVX2 and FMA.

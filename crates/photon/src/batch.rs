@@ -267,9 +267,11 @@ pub(crate) fn run_batches(
     let mut map = PhotonMap::default();
     let mut next = 0u64;
     let mut batch = FIRST_BATCH.min(params.max_emitted);
+    let task = nimbus_progress::task("photons", params.photons);
     'batches: while next < params.max_emitted && (map.len() as u64) < params.photons {
         let end = (next + batch).min(params.max_emitted);
         let traced = trace(next..end)?;
+        let before = map.len() as u64;
         debug_assert_eq!(traced.paths.len() as u64, end - next);
         let mut photons = traced.photons.iter().peekable();
         for (i, path) in traced.paths.iter().enumerate() {
@@ -289,6 +291,7 @@ pub(crate) fn run_batches(
                 break 'batches;
             }
         }
+        task.advance((map.len() as u64).min(params.photons) - before.min(params.photons));
         next = end;
         if stats.interactions == 0 {
             let (map, stats) = skipped("no photon of the first batch met the medium (too thin along the lights' paths)", stats);
@@ -296,7 +299,13 @@ pub(crate) fn run_batches(
         }
         // Size the next batch from the yield so far, aiming a little past the target.
         let per_photon = (map.len() as f64 / stats.emitted as f64).max(1e-3);
-        let wanted = ((params.photons - (map.len() as u64).min(params.photons)) as f64 / per_photon * 1.05) as u64;
+        let mut remaining = params.photons - (map.len() as u64).min(params.photons);
+        if task.shown() {
+            // A bar on a terminal moves in eighths (which photons are stored does not
+            // depend on the batches: each path's random numbers are keyed by its index).
+            remaining = remaining.min(params.photons.div_ceil(8));
+        }
+        let wanted = (remaining as f64 / per_photon * 1.05) as u64;
         batch = wanted.clamp(1024, 1 << 22);
     }
     map.positions.truncate(params.photons as usize);
