@@ -82,6 +82,7 @@ mod cpu;
 mod gpu;
 mod image;
 mod layout;
+mod offsets;
 mod reference;
 mod samples;
 mod simd;
@@ -153,10 +154,36 @@ pub struct MarchParams {
     /// Feature size of the jitter field, world units.
     pub noise_scale: f64,
     pub noise_octaves: u32,
+    /// How the jitter field is evaluated: baked on a world-anchored lattice (the default)
+    /// or exactly at every sample.
+    pub noise_eval: NoiseEval,
     pub min_transmittance: f64,
     pub seed: u64,
     /// Keep the single, multiple, transmittance and depth layers.
     pub aovs: bool,
+}
+
+/// How the march evaluates the offset noise (design.md section 9): a function of the
+/// sample's world position either way.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoiseEval {
+    /// The fBm baked once per render at the nodes of a lattice anchored in world space,
+    /// `nodes` per `noise_scale` along each axis, over the cells the march can visit, and
+    /// interpolated trilinearly at each sample.
+    Baked { nodes: u32 },
+    /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
+    /// that measure the baked field against it (tens of times the march's cost).
+    Exact,
+}
+
+impl NoiseEval {
+    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 8 };
+}
+
+impl Default for NoiseEval {
+    fn default() -> Self {
+        NoiseEval::DEFAULT
+    }
 }
 
 /// Most optical depth, at its cell's density bound, that a lengthened step may span
@@ -282,6 +309,9 @@ impl MarchParams {
         }
         if self.offset_noise > 0.0 && !(self.noise_scale > 0.0 && self.noise_scale.is_finite()) {
             return Err(MarchError::Param(format!("--noise-scale must be positive, got {}", self.noise_scale)));
+        }
+        if self.noise_eval == (NoiseEval::Baked { nodes: 0 }) {
+            return Err(MarchError::Param("the baked offset noise needs at least one node per noise scale".into()));
         }
         if !self.background.is_finite() {
             return Err(MarchError::Param("--background must be finite".into()));
