@@ -5,7 +5,7 @@
 //! caches `scripts/bench_noise.sh` makes with `scripts/demo.sh`'s flags:
 //!
 //!     scripts/bench_noise.sh        (makes out/bench/noise/{cloud,plume}.vdb, then runs this)
-//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8,16] [-- runs=5] [-- only=cloud]
+//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8,16] [-- runs=5] [-- only=cloud] [-- size=960x540]
 //!
 //! Rows: the march without noise, with the baked noise at each lattice (nodes per noise
 //! scale) and with the exact per-sample fBm; medians of `runs` alternating runs (the exact
@@ -44,6 +44,10 @@ fn main() {
     let nodes: Vec<u32> = arg("nodes").map_or(vec![4, 8, 16], |s| s.split(',').map(|n| n.parse().expect("nodes=N,N,...")).collect());
     let runs: usize = arg("runs").map_or(5, |s| s.parse().expect("runs=N"));
     let only = arg("only");
+    let (width, height): (u32, u32) = arg("size").map_or((960, 540), |s| {
+        let (w, h) = s.split_once('x').expect("size=WxH");
+        (w.parse().expect("size=WxH"), h.parse().expect("size=WxH"))
+    });
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../out/bench/noise");
     println!("| scene | march | median s | runs s | vs no noise | rel. RMSE vs exact | max alpha diff |");
     println!("|---|---|---|---|---|---|---|");
@@ -59,7 +63,7 @@ fn main() {
         let cache = IlluminationCache { li_single: grid("Li_single"), li_multiple: grid("Li_multiple"), ..Default::default() };
         let meta = PipelineMeta::of(&file);
         let c = meta.camera().ok().flatten().expect("the cache records its camera");
-        let camera = Camera::new(c.eye(), c.look_at(), c.up(), c.fov_deg(), 960, 540).unwrap();
+        let camera = Camera::new(c.eye(), c.look_at(), c.up(), c.fov_deg(), width, height).unwrap();
         let voxel = density.transform().voxel_size();
         let plain = MarchParams {
             environment: None,
@@ -84,7 +88,7 @@ fn main() {
             let image = render_cpu(&density, &cache, p).unwrap();
             (start.elapsed(), image)
         };
-        eprintln!("{name}: {} spp, exact noise once ...", plain.spp);
+        eprintln!("{name}: {width}x{height}, {} spp, exact noise once ...", plain.spp);
         let (exact_time, exact) = render(&noisy(NoiseEval::Exact));
         // Alternating, so a busy machine slows every variant alike.
         let mut variants: Vec<(String, MarchParams)> = vec![("no noise".into(), plain.clone())];

@@ -173,14 +173,18 @@ fn displacement<A: Arith>(params: &MarchParams, offsets: Option<&Offsets>, arith
 /// samples see density: the grid is dilated by it. The fBm's components stay within about
 /// [-1, 1]; twice the amplitude is a generous bound ([`NOISE_REACH`]). Motion blur moves the
 /// medium too, by up to [`MotionBlur::majorant_radius`] within the shutter.
+///
+/// With offset noise the cells are two voxels rather than a brick ([`NOISE_CELL_LOG2`]): a
+/// ray then walks empty space within about the noise's reach of the medium, not within a
+/// brick of it.
 pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> MajorantGrid {
-    noise_dilated(density, moved_majorant(density, motion), params)
+    noise_dilated(density, moved_majorant(density, params, motion), params)
 }
 
 /// [`march_majorant`] and the baked offset noise the march reads over it (none without
 /// offset noise or where it is evaluated exactly, [`NoiseEval`]).
 pub(crate) fn march_grids(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> (MajorantGrid, Option<Offsets>) {
-    let moved = moved_majorant(density, motion);
+    let moved = moved_majorant(density, params, motion);
     let offsets = match params.noise_eval {
         NoiseEval::Baked { nodes } if params.offset_noise > 0.0 => Some(Offsets::bake(density, &moved, params, nodes)),
         _ => None,
@@ -191,9 +195,16 @@ pub(crate) fn march_grids(density: &Volume<f32>, params: &MarchParams, motion: O
 /// A bound on the offset noise's displacement per world axis, in amplitudes.
 pub(crate) const NOISE_REACH: f64 = 2.0;
 
-/// The density's majorant grid, dilated by how far motion blur moves the medium.
-fn moved_majorant(density: &Volume<f32>, motion: Option<&MotionBlur>) -> MajorantGrid {
-    let grid = MajorantGrid::build(density);
+/// log2 of the majorant grid's cell edge in voxels with offset noise ([`march_majorant`]).
+pub(crate) const NOISE_CELL_LOG2: u32 = 1;
+
+/// The density's majorant grid (two-voxel cells with offset noise, else brick cells),
+/// dilated by how far motion blur moves the medium.
+fn moved_majorant(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> MajorantGrid {
+    let grid = match params.offset_noise > 0.0 {
+        true => MajorantGrid::with_cell_log2(density, NOISE_CELL_LOG2),
+        false => MajorantGrid::build(density),
+    };
     match motion {
         Some(m) => grid.dilated(m.majorant_radius(density)),
         None => grid,
@@ -607,8 +618,13 @@ impl<T: DensityPoint> MarchVolume<T> {
         let rays = self.other_rays(origin, dir);
         let mut c = Composite::<T>::new(params.min_transmittance as f32);
         let (mut b, mut n) = (Batch::new(), 0);
+        // The ray in the baked field's lattice.
+        let along = offsets.map(|f| (f, f.to_lattice(origin), dir * f.per_world));
         for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
-            let shift = displacement(params, offsets, arith, origin + dir * t);
+            let shift = match along {
+                Some((f, q, dq)) => f.at_lattice(arith, q + dq * t),
+                None => offset(params, origin + dir * t),
+            };
             let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
             self.take(arith, &mut b, n, step as f32 * params.medium.extinction, t, v, &rays, Some(shift));
             n += 1;

@@ -231,7 +231,7 @@ fn march_pixels(
     // The baked offset noise, the CPU's bake itself (an empty table where there is none).
     let (offset_table, offset_lo, offset_dims) = offsets.map_or((&[][..], IVec3::ZERO, IVec3::ZERO), |o| o.lattice.table());
     let offset_values = offsets.map_or(&[][..], |o| o.lattice.values());
-    let offset_eye = offsets.map_or(DVec3::ZERO, |o| origin * o.per_world - o.anchor);
+    let offset_eye = offsets.map_or(DVec3::ZERO, |o| o.to_lattice(origin));
     let offset_table = ctx.storage_buffer("offset bricks", if offset_table.is_empty() { &[u32::MAX][..] } else { offset_table })?;
     let offset_values = ctx.storage_buffer("offsets", if offset_values.is_empty() { &[Vec4::ZERO][..] } else { offset_values })?;
     let uniforms = GpuMarchParams {

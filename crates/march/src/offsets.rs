@@ -90,7 +90,19 @@ impl Offsets {
     /// The displacement at world position `x`, interpolated.
     #[inline(always)]
     pub fn at<A: Arith>(&self, arith: A, x: DVec3) -> DVec3 {
-        self.lattice.sample(arith, x * self.per_world - self.anchor).truncate().as_dvec3()
+        self.at_lattice(arith, self.to_lattice(x))
+    }
+
+    /// World position `x` in the lattice's index space.
+    #[inline(always)]
+    pub fn to_lattice(&self, x: DVec3) -> DVec3 {
+        x * self.per_world - self.anchor
+    }
+
+    /// The displacement at lattice index-space position `q`, interpolated.
+    #[inline(always)]
+    pub fn at_lattice<A: Arith>(&self, arith: A, q: DVec3) -> DVec3 {
+        self.lattice.sample(arith, q).truncate().as_dvec3()
     }
 }
 
