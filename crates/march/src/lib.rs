@@ -24,7 +24,15 @@
 //!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
-//!   coarse volumes; amplitude 0 costs nothing.
+//!   coarse volumes. Like the paper's 3D texture of offsets, the field is baked once per
+//!   render ([`NoiseEval::Baked`], `offsets.rs`): the exact fBm at the nodes of a lattice
+//!   anchored in world space, 8 nodes per `noise_scale` per axis (two per cell of the
+//!   finest of the 3 octaves), over the bricks of nodes within the noise's reach of the
+//!   medium, interpolated trilinearly at each sample. Per-sample fBm had made the demo
+//!   cloud's march 60x the march without noise; see docs/benchmarks.md ("Offset noise")
+//!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
+//!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
+//!   dilated by the noise's reach. Amplitude 0 costs nothing: no bake, no dilation.
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
@@ -60,7 +68,8 @@
 //! - [`render_gpu`] / [`render_gpu_with`]: one wgpu invocation per pixel
 //!   (`shaders/march.wgsl`, over `shaders/tracking.wgsl` for the majorant DDA and
 //!   `shaders/noise.wgsl`, the bit-exact-hash WGSL twin of `nimbus_optics::noise`, for the
-//!   offset noise). Pixel i draws from the same Philox stream as on the CPU, in the same
+//!   exact offset noise; the baked one is the CPU's bake itself, its brick table and nodes
+//!   in two storage buffers, interpolated in the CPU's order). Pixel i draws from the same Philox stream as on the CPU, in the same
 //!   order (jitter, then the lattice offset xi, per sample; u from its own stream), and
 //!   reads the CPU's step factor per majorant cell, so the two images agree to f32
 //!   rounding (the tests hold lit pixels to 1e-4 relative). The density is the default
@@ -68,8 +77,9 @@
 //!   atlas volumes, read by hardware-filtered lookups where the device filters float
 //!   textures ([`CacheLookup::Filtered`], the default: within ~1/256 of Li's local range
 //!   of the exact value) or exactly ([`CacheLookup::Exact`]). Positions are f32 relative to
-//!   the eye, noise positions split into a lattice point and a remainder, so far-from-origin
-//!   scenes keep their precision. Across adjacent non-empty majorant segments both carry
+//!   the eye, exact-noise positions split into a lattice point and a remainder, baked-noise
+//!   ones the eye's position in the offset lattice plus the sample's offset from the eye, so
+//!   far-from-origin scenes keep their precision. Across adjacent non-empty majorant segments both carry
 //!   the group start over instead of recomputing it from the segment start, so a lattice
 //!   point lying on a boundary within f32 rounding is taken exactly once; `1 - exp(-sigma_t dt)` is evaluated
 //!   without cancellation in thin media.
