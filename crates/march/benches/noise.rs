@@ -104,6 +104,7 @@ fn main() {
         for _ in 0..runs {
             for (i, (_, p)) in variants.iter().enumerate() {
                 let (t, image) = render(p);
+                eprintln!("{name}: {}: {:.2} s", variants[i].0, t.as_secs_f64());
                 times[i].push(t);
                 images[i] = Some(image);
             }

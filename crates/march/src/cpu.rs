@@ -38,7 +38,8 @@ pub struct RayResult {
 }
 
 /// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
-/// in each group of lattice steps (see the crate doc).
+/// in each group of lattice steps (see the crate doc); offset noise, if any, is evaluated
+/// exactly at each sample (the renders bake it).
 #[allow(clippy::too_many_arguments)]
 pub fn march_ray(
     density: &Volume<f32>,
@@ -50,7 +51,7 @@ pub fn march_ray(
     xi: f64,
     u: f64,
 ) -> RayResult {
-    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None)
+    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None, None)
 }
 
 /// [`march_ray`] with what the medium holds beyond its density. `emission`: each sample
@@ -61,26 +62,10 @@ pub fn march_ray(
 /// (Eulerian motion blur): every lookup, the density, the cache's Li and the emission, at the
 /// sample's position moved back along the velocity ([`Motion::back`]); `majorant` must bound
 /// the moved density ([`MotionBlur::majorant_radius`]).
+/// `offsets`: the baked offset noise where given, else the noise (if any) is evaluated
+/// exactly at each sample ([`offset`]).
 #[allow(clippy::too_many_arguments)]
-pub fn march_ray_with(
-    density: &Volume<f32>,
-    majorant: &MajorantGrid,
-    cache: &IlluminationCache,
-    params: &MarchParams,
-    origin: DVec3,
-    dir: DVec3,
-    xi: f64,
-    u: f64,
-    emission: Option<&EmissionField>,
-    motion: Option<Motion>,
-) -> RayResult {
-    march_ray_in(density, majorant, cache, params, origin, dir, xi, u, emission, motion, None)
-}
-
-/// [`march_ray_with`] reading the offset noise from `offsets` where given (the baked field),
-/// else exactly ([`offset`]).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn march_ray_in(
+pub(crate) fn march_ray_with(
     density: &Volume<f32>,
     majorant: &MajorantGrid,
     cache: &IlluminationCache,
@@ -299,7 +284,7 @@ struct Extras<'a> {
 impl Marcher for Extras<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult {
         let motion = self.motion.map(|m| m.at(shutter));
-        march_ray_in(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion, self.offsets)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion, self.offsets)
     }
 }
 
@@ -332,7 +317,7 @@ struct Plain<'a> {
 
 impl Marcher for Plain<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
-        march_ray_in(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, None, None, self.offsets)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, None, None, self.offsets)
     }
 }
 
@@ -760,7 +745,7 @@ pub(crate) mod tests {
         // One ray through march_ray_with itself, and without emission nothing.
         let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
         let majorant = march_majorant(&slab, &p, None);
-        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None);
+        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None, None);
         assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
         let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);
         assert_eq!(r.emission, Vec3::ZERO);

@@ -26,9 +26,10 @@
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
 //!   coarse volumes. Like the paper's 3D texture of offsets, the field is baked once per
 //!   render ([`NoiseEval::Baked`], `offsets.rs`): the exact fBm at the nodes of a lattice
-//!   anchored in world space, 8 nodes per `noise_scale` per axis (two per cell of the
-//!   finest of the 3 octaves), over the bricks of nodes within the noise's reach of the
-//!   medium, interpolated trilinearly at each sample. Per-sample fBm had made the demo
+//!   anchored in world space, 4 nodes per `noise_scale` per axis (one per cell of the
+//!   finest of vdbmarch's 3 octaves: every octave is kept, the finest one interpolated
+//!   coarsely), over the bricks of nodes within the noise's reach of the medium,
+//!   interpolated trilinearly at each sample. Per-sample fBm had made the demo
 //!   cloud's march 60x the march without noise; see docs/benchmarks.md ("Offset noise")
 //!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
 //!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
@@ -36,7 +37,7 @@
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
-//! Emission (issue #19, [`render_cpu_with`] and [`march_ray_with`] with a [`MediumFields`] holding, an
+//! Emission (issue #19, [`render_cpu_with`] and `march_ray_with` with a [`MediumFields`] holding, an
 //! [`EmissionField`]): each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t`, e the
 //! emitted radiance per unit length, the exact integral of `T e` over the step for e and
 //! sigma_t constant over it; it goes to [`RayResult::emission`] (the `emission` layer). So
@@ -98,7 +99,7 @@ mod samples;
 mod simd;
 mod view;
 
-pub use cpu::{march_ray, march_ray_with, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
+pub use cpu::{march_ray, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
 pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
@@ -187,7 +188,7 @@ pub enum NoiseEval {
 }
 
 impl NoiseEval {
-    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 8 };
+    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 4 };
 }
 
 impl Default for NoiseEval {

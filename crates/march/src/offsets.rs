@@ -167,7 +167,7 @@ mod tests {
                 let (worst, rms, count) = baked_against_exact(&density, &p, nodes, 20_000);
                 eprintln!("centre {centre}, {nodes} nodes per scale ({count} nodes): baked - exact, of the amplitude: max {worst:.4}, RMS {rms:.4}");
                 if (NoiseEval::Baked { nodes }) == NoiseEval::DEFAULT {
-                    assert!(worst < 0.1 && rms < 0.025, "max {worst}, RMS {rms}");
+                    assert!(worst < 0.25 && rms < 0.06, "max {worst}, RMS {rms}");
                 }
             }
         }
