@@ -167,15 +167,24 @@ pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams, motion
 }
 
 /// [`march_majorant`] and the baked offset noise the march reads over it (none without
-/// offset noise or where it is evaluated exactly, [`NoiseEval`]).
+/// offset noise or where it is evaluated exactly, [`NoiseEval`]). A lattice finer than
+/// [`FINEST_OFFSET_NODES`] of a voxel would hold more nodes than the march takes samples
+/// (at the default step, about two a voxel along a ray) and grow with the cube of the
+/// noise's frequency: there the fBm is evaluated at each sample instead.
 pub(crate) fn march_grids(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> (MajorantGrid, Option<Offsets>) {
     let moved = moved_majorant(density, params, motion);
+    let voxel = density.transform().voxel_size().min_element();
     let offsets = match params.noise_eval {
-        NoiseEval::Baked { nodes } if params.offset_noise > 0.0 => Some(Offsets::bake(density, &moved, params, nodes)),
+        NoiseEval::Baked { nodes } if params.offset_noise > 0.0 && params.noise_scale / nodes as f64 >= FINEST_OFFSET_NODES * voxel => {
+            Some(Offsets::bake(density, &moved, params, nodes))
+        }
         _ => None,
     };
     (noise_dilated(density, moved, params), offsets)
 }
+
+/// The finest spacing of the baked offset noise's nodes, in voxels ([`march_grids`]).
+pub(crate) const FINEST_OFFSET_NODES: f64 = 0.5;
 
 /// A bound on the offset noise's displacement per world axis, in amplitudes.
 pub(crate) const NOISE_REACH: f64 = 2.0;

@@ -180,7 +180,9 @@ pub struct MarchParams {
 pub enum NoiseEval {
     /// The fBm baked once per render at the nodes of a lattice anchored in world space,
     /// `nodes` per `noise_scale` along each axis, over the cells the march can visit, and
-    /// interpolated trilinearly at each sample.
+    /// interpolated trilinearly at each sample. Where that spacing would be under half the
+    /// density's voxel (a noise scale under two voxels at 4 nodes), more nodes than samples,
+    /// the fBm is evaluated at each sample instead, on both backends.
     Baked { nodes: u32 },
     /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
     /// that measure the baked field against it (tens of times the march's cost).
