@@ -5,15 +5,17 @@
 //! caches `scripts/bench_noise.sh` makes with `scripts/demo.sh`'s flags:
 //!
 //!     scripts/bench_noise.sh        (makes out/bench/noise/{cloud,plume}.vdb, then runs this)
-//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8] [-- runs=5] [-- only=cloud] [-- size=960x540]
+//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8 runs=5 only=cloud size=960x540 exact=0]
 //!
-//! `exact=0` leaves the exact march and the errors out (times alone). Rows: the march without noise, with the baked noise at each lattice (nodes per noise
+//! Rows: the march without noise, with the baked noise at each lattice (nodes per noise
 //! scale; a lattice finer than half a voxel is not baked but evaluated per sample, so at
-//! the default scale nodes=16 is the exact march) and with the exact per-sample fBm; medians of `runs` alternating runs (the exact
-//! march once: it takes tens of seconds), and the ratio to the march without noise. Error:
-//! the relative RMSE of each image against the exact-noise image over the pixels it covers
-//! (alpha > 1%), relative to their mean radiance, and the largest per-pixel difference in
-//! alpha.
+//! the default scale nodes=16 is the exact march) and with the exact per-sample fBm;
+//! medians of `runs` alternating runs (the exact march once: it takes tens of times as
+//! long), and the ratio to the march without noise. Error: the relative RMSE of each image
+//! against the exact-noise image over the pixels it covers (alpha > 1%), relative to their
+//! mean radiance, and the largest per-pixel difference in alpha. `exact=0` leaves the exact
+//! march and the errors out (times alone); `size=WxH` renders at another size (the error
+//! figures in docs/benchmarks.md are at 240x135, where the exact march takes a minute).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
