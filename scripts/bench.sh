@@ -15,6 +15,8 @@ run cargo bench --locked -p nimbus-march --bench render
 # vdbmarch on the Cloud1-class and smoke-like caches (made by the release tools).
 run scripts/bench-scenes.sh
 run cargo bench --locked -p nimbus-march --bench scenes
+# The offset noise on the demo's cloud and plume: no noise, baked, exact (issue #30).
+run scripts/bench_noise.sh
 # The Cloud1-class chain at its defaults, stage by stage, beside the paper's Table 4.
 run scripts/bench_cloud1.sh out/bench/cloud1
 # A Blender Mantaflow smoke file through the chain (where Blender is installed).

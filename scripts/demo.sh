@@ -36,16 +36,12 @@ render() {
 # about a sixth of the light on a horizontal surface, as on a clear day), which camera rays
 # also see behind the volume, as Blender shows its World.
 
+source scripts/demo_scenes.sh
 # A flat cumulus deck (340 x 360 x 40 units) under a low sun, seen from above its edge,
 # with the paper's Perlin offset noise (one voxel) for detail finer than the particles.
-render cloud data/cloud.ply "--voxel-size 2" \
-  "--extinction 30 --albedo 0.95 --g 0.6 --sun dir=0.5,0.3,-0.8,irradiance=4 --sky 0.12,0.2,0.36" \
-  "--eye 170,-300,160 --look-at 170,180,10" \
-  --offset-noise 2
+render cloud data/cloud.ply "$CLOUD_DENSITY" "$CLOUD_LIGHT" "$CLOUD_CAMERA" --offset-noise 2
 # A smoke plume rising 150 units, darker and more absorbing, lit from the side.
-render plume data/plume.ply "--voxel-size 1" \
-  "--extinction 40 --albedo 0.8 --g 0.3 --sun dir=-0.7,0.5,-0.5,irradiance=5 --sky 0.15,0.24,0.42" \
-  ""
+render plume data/plume.ply "$PLUME_DENSITY" "$PLUME_LIGHT" "$PLUME_CAMERA"
 # A Blender 3.4 Mantaflow fire (data/fire.vdb, data/README.md): its `temperature` grid is
 # recognised as a blackbody and rendered as fire by default. The medium is the .blend's own
 # Quick Smoke material (Principled Volume density 5, colour 0.5, no anisotropy); a sun from

@@ -40,6 +40,14 @@ struct MarchUniforms {
     first_pixel: u32,
     tile_pixels: u32,
     _pad: u32,
+    // The baked offset noise (crates/march/src/offsets.rs): the eye's lattice index, nodes
+    // per world unit, the brick table's first brick and extent; offset_baked 0: exact.
+    offset_eye: vec3<f32>,
+    offset_per_world: f32,
+    offset_lo: vec3<i32>,
+    offset_baked: u32,
+    offset_dims: vec3<i32>,
+    _pad1: u32,
 }
 
 struct PixelOut {
@@ -76,6 +84,10 @@ const FLAG_MULTIPLE: u32 = 2u;
 // The map seen behind the volume (Environment::gpu_words of it; kind 0 where there is none),
 // read by environment.wgsl.
 @group(1) @binding(11) var<storage, read> environment: array<f32>;
+// The baked offset noise: per brick of 8^3 cells its slot (0xffffffff: none), and per slot
+// its 9^3 nodes (x-major, z fastest), the displacement in xyz (layout.rs Lattice).
+@group(1) @binding(12) var<storage, read> offset_table: array<u32>;
+@group(1) @binding(13) var<storage, read> offset_nodes: array<vec4<f32>>;
 
 fn env_word(i: u32) -> f32 {
     return environment[i];
@@ -99,6 +111,31 @@ fn li_multiple(x: vec3<f32>) -> vec3<f32> {
         return volume_sample_index_filtered_in(multiple_atlas, multiple_table, multiple_sampler, multiple_info, p).xyz;
     }
     return volume_sample_index_in(multiple_atlas, multiple_table, multiple_info, p).xyz;
+}
+
+// The baked displacement at x (relative to the eye): Lattice::sample over the offset
+// lattice, its lerps in the same order (z, then y, then x); zero outside the baked bricks.
+fn offset_baked(x: vec3<f32>) -> vec3<f32> {
+    let p = params.offset_eye + x * params.offset_per_world;
+    let f = floor(p);
+    let i = vec3<i32>(f);
+    let b = (i >> vec3<u32>(3u)) - params.offset_lo;
+    let dims = params.offset_dims;
+    if (any(b < vec3<i32>(0)) || any(b >= dims)) {
+        return vec3<f32>(0.0);
+    }
+    let slot = offset_table[u32((b.x * dims.y + b.y) * dims.z + b.z)];
+    if (slot == 0xffffffffu) {
+        return vec3<f32>(0.0);
+    }
+    let l = vec3<u32>(i & vec3<i32>(7));
+    let n = slot * 729u + (l.x * 9u + l.y) * 9u + l.z;
+    let w = p - f;
+    let c00 = mix(offset_nodes[n].xyz, offset_nodes[n + 1u].xyz, w.z);
+    let c01 = mix(offset_nodes[n + 9u].xyz, offset_nodes[n + 10u].xyz, w.z);
+    let c10 = mix(offset_nodes[n + 81u].xyz, offset_nodes[n + 82u].xyz, w.z);
+    let c11 = mix(offset_nodes[n + 90u].xyz, offset_nodes[n + 91u].xyz, w.z);
+    return mix(mix(c00, c01, w.y), mix(c10, c11, w.y), w.x);
 }
 
 // 1 - exp(-x) for x >= 0 without the cancellation that costs thin media their precision.
@@ -154,8 +191,12 @@ fn march_ray(dir: vec3<f32>, xi: f32, u: f32) -> PixelOut {
             start = start + g;
             var x = eye + dir * t;
             if (jitter) {
-                let q = params.noise_offset + x * params.noise_inv_scale;
-                x = x + noise_fbm3_vec_split(params.noise_base, q, params.noise_octaves, params.noise_seed) * params.offset_noise;
+                if (params.offset_baked != 0u) {
+                    x = x + offset_baked(x);
+                } else {
+                    let q = params.noise_offset + x * params.noise_inv_scale;
+                    x = x + noise_fbm3_vec_split(params.noise_base, q, params.noise_octaves, params.noise_seed) * params.offset_noise;
+                }
             }
             x = motion_back(x);
             let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(x)), 0.0);

@@ -261,6 +261,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
         offset_noise: args.offset_noise,
         noise_scale: args.noise_scale.unwrap_or(4.0 * voxel.max_element()),
         noise_octaves: 3,
+        noise_eval: Default::default(),
         min_transmittance: args.min_transmittance,
         seed: args.seed.or(meta.seed()).unwrap_or(0),
         aovs: args.aovs,

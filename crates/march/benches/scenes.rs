@@ -71,6 +71,7 @@ fn load(name: &'static str, path: &Path) -> Scene {
         offset_noise: 0.0,
         noise_scale: 4.0 * voxel.max_element(),
         noise_octaves: 3,
+        noise_eval: Default::default(),
         min_transmittance: 1e-4,
         seed: meta.seed().unwrap_or(0),
         aovs: false,

@@ -10,10 +10,11 @@ use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
 use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
+use crate::offsets::Offsets;
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
-use crate::{assemble, Groups, Image, MarchError, MarchParams, MediumFields, GROUP_DOMAIN};
+use crate::{assemble, Groups, Image, MarchError, MarchParams, MediumFields, NoiseEval, GROUP_DOMAIN};
 use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 
 /// Random-number domain of camera samples.
@@ -37,7 +38,8 @@ pub struct RayResult {
 }
 
 /// Marches one camera ray. `xi` in [0,1) places the step lattice, `u` in [0,1) the sample
-/// in each group of lattice steps (see the crate doc).
+/// in each group of lattice steps (see the crate doc); offset noise, if any, is evaluated
+/// exactly at each sample (the renders bake it).
 #[allow(clippy::too_many_arguments)]
 pub fn march_ray(
     density: &Volume<f32>,
@@ -49,7 +51,7 @@ pub fn march_ray(
     xi: f64,
     u: f64,
 ) -> RayResult {
-    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None)
+    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None, None)
 }
 
 /// [`march_ray`] with what the medium holds beyond its density. `emission`: each sample
@@ -60,8 +62,10 @@ pub fn march_ray(
 /// (Eulerian motion blur): every lookup, the density, the cache's Li and the emission, at the
 /// sample's position moved back along the velocity ([`Motion::back`]); `majorant` must bound
 /// the moved density ([`MotionBlur::majorant_radius`]).
+/// `offsets`: the baked offset noise where given, else the noise (if any) is evaluated
+/// exactly at each sample ([`offset`]).
 #[allow(clippy::too_many_arguments)]
-pub fn march_ray_with(
+pub(crate) fn march_ray_with(
     density: &Volume<f32>,
     majorant: &MajorantGrid,
     cache: &IlluminationCache,
@@ -72,6 +76,7 @@ pub fn march_ray_with(
     u: f64,
     emission: Option<&EmissionField>,
     motion: Option<Motion>,
+    offsets: Option<&Offsets>,
 ) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
@@ -83,7 +88,7 @@ pub fn march_ray_with(
     for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
         let mut x = origin + dir * t;
         if jitter {
-            x += offset(params, x);
+            x += displacement(params, offsets, Unfused, x);
         }
         if let Some(m) = motion {
             x = m.back(x);
@@ -132,29 +137,83 @@ fn lattice_samples<'a>(majorant: &'a MajorantGrid, params: &'a MarchParams, o: D
         })
 }
 
-/// The offset noise's displacement of a sample at world position `x`.
-fn offset(params: &MarchParams, x: DVec3) -> DVec3 {
+/// The offset noise's displacement of a sample at world position `x`, exactly: the fBm
+/// the baked field ([`Offsets`]) holds at its nodes.
+pub(crate) fn offset(params: &MarchParams, x: DVec3) -> DVec3 {
     fbm3_vec(x / params.noise_scale, params.noise_octaves, params.seed as u32).as_dvec3() * params.offset_noise
+}
+
+/// The displacement at `x`: interpolated from `offsets` where baked, else exact.
+#[inline(always)]
+fn displacement<A: Arith>(params: &MarchParams, offsets: Option<&Offsets>, arith: A, x: DVec3) -> DVec3 {
+    match offsets {
+        Some(o) => o.at(arith, x),
+        None => offset(params, x),
+    }
 }
 
 /// The majorant grid both backends march. Offset noise samples the density up to its
 /// displacement away from the ray being walked, so each cell must also bound the cells within
 /// that distance (index space, per axis) or the march would skip segments whose displaced
 /// samples see density: the grid is dilated by it. The fBm's components stay within about
-/// [-1, 1]; twice the amplitude is a generous bound. Motion blur moves the medium too, by up
-/// to [`MotionBlur::majorant_radius`] within the shutter.
+/// [-1, 1]; twice the amplitude is a generous bound ([`NOISE_REACH`]). Motion blur moves the
+/// medium too, by up to [`MotionBlur::majorant_radius`] within the shutter.
+///
+/// With offset noise the cells are two voxels rather than a brick ([`NOISE_CELL_LOG2`]): a
+/// ray then walks empty space within about the noise's reach of the medium, not within a
+/// brick of it.
 pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> MajorantGrid {
-    let mut grid = MajorantGrid::build(density);
-    if params.offset_noise > 0.0 {
-        let m = density.transform().world_to_index().matrix3;
-        // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
-        let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
-        grid = grid.dilated(rows * (2.0 * params.offset_noise));
+    noise_dilated(density, moved_majorant(density, params, motion), params)
+}
+
+/// [`march_majorant`] and the baked offset noise the march reads over it (none without
+/// offset noise or where it is evaluated exactly, [`NoiseEval`]). A lattice finer than
+/// [`FINEST_OFFSET_NODES`] of a voxel would hold more nodes than the march takes samples
+/// (at the default step, about two a voxel along a ray) and grow with the cube of the
+/// noise's frequency: there the fBm is evaluated at each sample instead.
+pub(crate) fn march_grids(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> (MajorantGrid, Option<Offsets>) {
+    let moved = moved_majorant(density, params, motion);
+    let voxel = density.transform().voxel_size().min_element();
+    let offsets = match params.noise_eval {
+        NoiseEval::Baked { nodes } if params.offset_noise > 0.0 && params.noise_scale / nodes as f64 >= FINEST_OFFSET_NODES * voxel => {
+            Some(Offsets::bake(density, &moved, params, nodes))
+        }
+        _ => None,
+    };
+    (noise_dilated(density, moved, params), offsets)
+}
+
+/// The finest spacing of the baked offset noise's nodes, in voxels ([`march_grids`]).
+pub(crate) const FINEST_OFFSET_NODES: f64 = 0.5;
+
+/// A bound on the offset noise's displacement per world axis, in amplitudes.
+pub(crate) const NOISE_REACH: f64 = 2.0;
+
+/// log2 of the majorant grid's cell edge in voxels with offset noise ([`march_majorant`]).
+pub(crate) const NOISE_CELL_LOG2: u32 = 1;
+
+/// The density's majorant grid (two-voxel cells with offset noise, else brick cells),
+/// dilated by how far motion blur moves the medium.
+fn moved_majorant(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> MajorantGrid {
+    let grid = match params.offset_noise > 0.0 {
+        true => MajorantGrid::with_cell_log2(density, NOISE_CELL_LOG2),
+        false => MajorantGrid::build(density),
+    };
+    match motion {
+        Some(m) => grid.dilated(m.majorant_radius(density)),
+        None => grid,
     }
-    if let Some(m) = motion {
-        grid = grid.dilated(m.majorant_radius(density));
+}
+
+/// `grid` dilated by the offset noise's reach, where there is noise.
+fn noise_dilated(density: &Volume<f32>, grid: MajorantGrid, params: &MarchParams) -> MajorantGrid {
+    if !(params.offset_noise > 0.0) {
+        return grid;
     }
-    grid
+    let m = density.transform().world_to_index().matrix3;
+    // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
+    let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
+    grid.dilated(rows * (NOISE_REACH * params.offset_noise))
 }
 
 /// Where in the pixel sample `s` of `spp` looks, from two uniform numbers: jittered within
@@ -179,17 +238,24 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
     params.validate()?;
     // The layout's own brick table skips empty space unless offset noise moves samples
     // off the ray, which needs the dilated majorant grid.
-    let majorant = (params.offset_noise > 0.0).then(|| march_majorant(density, params, None));
+    let (majorant, offsets) = match params.offset_noise > 0.0 {
+        true => {
+            let (majorant, offsets) = march_grids(density, params, None);
+            (Some(majorant), offsets)
+        }
+        false => (None, None),
+    };
+    let offsets = offsets.as_ref();
     let albedo = params.medium.albedo;
     let pixels = if params.aovs {
         match MarchVolume::<[Vec4; 2]>::new(density, cache, albedo) {
-            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
-            None => render_plain(density, cache, params, majorant),
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), offsets, params }),
+            None => render_plain(density, cache, params, majorant, offsets),
         }
     } else {
         match MarchVolume::<Vec4>::new(density, cache, albedo) {
-            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), params }),
-            None => render_plain(density, cache, params, majorant),
+            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), offsets, params }),
+            None => render_plain(density, cache, params, majorant, offsets),
         }
     };
     Ok(assemble(params, &pixels))
@@ -208,8 +274,8 @@ pub fn render_cpu_with(density: &Volume<f32>, cache: &IlluminationCache, params:
         return render_cpu(density, cache, params);
     }
     params.validate()?;
-    let majorant = march_majorant(density, params, motion);
-    let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied() });
+    let (majorant, offsets) = march_grids(density, params, motion);
+    let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied(), offsets: offsets.as_ref() });
     Ok(assemble(params, &pixels))
 }
 
@@ -221,19 +287,20 @@ struct Extras<'a> {
     params: &'a MarchParams,
     emission: Option<&'a EmissionField<'a>>,
     motion: Option<MotionBlur<'a>>,
+    offsets: Option<&'a Offsets>,
 }
 
 impl Marcher for Extras<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult {
         let motion = self.motion.map(|m| m.at(shutter));
-        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion, self.offsets)
     }
 }
 
 /// [`march_ray`] itself over the image, where the layout does not apply.
-fn render_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, majorant: Option<MajorantGrid>) -> Vec<RayResult> {
+fn render_plain(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, majorant: Option<MajorantGrid>, offsets: Option<&Offsets>) -> Vec<RayResult> {
     let majorant = majorant.unwrap_or_else(|| march_majorant(density, params, None));
-    render_tiles(params, &Plain { density, majorant: &majorant, cache, params })
+    render_tiles(params, &Plain { density, majorant: &majorant, cache, params, offsets })
 }
 
 /// Pixel edge of the square tiles the CPU marches one after another.
@@ -253,11 +320,13 @@ struct Plain<'a> {
     majorant: &'a MajorantGrid,
     cache: &'a IlluminationCache,
     params: &'a MarchParams,
+    /// The baked offset noise, if any (else exact, where there is noise).
+    offsets: Option<&'a Offsets>,
 }
 
 impl Marcher for Plain<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
-        march_ray(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, None, None, self.offsets)
     }
 }
 
@@ -265,6 +334,8 @@ struct Fast<'a, T: DensityPoint> {
     volume: &'a MarchVolume<T>,
     /// The dilated majorant grid, with offset noise.
     majorant: Option<&'a MajorantGrid>,
+    /// The baked offset noise, if any (else exact, where there is noise).
+    offsets: Option<&'a Offsets>,
     params: &'a MarchParams,
 }
 
@@ -272,7 +343,7 @@ impl<T: DensityPoint> Marcher for Fast<'_, T> {
     #[inline(always)]
     fn march<A: Arith>(&self, arith: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
         match self.majorant {
-            Some(majorant) => self.volume.march_displaced(arith, majorant, self.params, origin, dir, xi, u),
+            Some(majorant) => self.volume.march_displaced(arith, majorant, self.offsets, self.params, origin, dir, xi, u),
             None => self.volume.march(arith, self.params, origin, dir, xi, u),
         }
     }
@@ -536,14 +607,19 @@ impl<T: DensityPoint> MarchVolume<T> {
     /// [`march_ray`] over this layout with offset noise, over the dilated majorant grid.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
+    fn march_displaced<A: Arith>(&self, arith: A, majorant: &MajorantGrid, offsets: Option<&Offsets>, params: &MarchParams, origin: DVec3, dir: DVec3, xi: f64, u: f64) -> RayResult {
         let to_index = self.density.world_to_index();
         let (o, d) = (to_index.transform_point3(origin), to_index.transform_vector3(dir));
         let rays = self.other_rays(origin, dir);
         let mut c = Composite::<T>::new(params.min_transmittance as f32);
         let (mut b, mut n) = (Batch::new(), 0);
+        // The ray in the baked field's lattice.
+        let along = offsets.map(|f| (f, f.to_lattice(origin), dir * f.per_world));
         for (t, step) in lattice_samples(majorant, params, o, d, xi, u) {
-            let shift = offset(params, origin + dir * t);
+            let shift = match along {
+                Some((f, q, dq)) => f.at_lattice(arith, q + dq * t),
+                None => offset(params, origin + dir * t),
+            };
             let v = self.density.sample(arith, o + d * t + to_index.transform_vector3(shift));
             self.take(arith, &mut b, n, step as f32 * params.medium.extinction, t, v, &rays, Some(shift));
             n += 1;
@@ -562,7 +638,7 @@ impl<T: DensityPoint> MarchVolume<T> {
 /// The test scenes of `tests/` (clouds, caches, cameras).
 #[cfg(test)]
 #[path = "../tests/common/mod.rs"]
-mod scenes;
+pub(crate) mod scenes;
 
 #[cfg(test)]
 pub(crate) mod tests {
@@ -579,8 +655,8 @@ pub(crate) mod tests {
             let stopped = fast.rgba.iter().filter(|p| p.w == 1.0).count();
             assert!(stopped > 10, "rays stop early: {stopped}");
         }
-        let majorant = march_majorant(density, params, None);
-        let plain = assemble(params, &render_tiles(params, &Plain { density, majorant: &majorant, cache, params }));
+        let (majorant, offsets) = march_grids(density, params, None);
+        let plain = assemble(params, &render_tiles(params, &Plain { density, majorant: &majorant, cache, params, offsets: offsets.as_ref() }));
         let lum = |p: Vec3| p.element_sum();
         let max = plain.rgba.iter().map(|p| lum(p.truncate())).fold(0.0, f32::max);
         assert!(max > 0.0, "the scene is lit");
@@ -679,7 +755,7 @@ pub(crate) mod tests {
         // One ray through march_ray_with itself, and without emission nothing.
         let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
         let majorant = march_majorant(&slab, &p, None);
-        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None);
+        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None, None);
         assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
         let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);
         assert_eq!(r.emission, Vec3::ZERO);
@@ -696,7 +772,7 @@ pub(crate) mod tests {
             fn portable<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCache, p: &MarchParams) -> Image {
                 let volume = MarchVolume::<T>::new(density, cache, p.medium.albedo).unwrap();
                 let mut pixels = vec![RayResult::default(); (p.camera.width() * p.camera.height()) as usize];
-                render_band(Unfused, p, &Fast { volume: &volume, majorant: None, params: p }, 0, &mut pixels);
+                render_band(Unfused, p, &Fast { volume: &volume, majorant: None, offsets: None, params: p }, 0, &mut pixels);
                 assemble(p, &pixels)
             }
             let portable = if aovs { portable::<[Vec4; 2]>(&density, &cache, &p) } else { portable::<Vec4>(&density, &cache, &p) };

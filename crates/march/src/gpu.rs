@@ -1,13 +1,14 @@
 //! The GPU backend: one wgpu invocation per pixel (`shaders/march.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, IVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
 
+use crate::offsets::Offsets;
 use crate::{assemble, Image, MarchError, MarchParams, MediumFields, RayResult};
 
 /// Perlin noise and fBm, the WGSL twin of `nimbus_optics::noise` (`shaders/noise.wgsl`):
@@ -88,6 +89,14 @@ struct GpuMarchParams {
     /// Pixels in this tile.
     tile_pixels: u32,
     _pad: u32,
+    /// The baked offset noise (crate::offsets): the eye's lattice index, nodes per world unit,
+    /// the brick table's first brick and extent, and whether the noise is baked (else exact).
+    offset_eye: [f32; 3],
+    offset_per_world: f32,
+    offset_lo: [i32; 3],
+    offset_baked: u32,
+    offset_dims: [i32; 3],
+    _pad1: u32,
 }
 
 /// WGSL `PixelOut` (march.wgsl and reference.wgsl).
@@ -147,13 +156,13 @@ pub fn render_gpu_with(
 ) -> Result<Image, MarchError> {
     let MediumFields { emission, motion } = fields;
     params.validate()?;
-    let majorant = crate::cpu::march_majorant(density, params, motion);
+    let (majorant, offsets) = crate::cpu::march_grids(density, params, motion);
     if ctx.loop_cap().is_some() {
         let steps = longest_march(density, &majorant, params);
         let work = format!("a pixel's march of up to {steps} steps ({} spp)", params.spp);
         ctx.check_loop_bound(steps.saturating_mul(ITERATIONS_PER_STEP), work, "or a longer --step")?;
     }
-    let pixels = march_pixels(ctx, density, &majorant, cache, params, emission, motion, options)?;
+    let pixels = march_pixels(ctx, density, &majorant, offsets.as_ref(), cache, params, emission, motion, options)?;
     Ok(assemble(params, &pixels))
 }
 
@@ -180,6 +189,7 @@ fn march_pixels(
     ctx: &GpuContext,
     density: &Volume<f32>,
     majorant: &MajorantGrid,
+    offsets: Option<&Offsets>,
     cache: &IlluminationCache,
     params: &MarchParams,
     emission: Option<&EmissionField>,
@@ -201,7 +211,7 @@ fn march_pixels(
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
     let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
     entries.extend(GpuVolume::layout_entries(4, filterable));
-    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true)]);
+    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
     let source = ctx.compose_shader(&format!(
@@ -218,6 +228,12 @@ fn march_pixels(
 
     let (noise_base, noise_offset) =
         if params.offset_noise > 0.0 { noise_split(origin, params.noise_scale) } else { ([0; 3], [0.0; 3]) };
+    // The baked offset noise, the CPU's bake itself (an empty table where there is none).
+    let (offset_table, offset_lo, offset_dims) = offsets.map_or((&[][..], IVec3::ZERO, IVec3::ZERO), |o| o.lattice.table());
+    let offset_values = offsets.map_or(&[][..], |o| o.lattice.values());
+    let offset_eye = offsets.map_or(DVec3::ZERO, |o| o.to_lattice(origin));
+    let offset_table = ctx.storage_buffer("offset bricks", if offset_table.is_empty() { &[u32::MAX][..] } else { offset_table })?;
+    let offset_values = ctx.storage_buffer("offsets", if offset_values.is_empty() { &[Vec4::ZERO][..] } else { offset_values })?;
     let uniforms = GpuMarchParams {
         camera: GpuCamera::new(camera, origin),
         medium: GpuMedium::from(&params.medium),
@@ -244,6 +260,12 @@ fn march_pixels(
         first_pixel: 0,
         tile_pixels: 0,
         _pad: 0,
+        offset_eye: offset_eye.as_vec3().to_array(),
+        offset_per_world: offsets.map_or(0.0, |o| o.per_world as f32),
+        offset_lo: offset_lo.to_array(),
+        offset_baked: u32::from(offsets.is_some()),
+        offset_dims: offset_dims.to_array(),
+        _pad1: 0,
     };
     // The march reads its cells' step factors where the walk reads bounds (0: empty, as a
     // zero bound is): `MarchParams::step_factor` once per cell, so both backends take the
@@ -264,6 +286,8 @@ fn march_pixels(
             wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 11, resource: behind.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 12, resource: offset_table.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 13, resource: offset_values.as_entire_binding() },
         ]);
         ctx.bind_group("march", &layout, &group_entries)
     })
@@ -332,7 +356,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuMarchParams>(), 224);
+        assert_eq!(size_of::<GpuMarchParams>(), 272);
         assert_eq!(size_of::<GpuPixel>(), 64);
     }
 

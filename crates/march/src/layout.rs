@@ -148,7 +148,7 @@ impl CellBox {
 impl<T: Point> Lattice<T> {
     /// A lattice of the bricks at brick coordinates `bricks` (repeats allowed), each filled
     /// by `fill(voxel origin, its 9^3 points)`, in parallel; `background` everywhere else.
-    fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> Visit + Sync) -> Self {
+    pub(crate) fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> Visit + Sync) -> Self {
         let (lo, hi) = bricks.iter().fold((IVec3::MAX, IVec3::MIN), |(l, h), &b| (l.min(b), h.max(b)));
         let dims = if bricks.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
         let index = |b: IVec3| (((b.x - lo.x) * dims.y + (b.y - lo.y)) * dims.z + (b.z - lo.z)) as usize;
@@ -176,6 +176,17 @@ impl<T: Point> Lattice<T> {
 
     pub fn world_to_index(&self) -> &DAffine3 {
         &self.world_to_index
+    }
+
+    /// Every stored brick's points, brick after brick in slot order ([`Lattice::brick`]).
+    pub fn values(&self) -> &[T] {
+        &self.values
+    }
+
+    /// The brick table (slots, [`EMPTY`] where no brick is stored; x-major, z fastest) and
+    /// its first brick coordinate and extent: what the GPU reads the lattice by.
+    pub fn table(&self) -> (&[u32], IVec3, IVec3) {
+        (&self.table, self.lo, self.dims)
     }
 
     /// Trilinear interpolation at index-space point `p`, in the order of

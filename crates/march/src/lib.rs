@@ -24,11 +24,20 @@
 //!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
-//!   coarse volumes; amplitude 0 costs nothing.
+//!   coarse volumes. Like the paper's 3D texture of offsets, the field is baked once per
+//!   render ([`NoiseEval::Baked`], `offsets.rs`): the exact fBm at the nodes of a lattice
+//!   anchored in world space, 4 nodes per `noise_scale` per axis (one per cell of the
+//!   finest of vdbmarch's 3 octaves: every octave is kept, the finest one interpolated
+//!   coarsely), over the bricks of nodes within the noise's reach of the medium,
+//!   interpolated trilinearly at each sample. Per-sample fBm had made the demo
+//!   cloud's march 60x the march without noise; see docs/benchmarks.md ("Offset noise")
+//!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
+//!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
+//!   dilated by the noise's reach. Amplitude 0 costs nothing: no bake, no dilation.
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
-//! Emission (issue #19, [`render_cpu_with`] and [`march_ray_with`] with a [`MediumFields`] holding, an
+//! Emission (issue #19, [`render_cpu_with`] and `march_ray_with` with a [`MediumFields`] holding, an
 //! [`EmissionField`]): each sample also adds `T e(x) (1 - exp(-sigma_t dt)) / sigma_t`, e the
 //! emitted radiance per unit length, the exact integral of `T e` over the step for e and
 //! sigma_t constant over it; it goes to [`RayResult::emission`] (the `emission` layer). So
@@ -60,7 +69,8 @@
 //! - [`render_gpu`] / [`render_gpu_with`]: one wgpu invocation per pixel
 //!   (`shaders/march.wgsl`, over `shaders/tracking.wgsl` for the majorant DDA and
 //!   `shaders/noise.wgsl`, the bit-exact-hash WGSL twin of `nimbus_optics::noise`, for the
-//!   offset noise). Pixel i draws from the same Philox stream as on the CPU, in the same
+//!   exact offset noise; the baked one is the CPU's bake itself, its brick table and nodes
+//!   in two storage buffers, interpolated in the CPU's order). Pixel i draws from the same Philox stream as on the CPU, in the same
 //!   order (jitter, then the lattice offset xi, per sample; u from its own stream), and
 //!   reads the CPU's step factor per majorant cell, so the two images agree to f32
 //!   rounding (the tests hold lit pixels to 1e-4 relative). The density is the default
@@ -68,8 +78,9 @@
 //!   atlas volumes, read by hardware-filtered lookups where the device filters float
 //!   textures ([`CacheLookup::Filtered`], the default: within ~1/256 of Li's local range
 //!   of the exact value) or exactly ([`CacheLookup::Exact`]). Positions are f32 relative to
-//!   the eye, noise positions split into a lattice point and a remainder, so far-from-origin
-//!   scenes keep their precision. Across adjacent non-empty majorant segments both carry
+//!   the eye, exact-noise positions split into a lattice point and a remainder, baked-noise
+//!   ones the eye's position in the offset lattice plus the sample's offset from the eye, so
+//!   far-from-origin scenes keep their precision. Across adjacent non-empty majorant segments both carry
 //!   the group start over instead of recomputing it from the segment start, so a lattice
 //!   point lying on a boundary within f32 rounding is taken exactly once; `1 - exp(-sigma_t dt)` is evaluated
 //!   without cancellation in thin media.
@@ -82,12 +93,13 @@ mod cpu;
 mod gpu;
 mod image;
 mod layout;
+mod offsets;
 mod reference;
 mod samples;
 mod simd;
 mod view;
 
-pub use cpu::{march_ray, march_ray_with, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
+pub use cpu::{march_ray, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
 pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
@@ -153,10 +165,38 @@ pub struct MarchParams {
     /// Feature size of the jitter field, world units.
     pub noise_scale: f64,
     pub noise_octaves: u32,
+    /// How the jitter field is evaluated: baked on a world-anchored lattice (the default)
+    /// or exactly at every sample.
+    pub noise_eval: NoiseEval,
     pub min_transmittance: f64,
     pub seed: u64,
     /// Keep the single, multiple, transmittance and depth layers.
     pub aovs: bool,
+}
+
+/// How the march evaluates the offset noise (design.md section 9): a function of the
+/// sample's world position either way.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoiseEval {
+    /// The fBm baked once per render at the nodes of a lattice anchored in world space,
+    /// `nodes` per `noise_scale` along each axis, over the cells the march can visit, and
+    /// interpolated trilinearly at each sample. Where that spacing would be under half the
+    /// density's voxel (a noise scale under two voxels at 4 nodes), more nodes than samples,
+    /// the fBm is evaluated at each sample instead, on both backends.
+    Baked { nodes: u32 },
+    /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
+    /// that measure the baked field against it (tens of times the march's cost).
+    Exact,
+}
+
+impl NoiseEval {
+    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 4 };
+}
+
+impl Default for NoiseEval {
+    fn default() -> Self {
+        NoiseEval::DEFAULT
+    }
 }
 
 /// Most optical depth, at its cell's density bound, that a lengthened step may span
@@ -282,6 +322,9 @@ impl MarchParams {
         }
         if self.offset_noise > 0.0 && !(self.noise_scale > 0.0 && self.noise_scale.is_finite()) {
             return Err(MarchError::Param(format!("--noise-scale must be positive, got {}", self.noise_scale)));
+        }
+        if self.noise_eval == (NoiseEval::Baked { nodes: 0 }) {
+            return Err(MarchError::Param("the baked offset noise needs at least one node per noise scale".into()));
         }
         if !self.background.is_finite() {
             return Err(MarchError::Param("--background must be finite".into()));

@@ -7,7 +7,7 @@ mod common;
 use common::{cache_for, camera, cloud, gpu, params};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, GpuContext};
-use nimbus_march::{render_cpu, render_cpu_with, render_gpu, render_gpu_with, CacheLookup, EmissionField, GpuMarchOptions, Image, MarchParams, MediumFields, NOISE_WGSL};
+use nimbus_march::{render_cpu, render_cpu_with, render_gpu, render_gpu_with, CacheLookup, EmissionField, GpuMarchOptions, Image, MarchParams, MediumFields, NoiseEval, NOISE_WGSL};
 use nimbus_optics::noise::{fbm3_vec, perlin3};
 
 /// Worst relative difference over lit pixels (scattered light above 1e-3 of the brightest pixel) of
@@ -121,10 +121,16 @@ fn images_agree_with_offset_noise_and_jittered_samples() {
     let (v, cache, mut p) = scene(DVec3::ZERO);
     p.offset_noise = 0.15;
     p.spp = 3;
-    let cpu = both_agree(ctx, "offset noise, 3 spp", &v, &cache, &p);
-    // The noise really moved the samples.
+    // The baked field (the default) and the fBm at every sample, each on both backends.
+    let baked = both_agree(ctx, "offset noise baked, 3 spp", &v, &cache, &p);
+    let exact = both_agree(ctx, "offset noise exact, 3 spp", &v, &cache, &MarchParams { noise_eval: NoiseEval::Exact, ..p.clone() });
+    // The noise really moved the samples, and the baked field moved them nearly as the
+    // exact one does.
     let plain = render_cpu(&v, &cache, &MarchParams { offset_noise: 0.0, ..p.clone() }).unwrap();
-    assert!(diff(&plain, &cpu).rgb > 1e-2);
+    let (moved, apart) = (diff(&plain, &exact), diff(&baked, &exact));
+    report("baked against exact", &apart);
+    assert!(moved.rgb > 1e-2);
+    assert!(apart.rgb < 0.25 * moved.rgb, "baked {} vs exact, noise moved {}", apart.rgb, moved.rgb);
 }
 
 #[test]

@@ -86,6 +86,7 @@ fn single_scattering_matches_the_cached_chain() {
         offset_noise: 0.0,
         noise_scale: 1.0,
         noise_octaves: 1,
+        noise_eval: Default::default(),
         min_transmittance: 0.0,
         seed: 3,
         aovs: true,

@@ -40,6 +40,7 @@ fn params(camera: Camera, step: f64) -> MarchParams {
         offset_noise: 0.0,
         noise_scale: 1.0,
         noise_octaves: 1,
+        noise_eval: Default::default(),
         min_transmittance: 0.0,
         seed: 1,
         aovs: true,

@@ -53,6 +53,7 @@ fn single_scattering_chain_matches_a_brute_force_render() {
         offset_noise: 0.0,
         noise_scale: 1.0,
         noise_octaves: 1,
+        noise_eval: Default::default(),
         min_transmittance: 0.0,
         seed: 3,
         aovs: false,

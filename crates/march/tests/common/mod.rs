@@ -142,6 +142,7 @@ pub fn params(camera: Camera) -> MarchParams {
         offset_noise: 0.0,
         noise_scale: 0.5,
         noise_octaves: 3,
+        noise_eval: Default::default(),
         min_transmittance: 0.0,
         seed: 7,
         aovs: true,

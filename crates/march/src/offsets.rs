@@ -1,0 +1,223 @@
+//! The offset noise baked once per render on a lattice anchored in world space, read by
+//! trilinear interpolation at each sample (both backends; see the crate doc).
+//!
+//! Node `n` (three i64) sits at world position `n * noise_scale / nodes_per_scale` and holds
+//! `fbm3_vec(n / nodes_per_scale) * offset_noise`, the exact displacement there: the same
+//! world point always gets the same nodes and values, whatever the camera, the bounds or
+//! the frame. Only the noise-lattice bricks (8^3 cells, 9^3 nodes with the apron, the
+//! layout's [`Lattice`]) within the noise's reach ([`NOISE_REACH`] amplitudes per world
+//! axis) of a non-empty cell of the medium's majorant grid are baked. A sample further from
+//! every such cell reads no offset, and needs none: displaced by at most the reach, it would
+//! land outside them too, where the density is zero.
+
+use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3, Vec4};
+use nimbus_optics::noise::fbm3_vec_block;
+use nimbus_volume::{MajorantGrid, Volume, BRICK_LOG2};
+
+use crate::layout::{CellBox, Lattice, Visit, EDGE};
+use crate::cpu::NOISE_REACH;
+use crate::simd::Arith;
+use crate::MarchParams;
+
+/// The baked displacement field.
+pub(crate) struct Offsets {
+    pub lattice: Lattice<Vec4>,
+    /// World node index of the lattice's index 0 (a multiple of the brick size), so lattice
+    /// indices stay small however far from the origin the volume lies.
+    pub anchor: DVec3,
+    /// Nodes per world unit.
+    pub per_world: f64,
+}
+
+impl Offsets {
+    /// The field within the noise's reach of the non-empty cells of `medium` (a majorant
+    /// grid over `density`'s index space, not dilated for the noise), `nodes_per_scale`
+    /// nodes per `noise_scale`.
+    pub fn bake(density: &Volume<f32>, medium: &MajorantGrid, params: &MarchParams, nodes_per_scale: u32) -> Offsets {
+        let per_world = nodes_per_scale as f64 / params.noise_scale;
+        let reach = NOISE_REACH * params.offset_noise * per_world;
+        let to_world = density.transform().index_to_world();
+        let cell = medium.cell_size() as f64;
+        // Each non-empty cell's world box grown by the reach, in world node coordinates.
+        let dims = medium.dims();
+        let mut boxes = Vec::new();
+        for (i, &m) in medium.values().iter().enumerate() {
+            if !(m > 0.0) {
+                continue;
+            }
+            let (yz, z) = (i / dims.z as usize, (i % dims.z as usize) as i32);
+            let c = IVec3::new((yz / dims.y as usize) as i32, (yz % dims.y as usize) as i32, z);
+            let lo = (medium.origin() + c * medium.cell_size()).as_dvec3();
+            let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+            for k in 0..8 {
+                let corner = lo + DVec3::new((k >> 2 & 1) as f64, (k >> 1 & 1) as f64, (k & 1) as f64) * cell;
+                let w = to_world.transform_point3(corner) * per_world;
+                (a, b) = (a.min(w), b.max(w));
+            }
+            boxes.push(((a - reach).floor(), (b + reach).floor()));
+        }
+        let brick = (1u32 << BRICK_LOG2) as f64;
+        let anchor = boxes.iter().fold(DVec3::INFINITY, |m, b| m.min(b.0));
+        let anchor = if anchor.is_finite() { (anchor / brick).floor() * brick } else { DVec3::ZERO };
+        let mut bricks = Vec::new();
+        for (a, b) in boxes {
+            let (lo, hi) = (((a - anchor) / brick).floor().as_ivec3(), ((b - anchor) / brick).floor().as_ivec3());
+            for x in lo.x..=hi.x {
+                for y in lo.y..=hi.y {
+                    for z in lo.z..=hi.z {
+                        bricks.push(IVec3::new(x, y, z));
+                    }
+                }
+            }
+        }
+        bricks.sort_unstable_by_key(|b| (b.x, b.y, b.z));
+        bricks.dedup();
+        let (octaves, seed, amplitude) = (params.noise_octaves, params.seed as u32, params.offset_noise);
+        let world_to_index = DAffine3 { matrix3: DMat3::from_diagonal(DVec3::splat(per_world)), translation: -anchor };
+        let inv_nodes = 1.0 / nodes_per_scale as f64;
+        let lattice = Lattice::build(world_to_index, &bricks, Vec4::ZERO, |origin, out| {
+            let n = origin.as_dvec3() + anchor;
+            let mut fbm = [Vec3::ZERO; EDGE * EDGE * EDGE];
+            fbm3_vec_block([n.x as i64, n.y as i64, n.z as i64], EDGE, inv_nodes, octaves, seed, &mut fbm);
+            for (o, v) in out.iter_mut().zip(fbm) {
+                *o = (v.as_dvec3() * amplitude).as_vec3().extend(0.0);
+            }
+            Visit { cells: CellBox::ALL, majorant: f32::INFINITY }
+        });
+        Offsets { lattice, anchor, per_world }
+    }
+
+    /// The displacement at world position `x`, interpolated.
+    #[inline(always)]
+    pub fn at<A: Arith>(&self, arith: A, x: DVec3) -> DVec3 {
+        self.at_lattice(arith, self.to_lattice(x))
+    }
+
+    /// World position `x` in the lattice's index space.
+    #[inline(always)]
+    pub fn to_lattice(&self, x: DVec3) -> DVec3 {
+        x * self.per_world - self.anchor
+    }
+
+    /// The displacement at lattice index-space position `q`, interpolated.
+    #[inline(always)]
+    pub fn at_lattice<A: Arith>(&self, arith: A, q: DVec3) -> DVec3 {
+        self.lattice.sample(arith, q).truncate().as_dvec3()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cpu::scenes::{camera, cloud, params};
+    use crate::cpu::offset;
+    use crate::simd::Unfused;
+    use crate::NoiseEval;
+
+    /// The baked field against the exact fBm at `count` points spread over the cells that
+    /// hold medium (those of the majorant grid with a positive bound): the largest
+    /// and the RMS difference of a component, relative to the amplitude, and the node count.
+    fn baked_against_exact(density: &Volume<f32>, params: &MarchParams, nodes: u32, count: usize) -> (f64, f64, usize) {
+        let majorant = MajorantGrid::build(density);
+        let offsets = Offsets::bake(density, &majorant, params, nodes);
+        let (lo, hi) = density.world_bounds().unwrap();
+        let to_index = density.transform().world_to_index();
+        let (mut worst, mut sq, mut n) = (0.0f64, 0.0f64, 0usize);
+        let mut rng = nimbus_optics::Rng::with_domain(1, 2, 3);
+        while n < count {
+            let x = lo + (hi - lo) * DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 1.2 - (hi - lo) * 0.1;
+            if !(majorant.at(to_index.transform_point3(x)) > 0.0) {
+                continue;
+            }
+            let d = (offsets.at(Unfused, x) - offset(params, x)) / params.offset_noise;
+            worst = worst.max(d.abs().max_element());
+            sq += d.length_squared() / 3.0;
+            n += 1;
+        }
+        (worst, (sq / n as f64).sqrt(), offsets.lattice.values().len())
+    }
+
+    #[test]
+    fn the_baked_field_holds_the_fbm_at_its_nodes() {
+        for centre in [DVec3::ZERO, DVec3::new(1.0e6, -3.0e5, 2.0e6)] {
+            let density = cloud(16, 3.0, centre);
+            let p = MarchParams { offset_noise: 0.05, noise_scale: 0.4, ..params(camera(centre, 8, 8)) };
+            let offsets = Offsets::bake(&density, &MajorantGrid::build(&density), &p, 8);
+            let h = p.noise_scale / 8.0;
+            // Nodes of the world lattice near the cloud, read back through the lattice.
+            let base = (centre / h).round();
+            for k in 0..64 {
+                let n = base + DVec3::new((k % 4) as f64, (k / 4 % 4) as f64, (k / 16) as f64) - 2.0;
+                let (got, want) = (offsets.at(Unfused, n * h), offset(&p, n * h));
+                assert!((got - want).abs().max_element() <= 1e-6 * p.offset_noise, "{centre}: node {n}: {got} vs {want}");
+            }
+            // Within the reach the coverage and the majorant's dilation assume.
+            let largest = offsets.lattice.values().iter().fold(0.0f32, |m, v| m.max(v.truncate().abs().max_element())) as f64;
+            assert!(largest > 0.2 * p.offset_noise && largest <= NOISE_REACH * p.offset_noise, "largest {largest}");
+        }
+    }
+
+    #[test]
+    fn the_baked_field_stays_near_the_exact_fbm() {
+        // Figures for docs/benchmarks.md (the default lattice, 8 nodes per scale, asserted).
+        for centre in [DVec3::ZERO, DVec3::new(1.0e6, -3.0e5, 2.0e6)] {
+            let density = cloud(24, 3.0, centre);
+            let p = MarchParams { offset_noise: 0.1, noise_scale: 0.4, ..params(camera(centre, 8, 8)) };
+            for nodes in [4, 8, 16] {
+                let (worst, rms, count) = baked_against_exact(&density, &p, nodes, 20_000);
+                eprintln!("centre {centre}, {nodes} nodes per scale ({count} nodes): baked - exact, of the amplitude: max {worst:.4}, RMS {rms:.4}");
+                if (NoiseEval::Baked { nodes }) == NoiseEval::DEFAULT {
+                    assert!(worst < 0.25 && rms < 0.06, "max {worst}, RMS {rms}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn baked_noise_renders_as_exact_noise_does_near_the_origin_and_far_from_it() {
+        use crate::cpu::scenes::cache_for;
+        use crate::render_cpu;
+        for centre in [DVec3::ZERO, DVec3::new(1.0e6, -3.0e5, 2.0e6)] {
+            let density = cloud(24, 3.0, centre);
+            let cache = cache_for(&density);
+            let p = MarchParams { offset_noise: 0.1, noise_scale: 0.4, spp: 2, ..params(camera(centre, 48, 36)) };
+            let baked = render_cpu(&density, &cache, &p).unwrap();
+            let exact = render_cpu(&density, &cache, &MarchParams { noise_eval: NoiseEval::Exact, ..p.clone() }).unwrap();
+            let plain = render_cpu(&density, &cache, &MarchParams { offset_noise: 0.0, ..p.clone() }).unwrap();
+            // Relative RMSE of the colour over covered pixels.
+            let rmse = |a: &crate::Image, b: &crate::Image| {
+                let (mut sq, mut sum, mut n) = (0.0f64, 0.0f64, 0);
+                for (x, y) in a.rgba.iter().zip(&b.rgba) {
+                    if y.w > 0.01 {
+                        sq += (*x - *y).truncate().length_squared() as f64 / 3.0;
+                        sum += y.truncate().element_sum() as f64 / 3.0;
+                        n += 1;
+                    }
+                }
+                assert!(n > 200, "{n} covered pixels");
+                (sq / n as f64).sqrt() / (sum / n as f64)
+            };
+            let (error, moved) = (rmse(&baked, &exact), rmse(&plain, &exact));
+            eprintln!("centre {centre}: baked against exact noise {error:.5}, no noise against exact {moved:.5}");
+            assert!(moved > 0.02, "the noise shows");
+            // Measured 0.0050 against 0.0289 near the origin (4 nodes per scale).
+            assert!(error < 0.25 * moved, "baked {error}, noise {moved}");
+        }
+    }
+
+    #[test]
+    fn the_same_world_point_gets_the_same_offset_whatever_the_bounds() {
+        // Two volumes of different extent (so different bricks and anchors) over one region.
+        let small = cloud(12, 3.0, DVec3::ZERO);
+        let large = cloud(32, 3.0, DVec3::new(0.2, -0.1, 0.3));
+        let p = MarchParams { offset_noise: 0.05, noise_scale: 0.4, ..params(camera(DVec3::ZERO, 8, 8)) };
+        let a = Offsets::bake(&small, &MajorantGrid::build(&small), &p, 8);
+        let b = Offsets::bake(&large, &MajorantGrid::build(&large), &p, 8);
+        assert_ne!(a.anchor, b.anchor);
+        for k in 0..1000 {
+            let x = DVec3::new((k as f64 * 0.0137) % 0.5, (k as f64 * 0.0291) % 0.5, (k as f64 * 0.0071) % 0.5) - 0.25;
+            let (u, v) = (a.at(Unfused, x), b.at(Unfused, x));
+            assert!((u - v).abs().max_element() <= 1e-6 * p.offset_noise, "{x}: {u} vs {v}");
+        }
+    }
+}
