@@ -24,6 +24,15 @@ pub struct Scene {
     pub camera: Vec<String>,
 }
 
+impl Scene {
+    /// A scene seen from `centre + from`, looking at `centre` with +Z up.
+    fn new(density: Volume<f32>, medium: &str, centre: DVec3, from: DVec3, fov: f64) -> Scene {
+        let eye = centre + from;
+        let camera = format!("--eye {},{},{} --look-at {},{},{} --up 0,0,1 --fov {fov}", eye.x, eye.y, eye.z, centre.x, centre.y, centre.z);
+        Scene { density, medium: words(medium), camera: words(&camera) }
+    }
+}
+
 pub const NAMES: &[&str] = &["anvil", "forward", "sheet"];
 
 pub fn scene(name: &str) -> Option<Scene> {
@@ -103,12 +112,7 @@ fn anvil() -> Scene {
         let profile = (1.0 - s * s).max(0.0);
         3.2 * profile * (1.0 + 0.6 * lumps(p, 4.0)).max(0.0)
     });
-    let eye = centre + DVec3::new(-1.5, -7.0, 1.6);
-    Scene {
-        density,
-        medium: words("--extinction 1 --g 0.6 --albedo 0.95,0.9,0.8 --sun dir=0.4,0.25,-0.88,irradiance=3"),
-        camera: words(&format!("--eye {},{},{} --look-at {},{},{} --up 0,0,1 --fov 40", eye.x, eye.y, eye.z, centre.x, centre.y, centre.z)),
-    }
+    Scene::new(density, "--extinction 1 --g 0.6 --albedo 0.95,0.9,0.8 --sun dir=0.4,0.25,-0.88,irradiance=3", centre, DVec3::new(-1.5, -7.0, 1.6), 40.0)
 }
 
 fn forward() -> Scene {
@@ -127,12 +131,7 @@ fn forward() -> Scene {
         }
         4.0 * d * (1.0 + 0.5 * lumps(p, 5.0)).max(0.0)
     });
-    let eye = centre + DVec3::new(2.0, -6.0, 1.0);
-    Scene {
-        density,
-        medium: words("--extinction 1 --g 0.9 --albedo 0.98 --sun dir=-0.45,0.85,-0.27,irradiance=2 --sun dir=0.6,-0.2,-0.77,irradiance=1"),
-        camera: words(&format!("--eye {},{},{} --look-at {},{},{} --up 0,0,1 --fov 35", eye.x, eye.y, eye.z, centre.x, centre.y, centre.z)),
-    }
+    Scene::new(density, "--extinction 1 --g 0.9 --albedo 0.98 --sun dir=-0.45,0.85,-0.27,irradiance=2 --sun dir=0.6,-0.2,-0.77,irradiance=1", centre, DVec3::new(2.0, -6.0, 1.0), 35.0)
 }
 
 fn sheet() -> Scene {
@@ -149,10 +148,5 @@ fn sheet() -> Scene {
         let edge = (1.0 - (p.x / 1.9).powi(6)).max(0.0) * (1.0 - (p.y / 1.5).powi(6)).max(0.0);
         60.0 * (1.0 - s * s).max(0.0) * edge * (1.0 + 0.4 * lumps(p, 6.0)).max(0.0)
     });
-    let eye = centre + DVec3::new(0.5, -5.0, 1.2);
-    Scene {
-        density,
-        medium: words("--extinction 1 --g 0.3 --albedo 0.9 --sun dir=0.3,0.1,-0.2,irradiance=3"),
-        camera: words(&format!("--eye {},{},{} --look-at {},{},{} --up 0,0,1 --fov 45", eye.x, eye.y, eye.z, centre.x, centre.y, centre.z)),
-    }
+    Scene::new(density, "--extinction 1 --g 0.3 --albedo 0.9 --sun dir=0.3,0.1,-0.2,irradiance=3", centre, DVec3::new(0.5, -5.0, 1.2), 45.0)
 }
