@@ -327,12 +327,14 @@ impl<'a> MediumRay<'a> {
     /// accepted with probability sigma_t / majorant. Unbiased; needs no step size.
     pub fn sample_delta(&self, rng: &mut Rng) -> FreePath {
         for (a, b, majorant) in self.segments() {
+            SEGMENTS.with(|c| c.set(c.get() + 1));
             let mut t = a;
             loop {
                 t -= (1.0 - rng.next_f64()).ln() / majorant;
                 if t >= b {
                     break; // memoryless: start afresh in the next segment
                 }
+                COUNTS.with(|c| c.set(c.get() + 1));
                 if (rng.next_f32() as f64) * majorant < self.sigma_t(t) as f64 {
                     return FreePath::Interaction(t);
                 }
@@ -426,4 +428,11 @@ mod tests {
             }
         }
     }
+}
+
+thread_local! {
+    /// EXPERIMENT: tentative collisions and majorant segments of delta tracking on this thread.
+    pub static COUNTS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+    pub static REAL: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+    pub static SEGMENTS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
 }
