@@ -432,18 +432,11 @@ fn continue_paths(v: u32) {
             sum = sum + environment_nee(x, -axis, params.medium, params.grid, false, &rng);
         }
         // From the phase function about the camera ray's direction (the phase weight cancels),
-        // by the voxel's R2 sequence: one full path, then CACHE_SHORT_PATHS of one collision
-        // that share the first order's estimate with it (li_multiple_paths).
-        let s = p * (CACHE_SHORT_PATHS + 1u);
-        let first = hg_sample(params.medium.g, axis, r2_point(offset, s));
-        let path = trace_path(x, normalize(first.w_out), params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
-        var firsts = path.single + path.emission_first;
-        for (var k = 1u; k <= CACHE_SHORT_PATHS; k = k + 1u) {
-            let d = hg_sample(params.medium.g, axis, r2_point(offset, s + k));
-            let short = trace_path(x, normalize(d.w_out), params.medium, params.grid, 1u, params.light_count, d.pdf, &rng);
-            firsts = firsts + short.single + short.emission_first;
-        }
-        sum = sum + (path.multiple + path.emission - path.emission_first) + firsts / f32(CACHE_SHORT_PATHS + 1u);
+        // by the voxel's rotated R2 sequence (li_multiple_paths).
+        let first = hg_sample(params.medium.g, axis, r2_point(offset, p));
+        let dir = normalize(first.w_out);
+        let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
+        sum = sum + (path.single + path.multiple + path.emission);
     }
     if (end == n) {
         sum = sum / f32(n);

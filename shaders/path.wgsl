@@ -32,8 +32,6 @@ struct PathLight {
     single: vec3<f32>,
     multiple: vec3<f32>,
     emission: vec3<f32>,
-    // Of emission, what the first collision added (PathLight::emission_first).
-    emission_first: vec3<f32>,
 }
 
 // The ray from world point x along unit world direction w, in index space.
@@ -92,7 +90,7 @@ fn environment_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGrid
 // escape is the caller's background.
 fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridInfo, max_depth: u32, light_count: u32,
               first_pdf: f32, rng: ptr<function, Rng>) -> PathLight {
-    var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var out = PathLight(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
     let emits = emission_active();
     var x = origin;
     var w = dir;
@@ -122,11 +120,7 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             let frame_x = motion_back(x);
             let sigma_t = m.extinction * max(volume_sample_index(volume_world_to_index(frame_x)), 0.0);
             if (sigma_t > 0.0) {
-                let emitted = beta * emission_at(frame_x) * (1.0 / sigma_t);
-                out.emission = out.emission + emitted;
-                if (depth == 1u) {
-                    out.emission_first = emitted;
-                }
+                out.emission = out.emission + beta * emission_at(frame_x) * (1.0 / sigma_t);
             }
         }
         beta = beta * m.albedo;

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{Camera, Light, Medium, Rng};
+use nimbus_optics::{r2_point, Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -215,8 +215,9 @@ pub fn li_multiple_paths(
         return sum;
     }
     let environment = sources.environment.filter(|e| !e.is_black());
-    let (short, qmc) = experiment_knobs();
-    let offset = if qmc { [rng.next_u32(), rng.next_u32()] } else { [0, 0] };
+    // The first directions of a voxel's paths: the R2 sequence rotated by the stream's first
+    // two words (each direction is the phase function's, the paths' together spread evenly).
+    let offset = [rng.next_u32(), rng.next_u32()];
     for j in 0..paths as usize {
         let x = origins[j % origins.len()];
         let w_out = (eye - x).normalize_or_zero().as_vec3();
@@ -225,29 +226,12 @@ pub fn li_multiple_paths(
         if let Some(env) = environment {
             sum += environment_nee(medium, phase, env, x, -axis, false, rng);
         }
+        let dir = phase.sample(axis, r2_point(offset, j as u32)).as_dvec3().normalize();
         let start = PathStart::Scattered { w_in: axis };
-        let mut u = |k: u32, rng: &mut Rng| if qmc { nimbus_optics::r2_point(offset, j as u32 * (short + 1) + k) } else { rng.next_vec2() };
-        let dir = phase.sample(axis, u(0, rng)).as_dvec3().normalize();
-        let full = trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources);
-        if short == 0 {
-            sum += full.total();
-            continue;
-        }
-        let mut first = full.first();
-        for k in 1..=short {
-            let dir = phase.sample(axis, u(k, rng)).as_dvec3().normalize();
-            first += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, 1, rng, sources).first();
-        }
-        sum += full.total() - full.first() + first / (short + 1) as f32;
-    }
-    for (local, global) in [(&nimbus_tracking::COUNTS, &EXP_COUNTS[0]), (&nimbus_tracking::REAL, &EXP_COUNTS[1]), (&nimbus_tracking::SEGMENTS, &EXP_COUNTS[2])] {
-        global.fetch_add(local.with(|c| c.replace(0)), Ordering::Relaxed);
+        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
     }
     sum / paths.max(1) as f32
 }
-
-/// EXPERIMENT: tentative collisions, real collisions, segments.
-pub static EXP_COUNTS: [AtomicU64; 3] = [AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)];
 
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
 pub fn toward_eye(camera: &Camera, x: DVec3) -> Vec3 {
@@ -330,11 +314,6 @@ pub fn bake_cpu_emitting(
             });
             stats.stages.push(("paths", started.elapsed().as_millis() as u64));
             stats.paths = traced.into_inner();
-            if std::env::var("NIMBUS_COUNT").is_ok() {
-                let c: Vec<u64> = EXP_COUNTS.iter().map(|c| c.load(Ordering::Relaxed)).collect();
-                let p = stats.paths as f64;
-                eprintln!("EXP paths {} tentative/path {:.2} real/path {:.2} segments/path {:.2}", p, c[0] as f64 / p, c[1] as f64 / p, c[2] as f64 / p);
-            }
             stats.culled_unseen = path_plan.unseen();
             Some(volume)
         }
@@ -386,15 +365,4 @@ fn typical_radius(photons: &PhotonMap, k: u32) -> f64 {
     let (lo, hi) = photons.positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), &p| (a.min(p), b.max(p)));
     let volume = (hi - lo).max(DVec3::splat(1e-6)).element_product();
     (k as f64 * volume / (photons.len() as f64 * 4.0 / 3.0 * PI)).cbrt()
-}
-
-/// EXPERIMENT (not for the commit): NIMBUS_SHORT=K extra first-order samples per path,
-/// NIMBUS_QMC=1 R2 first directions.
-fn experiment_knobs() -> (u32, bool) {
-    static K: std::sync::OnceLock<(u32, bool)> = std::sync::OnceLock::new();
-    *K.get_or_init(|| {
-        let short = std::env::var("NIMBUS_SHORT").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
-        let qmc = std::env::var("NIMBUS_QMC").is_ok_and(|v| v == "1");
-        (short, qmc)
-    })
 }

@@ -20,19 +20,11 @@ pub struct PathLight {
     pub single: Vec3,
     pub multiple: Vec3,
     pub emission: Vec3,
-    /// Of `emission`, what the first collision added (not counted again in [`PathLight::total`]).
-    pub emission_first: Vec3,
 }
 
 impl PathLight {
     pub fn total(self) -> Vec3 {
         self.single + self.multiple + self.emission
-    }
-
-    /// The light last scattered (or emitted) at the first collision or before it: what a path
-    /// of `max_depth` 1 estimates alone (`single` and the first collision's emission).
-    pub fn first(self) -> Vec3 {
-        self.single + self.emission_first
     }
 }
 
@@ -148,16 +140,11 @@ pub fn trace_path(
             break;
         };
         x += w * t;
-        crate::REAL.with(|c| c.set(c.get() + 1));
         if let Some(e) = sources.emission {
             let sigma_t = medium.extinction as f64 * medium.density_at(x).max(0.0) as f64;
             if sigma_t > 0.0 {
                 let at = medium.motion.map_or(x, |m| m.back(x));
-                let emitted = beta * e.at(at) * (1.0 / sigma_t) as f32;
-                light.emission += emitted;
-                if depth == 1 {
-                    light.emission_first = emitted;
-                }
+                light.emission += beta * e.at(at) * (1.0 / sigma_t) as f32;
             }
         }
         beta *= optics.albedo;
