@@ -390,7 +390,19 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
 // Before a voxel's first paths: its Rng. Its path count came from the host in `used`, with
 // a zero sum.
 fn start_paths(v: u32) {
-    path_rngs[v] = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
+    var rng = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
+    // The first two words rotate the voxel's R2 sequence of first directions (path_offset).
+    _ = rng_next_u32(&rng);
+    _ = rng_next_u32(&rng);
+    path_rngs[v] = rng;
+}
+
+// The rotation of voxel v's R2 sequence: the first two words of its stream, as the CPU's
+// li_multiple_paths draws them before its first path.
+fn path_offset(v: u32) -> vec2<u32> {
+    var rng = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
+    let a = rng_next_u32(&rng);
+    return vec2<u32>(a, rng_next_u32(&rng));
 }
 
 // Paths first_path .. first_path + path_count of voxel v (those it has), path p from the
@@ -403,6 +415,7 @@ fn continue_paths(v: u32) {
         return;
     }
     var rng = path_rngs[v];
+    let offset = path_offset(v);
     var sum = out[v].li;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
@@ -418,8 +431,9 @@ fn continue_paths(v: u32) {
         if (env_kind() == 2u) {
             sum = sum + environment_nee(x, -axis, params.medium, params.grid, false, &rng);
         }
-        // From the phase function about the camera ray's direction: the phase weight cancels.
-        let first = hg_sample(params.medium.g, axis, rng_next_vec2(&rng));
+        // From the phase function about the camera ray's direction (the phase weight cancels),
+        // by the voxel's rotated R2 sequence (li_multiple_paths).
+        let first = hg_sample(params.medium.g, axis, r2_point(offset, p));
         let dir = normalize(first.w_out);
         let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
         sum = sum + (path.single + path.multiple + path.emission);

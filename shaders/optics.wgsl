@@ -288,6 +288,12 @@ fn rng_next_f32(rng: ptr<function, Rng>) -> f32 {
     return rng_unit_f32(rng_next_u32(rng));
 }
 
+// Point j of the R2 sequence rotated by `offset` (nimbus_optics::r2_point): integer
+// arithmetic, bit for bit the CPU's.
+fn r2_point(offset: vec2<u32>, j: u32) -> vec2<f32> {
+    return vec2<f32>(rng_unit_f32(offset.x + j * 3242174889u), rng_unit_f32(offset.y + j * 2447445413u));
+}
+
 // x drawn first, then y.
 fn rng_next_vec2(rng: ptr<function, Rng>) -> vec2<f32> {
     let x = rng_next_f32(rng);

@@ -395,10 +395,13 @@ fn track_sample_exponential(r: TrackRay, g: MajorantGridInfo, tau_target: f32, s
     return TRACK_ESCAPED;
 }
 
-// MediumRay::sample_delta: delta tracking against each segment's majorant; draws an f64-style
-// pair per tentative collision and an f32 per acceptance test, as the CPU does.
+// MediumRay::sample_delta: delta tracking against each segment's majorant, one exponential
+// draw of majorant optical depth per tentative collision carried across segment boundaries;
+// draws an f64-style pair per tentative collision (and one for the escape) and an f32 per
+// acceptance test, as the CPU does.
 fn track_sample_delta(r: TrackRay, g: MajorantGridInfo, rng: ptr<function, Rng>) -> f32 {
     var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, TRACK_FAR);
+    var tau = rng_next_exp1(rng);
     loop {
         let seg = majorant_walk_next(&walk, g);
         if (!seg.valid) {
@@ -410,13 +413,16 @@ fn track_sample_delta(r: TrackRay, g: MajorantGridInfo, rng: ptr<function, Rng>)
         let majorant = seg.majorant * r.extinction;
         var t = seg.t_start;
         loop {
-            t = t + rng_next_exp1(rng) / majorant;
-            if (t >= seg.t_end) {
+            let dt = tau / majorant;
+            if (t + dt >= seg.t_end) {
+                tau = tau - (seg.t_end - t) * majorant;
                 break;
             }
+            t = t + dt;
             if (rng_next_f32(rng) * majorant < track_sigma_t(r, t)) {
                 return t;
             }
+            tau = rng_next_exp1(rng);
         }
     }
     return TRACK_ESCAPED;
@@ -430,6 +436,7 @@ fn track_transmittance_ratio(r: TrackRay, g: MajorantGridInfo, t_max: f32, roule
                              rng: ptr<function, Rng>) -> f32 {
     var tr = 1.0;
     var walk = majorant_walk_new(g, r.origin, r.dir, 0.0, t_max);
+    var tau = rng_next_exp1(rng);
     loop {
         let seg = majorant_walk_next(&walk, g);
         if (!seg.valid) {
@@ -441,10 +448,12 @@ fn track_transmittance_ratio(r: TrackRay, g: MajorantGridInfo, t_max: f32, roule
         let majorant = seg.majorant * r.extinction;
         var t = seg.t_start;
         loop {
-            t = t + rng_next_exp1(rng) / majorant;
-            if (t >= seg.t_end) {
+            let dt = tau / majorant;
+            if (t + dt >= seg.t_end) {
+                tau = tau - (seg.t_end - t) * majorant;
                 break;
             }
+            t = t + dt;
             tr = tr * (1.0 - track_sigma_t(r, t) / majorant);
             if (tr < roulette_below) {
                 if (rng_next_f64_as_f32(rng) >= 0.5) {
@@ -452,6 +461,7 @@ fn track_transmittance_ratio(r: TrackRay, g: MajorantGridInfo, t_max: f32, roule
                 }
                 tr = tr * 2.0;
             }
+            tau = rng_next_exp1(rng);
         }
     }
     return tr;

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use rayon::prelude::*;
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{Camera, Light, Medium, Rng};
+use nimbus_optics::{r2_point, Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -215,6 +215,9 @@ pub fn li_multiple_paths(
         return sum;
     }
     let environment = sources.environment.filter(|e| !e.is_black());
+    // The first directions of a voxel's paths: the R2 sequence rotated by the stream's first
+    // two words (each direction is the phase function's, the paths' together spread evenly).
+    let offset = [rng.next_u32(), rng.next_u32()];
     for j in 0..paths as usize {
         let x = origins[j % origins.len()];
         let w_out = (eye - x).normalize_or_zero().as_vec3();
@@ -223,7 +226,7 @@ pub fn li_multiple_paths(
         if let Some(env) = environment {
             sum += environment_nee(medium, phase, env, x, -axis, false, rng);
         }
-        let dir = phase.sample(axis, rng.next_vec2()).as_dvec3().normalize();
+        let dir = phase.sample(axis, r2_point(offset, j as u32)).as_dvec3().normalize();
         let start = PathStart::Scattered { w_in: axis };
         sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
     }

@@ -18,6 +18,8 @@
 //!   image reads through it, and a coarse lattice blurs but does not darken (centre values
 //!   had darkened the bundled cloud 2.1-2.4% at 4 voxels, 8% at 8; origin-averaged values
 //!   keep its mean within 0.5%). Voxels no camera ray reads, nor a neighbour, get no paths.
+//!   A voxel's paths take their first directions from its R2 sequence (rotated per voxel:
+//!   each direction still the phase function's), which spreads them evenly.
 //!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission
 //!   ([`bake_cpu_emitting`], [`bake_gpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
 //!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission

@@ -65,7 +65,7 @@ pub use light::{format_lights, parse_lights, Incident, Light, LightError};
 pub use medium::{Medium, MediumError};
 pub use params::ParseError;
 pub use phase::{HenyeyGreenstein, HG_G_MAX};
-pub use rng::{philox4x32_10, split_u64, unit_f32, Rng};
+pub use rng::{philox4x32_10, r2_point, split_u64, unit_f32, Rng, R2_STEP};
 pub use sampling::{orthonormal_basis, sample_uniform_disk_concentric, sample_uniform_sphere};
 
 /// The WGSL twins of this crate (`shaders/optics.wgsl`): plain functions and structs, no

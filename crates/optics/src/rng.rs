@@ -132,3 +132,16 @@ impl Rng {
 pub fn split_u64(x: u64) -> [u32; 2] {
     [x as u32, (x >> 32) as u32]
 }
+
+/// The R2 sequence's generators (Roberts 2018, the plastic number's 1/phi2 and 1/phi2^2) in
+/// 32-bit fixed point: point j of a rotated R2 sequence is `offset + j * R2_STEP` modulo 2^32
+/// per axis, integer arithmetic that every backend computes bit for bit.
+pub const R2_STEP: [u32; 2] = [3_242_174_889, 2_447_445_413];
+
+/// Point `j` of the R2 sequence rotated by `offset` (Cranley-Patterson: each point is
+/// uniform over the unit square, the points of one offset spread evenly), as [`unit_f32`]
+/// maps bits to [0, 1).
+#[inline]
+pub fn r2_point(offset: [u32; 2], j: u32) -> glam::Vec2 {
+    glam::Vec2::new(unit_f32(offset[0].wrapping_add(j.wrapping_mul(R2_STEP[0]))), unit_f32(offset[1].wrapping_add(j.wrapping_mul(R2_STEP[1]))))
+}

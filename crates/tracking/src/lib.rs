@@ -325,17 +325,29 @@ impl<'a> MediumRay<'a> {
 
     /// Delta (Woodcock) tracking: tentative collisions against each segment's majorant,
     /// accepted with probability sigma_t / majorant. Unbiased; needs no step size.
+    ///
+    /// One exponential draw of majorant optical depth per tentative collision, carried across
+    /// segment boundaries (what is left of it when a segment ends is spent in the next): the
+    /// collisions fall as with a fresh draw per segment (the exponential is memoryless), but a
+    /// flight crossing many thin cells costs one draw, not one per cell. Measured on the
+    /// Cloud1-class scene (vdbcache's paths): 20.4 non-empty majorant segments a path against
+    /// 3.5 tentative collisions (2.4 real), so a draw (a Philox block's half and a logarithm)
+    /// per segment had been most of a path's draws.
     pub fn sample_delta(&self, rng: &mut Rng) -> FreePath {
+        let mut tau = -(1.0 - rng.next_f64()).ln();
         for (a, b, majorant) in self.segments() {
             let mut t = a;
             loop {
-                t -= (1.0 - rng.next_f64()).ln() / majorant;
-                if t >= b {
-                    break; // memoryless: start afresh in the next segment
+                let dt = tau / majorant;
+                if t + dt >= b {
+                    tau -= (b - t) * majorant;
+                    break;
                 }
+                t += dt;
                 if (rng.next_f32() as f64) * majorant < self.sigma_t(t) as f64 {
                     return FreePath::Interaction(t);
                 }
+                tau = -(1.0 - rng.next_f64()).ln();
             }
         }
         FreePath::Escaped
@@ -344,15 +356,20 @@ impl<'a> MediumRay<'a> {
     /// Ratio tracking: an unbiased estimate of transmittance over the interval, the product
     /// of (1 - sigma_t / majorant) at tentative collisions. Stops with 0 by Russian roulette
     /// once the estimate is below `roulette_below`, keeping it unbiased.
+    /// One exponential draw per tentative collision, carried across segment boundaries as in
+    /// [`MediumRay::sample_delta`].
     pub fn transmittance_ratio(&self, rng: &mut Rng, roulette_below: f64) -> f64 {
         let mut tr = 1.0;
+        let mut tau = -(1.0 - rng.next_f64()).ln();
         for (a, b, majorant) in self.segments() {
             let mut t = a;
             loop {
-                t -= (1.0 - rng.next_f64()).ln() / majorant;
-                if t >= b {
+                let dt = tau / majorant;
+                if t + dt >= b {
+                    tau -= (b - t) * majorant;
                     break;
                 }
+                t += dt;
                 tr *= 1.0 - self.sigma_t(t) as f64 / majorant;
                 if tr < roulette_below {
                     if rng.next_f64() >= 0.5 {
@@ -360,6 +377,7 @@ impl<'a> MediumRay<'a> {
                     }
                     tr *= 2.0;
                 }
+                tau = -(1.0 - rng.next_f64()).ln();
             }
         }
         tr

@@ -135,3 +135,46 @@ fn a_nonzero_background_does_not_hang_any_sampler() {
     let _ = ray.sample_delta(&mut rng);
     assert!(ray.transmittance_ratio(&mut rng, 0.1).is_finite());
 }
+
+/// Delta and ratio tracking carry one exponential draw across majorant segments: through a
+/// slab of one-voxel majorant cells whose density changes from layer to layer (every cell a
+/// segment with its own majorant, 21 of them along the ray), the escape probability of delta
+/// tracking and the mean of ratio tracking must both be the closed-form transmittance
+/// exp(-optical depth) (Simpson is exact on the trilinear density), and the interaction
+/// depths below each layer must follow it too. A carry that lost or double-counted the
+/// remainder at a boundary would miss by far more than the four standard errors allowed.
+#[test]
+fn tracking_across_many_segments_keeps_the_closed_form_transmittance() {
+    let v = slab(0, 20, |z| if z % 2 == 0 { 0.4 } else { 1.6 } + 0.05 * z as f32);
+    let extinction = 0.5f32;
+    let majorant = MajorantGrid::with_cell_log2(&v, 0);
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction };
+    let origin = DVec3::new(0.05, 0.05, 10.0);
+    let ray = MediumRay::new(medium, origin, DVec3::NEG_Z, 0.0, f64::INFINITY);
+    let n = 40_000u64;
+    let tau = ray.optical_depth(0.01);
+    let exact = (-tau).exp();
+    let escaped = (0..n).filter(|&i| ray.sample_delta(&mut Rng::new(11, i)) == FreePath::Escaped).count() as f64 / n as f64;
+    let se = (exact * (1.0 - exact) / n as f64).sqrt();
+    assert!((escaped - exact).abs() < 4.0 * se, "delta tracking escapes {escaped}, exp(-{tau}) = {exact} (se {se})");
+    let ratios: Vec<f64> = (0..n).map(|i| ray.transmittance_ratio(&mut Rng::new(12, i), 0.05)).collect();
+    let mean = ratios.iter().sum::<f64>() / n as f64;
+    let sd = (ratios.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+    assert!((mean - exact).abs() < 4.0 * sd / (n as f64).sqrt() + 1e-12, "ratio tracking {mean}, exp(-{tau}) = {exact}");
+    // The depth distribution: the fraction that interacts above each layer plane is
+    // 1 - exp(-optical depth down to it).
+    let depths: Vec<Option<f64>> = (0..n)
+        .map(|i| match ray.sample_delta(&mut Rng::new(13, i)) {
+            FreePath::Interaction(t) => Some(t),
+            FreePath::Escaped => None,
+        })
+        .collect();
+    for z in [1.7, 1.35, 1.0, 0.45] {
+        let t = 10.0 - z;
+        let cut = MediumRay::new(medium, origin, DVec3::NEG_Z, 0.0, t).optical_depth(0.01);
+        let p = 1.0 - (-cut).exp();
+        let empirical = depths.iter().filter(|d| d.is_some_and(|d| d < t)).count() as f64 / n as f64;
+        let se = (p * (1.0 - p) / n as f64).sqrt();
+        assert!((empirical - p).abs() < 4.0 * se, "above z = {z}: {empirical} interacted, closed form {p}");
+    }
+}
