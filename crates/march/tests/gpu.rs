@@ -310,6 +310,14 @@ fn marches_longer_than_a_software_adapter_takes_are_refused() {
 /// The medium's emission (emission.wgsl): both terms, the emission grid on its own lattice
 /// and the blackbody from a temperature grid, added along the camera ray as the CPU adds
 /// them; agreement to f32 rounding of the same samples.
+///
+/// Except where a sample falls on the density's support: the medium emits only where its
+/// density is above 0 (design.md section 5), and as the density falls to 0 a sample's
+/// e (1 - exp(-sigma_t dt)) / sigma_t tends to e dt, not to 0, so a position that rounds
+/// into the support on one backend and out of it on the other moves its pixel by one
+/// sample. Measured on the CPU alone: moving the eye by 1e-5 of its distance moved one
+/// pixel's emission 3%, by 1e-6 none beyond 2e-4; a CI machine's lavapipe met one such
+/// sample (a 1.2% pixel). So a few pixels may differ, each by at most one sample's emission.
 #[test]
 fn emission_along_camera_rays_renders_alike() {
     let Some(ctx) = gpu() else { return };
@@ -328,11 +336,26 @@ fn emission_along_camera_rays_renders_alike() {
         let (ce, ge) = (&cpu.aovs.as_ref().unwrap().emission, &gpu.aovs.as_ref().unwrap().emission);
         let brightest = ce.iter().map(|e| e.max_element()).fold(0.0, f32::max);
         let emitting = ce.iter().filter(|e| e.max_element() > 1e-3 * brightest).count();
-        let worst = ce.iter().zip(ge).map(|(c, g)| rel(*g, *c, 1e-3 * brightest)).fold(0.0f32, f32::max);
-        let rgb = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| rel(g.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);
-        eprintln!("emission, {name}: {emitting} emitting pixels, brightest {brightest:.3e}; worst relative difference emission {worst:.2e}, rgb {rgb:.2e}");
+        // One sample's emission at most: e dt / spp, with e bounded over the values its
+        // trilinear lookups can take (each term's grid between its node extremes).
+        let node_max = |v: &nimbus_volume::Volume<f32>| v.bricks().flat_map(|b| b.values.iter().copied()).fold(0.0f32, f32::max);
+        let grid_max = if emission.grid.is_some() { node_max(&flame) } else { 0.0 };
+        let t_max = if emission.temperature_grid.is_some() { node_max(&temperature) } else { 0.0 };
+        let blackbody_max = (0..=1000).map(|k| emission.emitted(0.0, t_max * k as f32 / 1000.0).max_element()).fold(0.0f32, f32::max);
+        let one_sample = (emission.emitted(grid_max, 0.0).max_element() + blackbody_max) * (p.step / p.spp as f64) as f32;
+        let (mut worst, mut flips, mut worst_flip) = (0.0f32, 0, 0.0f32);
+        for (i, (c, g)) in ce.iter().zip(ge).enumerate() {
+            let d = rel(*g, *c, 1e-3 * brightest).max(rel(gpu.rgba[i].truncate(), cpu.rgba[i].truncate(), 1e-3 * brightest));
+            if d < 2e-4 {
+                worst = worst.max(d);
+            } else {
+                flips += 1;
+                worst_flip = worst_flip.max((*g - *c).abs().max_element());
+            }
+        }
+        eprintln!("emission, {name}: {emitting} emitting pixels, brightest {brightest:.3e}; worst relative difference {worst:.2e}; {flips} pixels beyond 2e-4, by at most {worst_flip:.2e} (one sample: {one_sample:.2e})");
         assert!(emitting > 64 * 48 / 4, "{name}: the fire should fill a good part of the image ({emitting})");
-        assert!(worst < 2e-4 && rgb < 2e-4, "{name}: emission {worst}, rgb {rgb}");
+        assert!(flips <= 3 && worst_flip <= one_sample, "{name}: {flips} pixels differ, by up to {worst_flip} (one sample {one_sample})");
         // Without emission the GPU adds none.
         if name == "both terms" {
             let dark = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
@@ -371,3 +394,4 @@ fn motion_blur_renders_alike() {
     assert!(moved > 0.1, "the blur changes the image ({moved})");
     assert!(worst < 5e-4, "{worst}");
 }
+
