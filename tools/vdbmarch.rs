@@ -17,7 +17,7 @@ use nimbus_cli::{
     Input, LightArgs, MediumArgs, Output, PipelineMeta,
 };
 use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
-use nimbus_march::{default_spp, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
+use nimbus_march::{default_spp, default_step, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 
 /// `--view`: Blender's view transforms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -92,8 +92,8 @@ struct Args {
     /// leave the volume see it.
     #[command(flatten)]
     environment: EnvironmentArgs,
-    /// March step, world units. [default: the --quality preset's multiple of a third of a
-    /// density voxel's diagonal, else a third of it]
+    /// March step, world units. [default: the --quality preset's multiple of the thinnest
+    /// density voxel width over sqrt 3 (a third of a cubic voxel's diagonal), else that]
     #[arg(long, help_heading = "Quality")]
     step: Option<f64>,
     /// Most the step is lengthened where the density is optically thin (1 = a fixed step):
@@ -255,7 +255,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
         medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
         spp: args.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
         camera,
-        step: args.step.unwrap_or(voxel.length() / 3.0 * preset.step_factor),
+        step: args.step.unwrap_or(default_step(density.transform()) * preset.step_factor),
         max_step_factor: args.max_step_factor.unwrap_or(MarchParams::DEFAULT_MAX_STEP_FACTOR),
         background: args.background.unwrap_or(Vec3::ZERO),
         offset_noise: args.offset_noise,

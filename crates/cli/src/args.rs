@@ -301,7 +301,7 @@ pub struct QualitySettings {
     pub cache_scale: f64,
     /// vdbcache `--multiple-scale`: Li_multiple's lattice, in density voxels.
     pub multiple_scale: f64,
-    /// vdbmarch `--step` as a multiple of its default (a third of a voxel diagonal).
+    /// vdbmarch `--step` as a multiple of its default (nimbus_march::default_step).
     pub step_factor: f64,
     /// vdbmarch `--spp`; None: enough for the pixel's samples to lie half a density voxel
     /// apart at the volume (`nimbus_march::default_spp`).

@@ -1,5 +1,5 @@
 //! The CPU march alone on one cache file (`render_cpu`, its layout build included), at
-//! vdbmarch's defaults (step a third of a voxel diagonal, 1 spp, the camera, medium and seed
+//! vdbmarch's defaults (step `default_step`, 1 spp, the camera, medium and seed
 //! the cache records): a 1 x 1 render (the layout build and little else), then WIDTH x
 //! HEIGHT, RUNS times each, minimum and median wall time to stderr.
 //!
@@ -53,7 +53,7 @@ fn main() {
         environment_visible: false,
         medium: meta.medium().ok().flatten().expect("the cache records its medium"),
         camera: camera.clone(),
-        step: voxel.length() / 3.0 * env("STEP_SCALE", 1.0),
+        step: nimbus_march::default_step(density.transform()) * env("STEP_SCALE", 1.0),
         max_step_factor: env("MAX_STEP_FACTOR", MarchParams::DEFAULT_MAX_STEP_FACTOR as f64) as u32,
         spp: 1,
         background: Vec3::ZERO,

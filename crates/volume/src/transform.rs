@@ -68,6 +68,19 @@ impl Transform {
         DVec3::new(m.x_axis.length(), m.y_axis.length(), m.z_axis.length())
     }
 
+    /// The distances between a voxel's opposite faces, per index axis: its edge lengths
+    /// where the axes are orthogonal, less where they are sheared (a face's normal is not
+    /// its edge). The smallest is how thin the voxel is in any direction.
+    pub fn voxel_widths(&self) -> DVec3 {
+        let m = self.index_to_world.matrix3;
+        let volume = m.determinant().abs();
+        DVec3::new(
+            volume / m.y_axis.cross(m.z_axis).length(),
+            volume / m.z_axis.cross(m.x_axis).length(),
+            volume / m.x_axis.cross(m.y_axis).length(),
+        )
+    }
+
     /// World volume of one voxel.
     pub fn voxel_volume(&self) -> f64 {
         self.index_to_world.matrix3.determinant().abs()
