@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
 use nimbus_cli::{
     read_density, read_vdb, run, CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta,
@@ -43,10 +43,19 @@ struct Args {
     /// panels also split at voxel boundaries, so the trilinear density is integrated exactly).
     #[arg(long, default_value_t = 1.0, help_heading = "Quality")]
     step: f64,
-    /// Li_single's cache voxel edge in density voxels (1: single scattering's shadows are as
-    /// sharp as the density). [default: the --quality preset's, else 1]
+    /// Li_single's cache voxel edge in density voxels, the same on every axis (1: single
+    /// scattering's shadows are as sharp as the density). [default: the --quality preset's,
+    /// else 1, refined per axis where interpolating it would miss by more than
+    /// --single-tolerance]
     #[arg(long, help_heading = "Quality")]
     cache_scale: Option<f64>,
+    /// Li_single's lattice without --cache-scale: each axis of the preset's lattice is
+    /// halved (up to 4 times finer) while the estimated relative error of interpolating
+    /// Li_single between its voxels, as the camera sees it, exceeds this (flat voxels, thin
+    /// dense layers and grazing suns need it; 0 refines as far as it goes). [default: 0.006;
+    /// the draft preset does not refine]
+    #[arg(long, value_name = "TOLERANCE", conflicts_with = "cache_scale", help_heading = "Quality")]
+    single_tolerance: Option<f64>,
     /// Li_multiple's own cache voxel edge in density voxels: multiple scattering is smoother
     /// than single, so a coarser lattice holds it at an eighth of the voxels. [default: the
     /// --quality preset's, else 2]
@@ -171,6 +180,11 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         step: args.step,
         cache_scale: args.cache_scale.unwrap_or(preset.cache_scale),
         multiple_scale: Some(args.multiple_scale.unwrap_or(preset.multiple_scale)),
+        single_tolerance: match (args.cache_scale, args.single_tolerance) {
+            (Some(_), _) => None,
+            (None, Some(t)) => Some(t),
+            (None, None) => preset.refine_single.then_some(SINGLE_LATTICE_TOLERANCE),
+        },
         single: !args.no_single,
         multiple: !args.no_multiple,
         gather: match args.radius {
@@ -226,8 +240,13 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
                 r.as_ref()
                     .map(|(_, s)| {
                         format!(
-                            "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced, {} light table nodes; {}",
-                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths, s.light_table_nodes, s.describe_stages()
+                            "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced, {} light table nodes{}; {}",
+                            s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths, s.light_table_nodes,
+                            s.single_lattice.as_ref().map_or(String::new(), |l| format!(
+                                "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels)",
+                                l.scale.x, l.scale.y, l.scale.z, 100.0 * l.estimate.x, 100.0 * l.estimate.y, 100.0 * l.estimate.z, l.samples
+                            )),
+                            s.describe_stages()
                         )
                     })
                     .unwrap_or_default()
@@ -259,6 +278,10 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let record = [
         ("step", params.step.to_string()),
         ("cache_scale", params.cache_scale.to_string()),
+        ("single_scale", match &stats.single_lattice {
+            Some(l) => format!("{},{},{}", l.scale.x, l.scale.y, l.scale.z),
+            None => params.cache_scale.to_string(),
+        }),
         ("multiple_scale", params.multiple_scale().to_string()),
         ("gather", match params.gather {
             Gather::Radius(r) => format!("radius:{r}"),

@@ -93,6 +93,7 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         step: 1.0,
         cache_scale: 1.2,
+        single_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

@@ -257,17 +257,14 @@ pub fn bake_cpu_emitting(
     let emission = emission.filter(|e| e.params.is_active());
     // Only the paths read the field: the photon estimator's emission came with the photons.
     let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
-    let start = std::time::Instant::now();
-    let majorant = MajorantGrid::build(density);
-    let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
-    let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
-    stats.stages.push(("plan", start.elapsed().as_millis() as u64));
-    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
+    let mut timed = BakeStats::default();
+    let majorant = timed.time("majorant", || MajorantGrid::build(density));
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
+    let depths = timed.time("light tables", || params.light_depths(medium, photons, emits));
+    let (plan, own_plan, mut stats) = CachePlan::for_bake(density, &majorant, params, &depths, photons, emits, timed);
+    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let step = params.single_step(density);
     let camera = &params.camera;
-    let depths = stats.time("light tables", || params.light_depths(medium, photons, emits));
     stats.light_table_nodes = depths.nodes();
 
     let mut nonfinite = 0;

@@ -128,11 +128,8 @@ pub fn bake_gpu_emitting(
             )));
         }
     }
-    let majorant = MajorantGrid::build(density);
-    let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
-    let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
-    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
+    let mut timed = BakeStats::default();
+    let majorant = timed.time("majorant", || MajorantGrid::build(density));
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
     // Bin-local positions are then exactly the CPU's f32 values.
     let origin = match (&bins, density.world_bounds()) {
@@ -140,6 +137,32 @@ pub fn bake_gpu_emitting(
         (None, Some((lo, hi))) => 0.5 * (lo + hi),
         (None, None) => DVec3::ZERO,
     };
+    let lattice = params.light_lattice(photons, emits);
+    // The CPU tables the lights whenever something reads them, baked voxels or not (the
+    // transmittance grids are view-independent): so does this.
+    let volume = (single || multiple || lattice.is_some())
+        .then(|| -> Result<GpuVolume, GpuError> {
+            let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
+            volume.set_world_origin(ctx, origin);
+            Ok(volume)
+        })
+        .transpose()?;
+    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
+    // Read back at once (which waits for the build): Li_single's lattice and the
+    // transmittance grids need them.
+    let (tables, depths) = timed.time("light tables", || -> Result<_, GpuError> {
+        Ok(match (lattice, &volume) {
+            (Some(lattice), Some(volume)) => {
+                let tables = GpuLightTables::build(ctx, volume, medium, &params.lights, lattice, params.opaque_depth(), origin)?;
+                let depths = tables.read(ctx)?;
+                (tables, depths)
+            }
+            _ => (GpuLightTables::none(ctx, params.lights.len())?, Default::default()),
+        })
+    })?;
+    // The host chooses the lattice and plans the voxels by the CPU's very rule.
+    let (plan, own_plan, mut stats) = CachePlan::for_bake(density, &majorant, params, &depths, photons, emits, timed);
+    let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     // The paths, their counts and origins, are decided on the host by the CPU's very rule.
     let path_plan = match params.estimator {
         MultipleEstimator::Paths { per_voxel } if multiple => {
@@ -153,28 +176,6 @@ pub fn bake_gpu_emitting(
         None => Kernel::Photons,
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
-    let lattice = params.light_lattice(photons, emits);
-    // The CPU tables the lights whenever something reads them, baked voxels or not (the
-    // transmittance grids are view-independent): so does this.
-    let volume = (work || lattice.is_some())
-        .then(|| -> Result<GpuVolume, GpuError> {
-            let mut volume = GpuVolume::upload(ctx, density, &GpuVolumeOptions::default())?;
-            volume.set_world_origin(ctx, origin);
-            Ok(volume)
-        })
-        .transpose()?;
-    let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
-    // Read back at once (which waits for the build): the transmittance grids need them.
-    let (tables, depths) = stats.time("light tables", || -> Result<_, GpuError> {
-        Ok(match (lattice, &volume) {
-            (Some(lattice), Some(volume)) => {
-                let tables = GpuLightTables::build(ctx, volume, medium, &params.lights, lattice, params.opaque_depth(), origin)?;
-                let depths = tables.read(ctx)?;
-                (tables, depths)
-            }
-            _ => (GpuLightTables::none(ctx, params.lights.len())?, Default::default()),
-        })
-    })?;
     stats.light_table_nodes = tables.nodes();
     let baker = match &volume {
         Some(volume) if work => Some(GpuBaker::new(ctx, density, volume, &majorant, photons, bins.as_ref(), &tables, emission, params, origin)?),

@@ -56,12 +56,14 @@ mod bins;
 mod cpu;
 mod gpu;
 mod importance;
+mod lattice;
 mod plan;
 
 pub use bins::PhotonBins;
 pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
+pub use lattice::{choose_single_lattice, SingleLattice, LATTICE_SAMPLES, MAX_REFINEMENT, SINGLE_LATTICE_TOLERANCE};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 
@@ -147,6 +149,10 @@ pub struct CacheParams {
     /// multiple scattering is smoother than single (whose shadows are as sharp as the
     /// density), so a coarser lattice serves it at a fraction of the voxels.
     pub multiple_scale: Option<f64>,
+    /// Where given, Li_single's lattice is `cache_scale` refined per axis until its
+    /// estimated relative interpolation error is within this ([`choose_single_lattice`]);
+    /// None keeps `cache_scale` on every axis.
+    pub single_tolerance: Option<f64>,
     pub single: bool,
     pub multiple: bool,
     pub gather: Gather,
@@ -171,7 +177,7 @@ pub struct IlluminationCache {
 }
 
 /// What the bake did, for `-v` and metadata.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct BakeStats {
     /// Cache voxels in the bricks near density.
     pub candidates: u64,
@@ -189,6 +195,8 @@ pub struct BakeStats {
     pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
     pub nonfinite: u64,
+    /// Li_single's lattice as chosen ([`choose_single_lattice`]), where it was measured.
+    pub single_lattice: Option<SingleLattice>,
     /// Wall-clock milliseconds of the bake's parts, in order, for `-v`.
     pub stages: Vec<(&'static str, u64)>,
 }
@@ -296,6 +304,11 @@ impl CacheParams {
         positive("--step", self.step)?;
         positive("--cache-scale", self.cache_scale)?;
         positive("--multiple-scale", self.multiple_scale())?;
+        if let Some(t) = self.single_tolerance {
+            if !(t >= 0.0 && t.is_finite()) {
+                return Err(CacheError::Param(format!("--single-tolerance must be 0 or more, got {t}")));
+            }
+        }
         match self.gather {
             Gather::Neighbours { k, max_radius } => {
                 if k == 0 {

@@ -9,12 +9,14 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use nimbus_photon::PhotonMap;
 
-use crate::{BakeStats, CacheParams};
+use nimbus_tracking::{DensityMedium, LightDepths};
+
+use crate::{choose_single_lattice, BakeStats, CacheParams};
 
 /// The cache lattice: the density lattice scaled by `scale`, so cache voxel c sits at density
 /// index scale * c and both share the origin.
-pub fn cache_transform(density: &Transform, scale: f64) -> Transform {
-    Transform::new(density.index_to_world() * DAffine3::from_scale(DVec3::splat(scale)))
+pub fn cache_transform(density: &Transform, scale: DVec3) -> Transform {
+    Transform::new(density.index_to_world() * DAffine3::from_scale(scale))
         .expect("a positive scale of an invertible map is invertible")
 }
 
@@ -30,7 +32,7 @@ impl CachePlan {
     /// Cache voxels within one cache cell of density (so every trilinear cache lookup a
     /// renderer makes where there is density finds baked corners) and inside the camera's
     /// view, enlarged by the same footprint.
-    pub fn new(density: &Volume<f32>, majorant: &MajorantGrid, camera: &Camera, scale: f64) -> CachePlan {
+    pub fn new(density: &Volume<f32>, majorant: &MajorantGrid, camera: &Camera, scale: DVec3) -> CachePlan {
         let transform = cache_transform(density.transform(), scale);
         let mut candidates = FxHashSet::default();
         for brick in density.bricks() {
@@ -54,7 +56,7 @@ impl CachePlan {
         origins.sort_unstable_by_key(|o| (o.x, o.y, o.z));
         // A cache voxel's interpolation footprint is the ball around it reaching its cell's
         // far corners.
-        let footprint = scale * density.transform().voxel_size().length();
+        let footprint = (scale * density.transform().voxel_size()).length();
         let per_brick: Vec<(IVec3, BrickMask, BakeStats)> = origins
             .par_iter()
             .map(|&origin| {
@@ -90,14 +92,42 @@ impl CachePlan {
         CachePlan { transform, bricks, stats }
     }
 
+    /// Both backends' plans once the lights are tabled (`depths`): Li_single's lattice
+    /// chosen from them ([`choose_single_lattice`]), its plan, Li_multiple's own plan where
+    /// it has one ([`CachePlan::for_multiple`]), and their counts in `timed` with the
+    /// lattice's and the plans' times.
+    #[allow(clippy::too_many_arguments)]
+    pub fn for_bake(
+        density: &Volume<f32>,
+        majorant: &MajorantGrid,
+        params: &CacheParams,
+        depths: &LightDepths,
+        photons: &PhotonMap,
+        emits: bool,
+        mut timed: BakeStats,
+    ) -> (CachePlan, Option<CachePlan>, BakeStats) {
+        let medium = DensityMedium { motion: None, density, majorant, extinction: params.medium.extinction };
+        let lattice = timed.time("single lattice", || choose_single_lattice(density, medium, params, depths));
+        let (plan, own) = timed.time("plan", || {
+            let plan = CachePlan::new(density, majorant, &params.camera, lattice.scale);
+            let own = CachePlan::for_multiple(density, majorant, params, &plan, photons, emits);
+            (plan, own)
+        });
+        let stats = BakeStats {
+            stages: timed.stages,
+            single_lattice: (lattice.samples > 0).then_some(lattice),
+            ..plan.stats_with(own.as_ref(), params.bakes_single())
+        };
+        (plan, own, stats)
+    }
+
     /// Li_multiple's own plan, where it has its own lattice (`multiple_scale`) and will be
     /// baked (`emits`: the medium emits, [`CacheParams::bakes_multiple`]); None where it
     /// shares `single`'s.
     pub fn for_multiple(density: &Volume<f32>, majorant: &MajorantGrid, params: &CacheParams, single: &CachePlan, photons: &PhotonMap, emits: bool) -> Option<CachePlan> {
-        let scale = params.multiple_scale();
-        (params.bakes_multiple(photons, emits) && scale != params.cache_scale)
-            .then(|| CachePlan::new(density, majorant, &params.camera, scale))
-            .filter(|p| p.transform != single.transform)
+        let scale = DVec3::splat(params.multiple_scale());
+        let transform = cache_transform(density.transform(), scale);
+        (params.bakes_multiple(photons, emits) && transform != single.transform).then(|| CachePlan::new(density, majorant, &params.camera, scale))
     }
 
     /// The voxel counts of what is baked: this plan's where Li_single is baked on it (or

@@ -28,6 +28,7 @@ fn params(camera: Camera) -> CacheParams {
         camera,
         step: 0.25,
         cache_scale: 1.0,
+        single_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

@@ -36,6 +36,7 @@ fn params(camera: Camera, medium: Medium) -> CacheParams {
         camera,
         step: 0.5,
         cache_scale: 1.0,
+        single_tolerance: None,
         multiple_scale: Some(2.0),
         single: true,
         multiple: true,

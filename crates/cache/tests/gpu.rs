@@ -39,6 +39,7 @@ fn params(v: &Volume<f32>) -> CacheParams {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         step: 0.5,
         cache_scale: 1.5,
+        single_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: true,
@@ -228,6 +229,7 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
         gather: Gather::Neighbours { k: 8, max_radius: 0.15 },
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         cache_scale: 2.0,
+        single_tolerance: None,
         multiple_scale: None,
         ..params(&v)
     };
@@ -289,6 +291,7 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let p = CacheParams {
         single: false,
         cache_scale: 1.5,
+        single_tolerance: None,
         multiple_scale: Some(2.5),
         estimator: MultipleEstimator::Paths { per_voxel },
         seed: 5,
@@ -332,6 +335,7 @@ fn the_environment_in_the_paths_agrees_with_the_cpu_in_distribution() {
         let p = CacheParams {
             single: false,
             cache_scale: 1.5,
+            single_tolerance: None,
             multiple_scale: Some(2.5),
             estimator: MultipleEstimator::Paths { per_voxel: 8 },
             environment: Some(sky.clone()),
@@ -362,6 +366,7 @@ fn a_sun_with_a_disc_agrees_with_the_cpu_in_distribution() {
     let sun = Light::sun_with_angle(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(2.0), 10.0).unwrap();
     let p = CacheParams {
         cache_scale: 1.5,
+        single_tolerance: None,
         multiple_scale: Some(2.5),
         estimator: MultipleEstimator::Paths { per_voxel: 8 },
         lights: vec![sun],
@@ -439,6 +444,7 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         single: false,
         cache_scale: 2.0,
+        single_tolerance: None,
         multiple_scale: None,
         estimator: MultipleEstimator::Paths { per_voxel: 4 },
         ..params(&v)
@@ -487,6 +493,7 @@ fn emission_in_the_paths_agrees_with_the_cpu_in_distribution() {
         let p = CacheParams {
             single: false,
             cache_scale: 1.5,
+            single_tolerance: None,
             multiple_scale: Some(2.5),
             estimator: MultipleEstimator::Paths { per_voxel: 8 },
             lights: lights.clone(),

@@ -301,6 +301,9 @@ pub struct QualitySettings {
     pub cache_scale: f64,
     /// vdbcache `--multiple-scale`: Li_multiple's lattice, in density voxels.
     pub multiple_scale: f64,
+    /// vdbcache refines Li_single's lattice per axis to its interpolation tolerance
+    /// (nimbus_cache::choose_single_lattice) unless `--cache-scale` is given.
+    pub refine_single: bool,
     /// vdbmarch `--step` as a multiple of its default (nimbus_march::default_step).
     pub step_factor: f64,
     /// vdbmarch `--spp`; None: enough for the pixel's samples to lie half a density voxel
@@ -312,13 +315,15 @@ impl QualitySettings {
     /// The tools without `--quality`: the chain within 2% of the path-traced reference on
     /// the bundled scenes (README, `make bench`). Li_single at the density's resolution
     /// (its shadows are as sharp as the density; tabled transmittance makes it cheap),
+    /// finer along the axes where its interpolation would miss (flat voxels, thin dense
+    /// layers, grazing suns: nimbus_cache::choose_single_lattice),
     /// Li_multiple on a lattice two voxels wide (the best of 1 to 8 at equal time on the
     /// cloud, the plume and a twenty-times thinner plume: multiple scattering follows the
     /// medium's wisps, not only its transport mean free path) with 64 paths a voxel (the
     /// cloud's noise sets it: 32 give 2.4%, 64 1.9-2.0%), and the march's samples per pixel
     /// by the image's footprint (the plume's sub-pixel wisps: 2.2% at one sample, 1.3% at 16).
     pub const DEFAULT: QualitySettings =
-        QualitySettings { paths: 64, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 1.0, multiple_scale: 2.0, step_factor: 1.0, spp: None };
+        QualitySettings { paths: 64, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 1.0, multiple_scale: 2.0, refine_single: true, step_factor: 1.0, spp: None };
 }
 
 impl Quality {
@@ -335,9 +340,9 @@ impl Quality {
     pub fn settings(self) -> QualitySettings {
         let default = QualitySettings::DEFAULT;
         match self {
-            // Look development: a coarse lattice and few paths (its blur and noise are the
-            // error), one sample per pixel and a long march step.
-            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, gather_neighbours: 32, cache_scale: 2.0, multiple_scale: 4.0, step_factor: 2.0, spp: Some(1), ..default },
+            // Look development: a coarse lattice, not refined, and few paths (its blur and
+            // noise are the error), one sample per pixel and a long march step.
+            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, gather_neighbours: 32, cache_scale: 2.0, multiple_scale: 4.0, refine_single: false, step_factor: 2.0, spp: Some(1), ..default },
             // The default lattices at a quarter of the paths.
             Quality::Preview => QualitySettings { paths: 16, ..default },
             // Four times the default's paths (half its noise) and 16 stratified samples per

@@ -18,7 +18,7 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
     let (w, h) = (12, 8);
     let cam = camera(DVec3::ZERO, w, h);
     let majorant = MajorantGrid::build(&density);
-    let plan = CachePlan::new(&density, &majorant, &cam, 2.0);
+    let plan = CachePlan::new(&density, &majorant, &cam, DVec3::splat(2.0));
     let medium = Medium { extinction: 1.5, albedo: Vec3::splat(0.8), g: 0.0 };
     let importance = CameraImportance::new(&plan, &density, &majorant, medium.extinction, &cam, 0.0);
     let g = &importance.g;
@@ -75,7 +75,7 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
     let majorant = MajorantGrid::build(&density);
     let medium = Medium { extinction: 1.5, albedo: Vec3::ONE, g: 0.0 };
     // Four density voxels a cache voxel: far coarser than the field's fall-off.
-    let plan = CachePlan::new(&density, &majorant, &cam, 4.0);
+    let plan = CachePlan::new(&density, &majorant, &cam, DVec3::splat(4.0));
     let cache_params = CacheParams {
         environment: None,
         medium,
@@ -83,6 +83,7 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
         camera: cam.clone(),
         step: 1.0,
         cache_scale: 4.0,
+        single_tolerance: None,
         multiple_scale: None,
         single: false,
         multiple: true,

@@ -64,6 +64,7 @@ fn single_scattering_matches_the_cached_chain() {
         camera,
         step: 0.5,
         cache_scale: 1.0,
+        single_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

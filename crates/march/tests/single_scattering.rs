@@ -31,6 +31,7 @@ fn single_scattering_chain_matches_a_brute_force_render() {
         camera: camera.clone(),
         step: 0.5,
         cache_scale: 1.0,
+        single_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

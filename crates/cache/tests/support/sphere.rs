@@ -40,6 +40,7 @@ impl Sphere {
             camera: Camera::default_for_bounds(lo, hi).unwrap(),
             step: 0.5,
             cache_scale,
+            single_tolerance: None,
             multiple_scale: None,
             single: false,
             multiple: true,
