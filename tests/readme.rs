@@ -98,16 +98,29 @@ done
     bin
 }
 
-/// The runs a stub log holds, each as its tool and its sorted arguments (flags in any order),
-/// sorted.
-fn runs(log: &Path) -> Vec<Vec<String>> {
+/// A run's arguments in an order-free form: each flag with its value (`--albedo 0.95`), each
+/// switch (`-v`, `-q`) and each positional argument one unit, the units sorted. (A flag
+/// followed by a word not starting with `-` is taken to own it as its value.)
+fn units(args: &[&str]) -> Vec<String> {
+    let mut units = Vec::new();
+    let mut i = 0;
+    while i < args.len() {
+        let takes_value = args[i].starts_with('-') && !["-v", "-q"].contains(&args[i]) && args.get(i + 1).is_some_and(|next| !next.starts_with('-'));
+        units.push(if takes_value { format!("{} {}", args[i], args[i + 1]) } else { args[i].to_string() });
+        i += if takes_value { 2 } else { 1 };
+    }
+    units.sort();
+    units
+}
+
+/// The runs a stub log holds, each as its tool and [`units`], sorted.
+fn runs(log: &Path) -> Vec<(String, Vec<String>)> {
     let text = std::fs::read_to_string(log).unwrap_or_default();
-    let mut runs: Vec<Vec<String>> = text
+    let mut runs: Vec<(String, Vec<String>)> = text
         .lines()
         .map(|l| {
-            let mut fields: Vec<String> = l.split('\t').map(str::to_string).collect();
-            fields[1..].sort();
-            fields
+            let fields: Vec<&str> = l.split('\t').collect();
+            (fields[0].to_string(), units(&fields[1..]))
         })
         .collect();
     runs.sort();
@@ -147,11 +160,11 @@ fn the_readme_shows_the_demo_as_scripts_demo_sh_runs_it() {
 
     let (script, shown) = (runs(&script_log), runs(&readme_log));
     assert!(script.len() >= 3, "scripts/demo.sh ran {} tools", script.len());
-    let only_script: Vec<String> = script.iter().filter(|r| !shown.contains(r)).map(|r| r.join(" ")).collect();
-    let only_readme: Vec<String> = shown.iter().filter(|r| !script.contains(r)).map(|r| r.join(" ")).collect();
+    let missing = |runs: &[(String, Vec<String>)], from: &[(String, Vec<String>)]| -> Vec<String> { runs.iter().filter(|r| !from.contains(r)).map(|(tool, units)| format!("{tool} {}", units.join(" "))).collect() };
+    let (only_script, only_readme) = (missing(&script, &shown), missing(&shown, &script));
     assert!(
         script == shown,
-        "the README's demo commands and scripts/demo.sh differ (arguments sorted).\nonly in scripts/demo.sh:\n  {}\nonly in the README:\n  {}",
+        "the README's demo commands and scripts/demo.sh differ (flags sorted).\nonly in scripts/demo.sh:\n  {}\nonly in the README:\n  {}",
         only_script.join("\n  "),
         only_readme.join("\n  ")
     );
