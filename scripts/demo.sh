@@ -42,8 +42,10 @@ source scripts/demo_scenes.sh
 render cloud data/cloud.ply "$CLOUD_DENSITY" "$CLOUD_LIGHT" "$CLOUD_CAMERA" --offset-noise 2
 # A smoke plume rising 150 units, darker and more absorbing, lit from the side.
 render plume data/plume.ply "$PLUME_DENSITY" "$PLUME_LIGHT" "$PLUME_CAMERA"
-# A Blender 3.4 Mantaflow fire (data/fire.vdb, data/README.md): its `temperature` grid is
-# recognised as a blackbody and rendered as fire by default. The medium is the .blend's own
+# A Blender 3.4 Mantaflow fire (data/fire.vdb, data/README.md): recognised as a Mantaflow
+# fire by its `flame` grid beside a normalised `temperature` grid, it renders by default as
+# Blender renders it, a blackbody from the flame (1500 to 3000 K; the file's `temperature`,
+# Mantaflow's heat, is not used: crates/cli/src/emission.rs). The medium is the .blend's own
 # Quick Smoke material (Principled Volume density 5, colour 0.5, no anisotropy); a sun from
 # the camera's left, above, strong enough that the smoke beside the flame reads. The camera
 # frames the plume from slightly right of -Y (scripts/compare_cycles.sh renders the same

@@ -3,14 +3,11 @@
 //! help gives are accepted by the tools' parsers (run with `NIMBUS_PARSE_ONLY`, which exits
 //! once the flags parsed).
 
-use std::path::Path;
 use std::process::Command;
 
 mod common;
 
-use common::bin;
-
-const TOOLS: [&str; 5] = ["particles2vdb", "vdbphoton", "vdbcache", "vdbmarch", "nimbus-render"];
+use common::{bin, parse_only, TOOLS};
 
 fn help(tool: &str) -> String {
     let out = Command::new(bin(tool)).arg("--help").output().unwrap();
@@ -102,8 +99,6 @@ fn examples(text: &str) -> Vec<String> {
 
 #[test]
 fn the_examples_in_the_help_parse() {
-    let dir = Path::new(&bin("vdbmarch")).parent().unwrap().to_path_buf();
-    let path = format!("{}:{}", dir.display(), std::env::var("PATH").unwrap_or_default());
     for tool in TOOLS {
         let commands = examples(&help(tool));
         assert!(!commands.is_empty(), "{tool}: no example in its help");
@@ -112,7 +107,7 @@ fn the_examples_in_the_help_parse() {
             for segment in command.split(" | ") {
                 let program = segment.split_whitespace().next().unwrap();
                 assert!(TOOLS.contains(&program), "{tool}: the example runs '{program}', not a nimbus tool: {command}");
-                let out = Command::new("sh").arg("-c").arg(segment).env("PATH", &path).env("NIMBUS_PARSE_ONLY", "1").output().unwrap();
+                let out = parse_only(segment);
                 assert!(out.status.success(), "{tool}: the example '{segment}' is refused: {}", String::from_utf8_lossy(&out.stderr));
             }
         }

@@ -107,7 +107,8 @@ struct Args {
     /// interpolation with the density's smoothing lengths, normalised by the kernel sum. A
     /// vec3 is NAME_x NAME_y NAME_z (or NAMEx.., NAME.x.., NAME[0]..) in PLY and CSV. `v`
     /// (also found as `vel`, `velocity`) becomes the velocity grid `v`, `Cd` (`color`,
-    /// `colour`) the grid `color`; other names keep theirs (`temperature`, `heat`). CPU only.
+    /// `colour`) the grid `color`; other names keep theirs (`temperature`, `heat`). Both
+    /// backends (`--device gpu` too).
     #[arg(long = "attribute", value_name = "NAME[:GRID]", help_heading = "Output")]
     attributes: Vec<String>,
     #[command(flatten)]

@@ -19,6 +19,18 @@ pub fn bin(name: &str) -> PathBuf {
     .into()
 }
 
+/// The tools, as their binaries are named.
+pub const TOOLS: [&str; 5] = ["particles2vdb", "vdbphoton", "vdbcache", "vdbmarch", "nimbus-render"];
+
+/// Runs the shell command line `command` (one tool and its flags, quoted as in a shell) with
+/// the built tools first on `PATH` and `NIMBUS_PARSE_ONLY` set, so the tool exits 0 once its
+/// flags parsed and runs nothing (crates/cli `parse_args`): whether the tool accepts them.
+pub fn parse_only(command: &str) -> Output {
+    let dir = bin("vdbmarch").parent().unwrap().to_path_buf();
+    let path = format!("{}:{}", dir.display(), std::env::var("PATH").unwrap_or_default());
+    Command::new("sh").arg("-c").arg(command).env("PATH", &path).env("NIMBUS_PARSE_ONLY", "1").output().unwrap()
+}
+
 /// A fresh directory per test process and `name` (`suite` keeps the test files apart).
 pub fn scratch(suite: &str, name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("nimbus-{suite}-{}-{name}", std::process::id()));

@@ -5,8 +5,8 @@
 //!   lattice by default. T_light comes from each sun's tabled transmittance
 //!   ([`nimbus_tracking::OpticalDepthVolume`], built once per bake: [`ShadowMode::Table`]),
 //!   or from a Simpson shadow ray per voxel ([`ShadowMode::Rays`], and always for point
-//!   lights). On the bundled plume the table bakes single scattering in 1.0 s against 9.1 s
-//!   of shadow rays, both 0.3-0.4% off a brute-force single-scatter march.
+//!   lights). The table and the shadow rays agree to the error of a brute-force
+//!   single-scatter march; the table is the cheaper (docs/benchmarks.md).
 //! - `Li_multiple`, by default ([`MultipleEstimator::Paths`]) the mean of paths traced from
 //!   the voxel ([`li_multiple_paths`] over [`nimbus_tracking::trace_path`], the reference
 //!   path tracer's own, with next-event estimation reading the table), on its own lattice
@@ -15,9 +15,8 @@
 //!   march's pixels with respect to the voxel's value summed over the image
 //!   ([`CameraImportance`]); each starting at a point where the camera's rays read the voxel,
 //!   drawn by that point's weight in the image. So the voxel holds the average of what the
-//!   image reads through it, and a coarse lattice blurs but does not darken (centre values
-//!   had darkened the bundled cloud 2.1-2.4% at 4 voxels, 8% at 8; origin-averaged values
-//!   keep its mean within 0.5%). Voxels no camera ray reads, nor a neighbour, get no paths.
+//!   image reads through it, and a coarse lattice blurs but does not darken (values at the
+//!   voxels' centres did; docs/benchmarks.md). Voxels no camera ray reads, nor a neighbour, get no paths.
 //!   A voxel's paths take their first directions from its R2 sequence (rotated per voxel:
 //!   each direction still the phase function's), which spreads them evenly.
 //!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission

@@ -60,8 +60,7 @@
 //!   (`gpu::AttributePass`, eight channels a dispatch), within 6e-6 of the direct sum and
 //!   3e-7 of the CPU (crates/density/tests/attributes.rs). On the CPU: one kernel
 //!   evaluation per (particle, voxel) for every channel (a kernel sum shared by the attributes without non-finite values, then the
-//!   components), 0.64 s for v, Cd and temperature on the bundled plume beside 0.76 s for
-//!   the density's passes (medians of 5, two loaded cores). The readers' naming rule
+//!   components; its cost is in docs/benchmarks.md). The readers' naming rule
 //!   (vec3 from `vx vy vz`, `v_x ..`, `v.x ..`, `v[0] ..`; aliases `vel`, `Cd`/`color`) is in
 //!   [`available_attributes`] and [`find_attribute`].
 //! - Stats ([`DensityStats`]): over grid points whose voxel footprint holds at least one
@@ -93,7 +92,7 @@
 //!   density pass at those lengths, as conserve-mass's does. The GPU's `ladder` pass
 //!   (shaders/density.wgsl) returns the rung sums to the host. Until session 28 the rule was
 //!   per voxel (Goldenshluger-Lepski's, Gamma 1.75, then the least rung among 27
-//!   neighbours; the measurements below the new table are that rule's): a voxel's own
+//!   neighbours; docs/benchmarks.md has that rule's measurements): a voxel's own
 //!   differences are noise-dominated exactly where the bias matters, which the box mean of
 //!   the debiased squares is not.
 //! - knn: the N*-th nearest is selected (select_nth) among the particles within kappa*h0 of the
@@ -101,8 +100,8 @@
 //! - Mass: usl conserves mass to discretisation error. The adaptive methods are gather
 //!   estimates with h varying between grid points, which is not exactly mass conserving where
 //!   density contrasts are steep (a sparse point's wide kernel reaches into a dense knot):
-//!   +0.3..5% on the analytic test scenes at the defaults (+0.2..3% at N* 32), see the
-//!   accuracy example and tests/reference.rs `mass_is_conserved`.
+//!   by a few percent on the analytic test scenes (docs/benchmarks.md; tests/reference.rs
+//!   `mass_is_conserved` holds the bound).
 //!   `conserve_mass` (`--conserve-mass`, off by default) makes it exact at the cost of one more
 //!   kernel pass once h(x) is final: each particle's kernel summed over the grid as the density
 //!   pass will weigh it, S_q = sum_x W(|x - x_q|, h(x)) dV, and rho(x) = sum_q (m_q / S_q)
@@ -111,132 +110,21 @@
 //!   others and the per-(brick, particle) partials are summed in brick order (bit-identical
 //!   between runs); the GPU gathers per particle over the grid points of its support box.
 //!
-//! # Measured (examples/accuracy.rs and benches/estimate.rs reproduce these)
+//! # Accuracy and mass: what the tests hold
 //!
-//! Relative L2 error against analytic densities: asl3 ~= knn at the same N* (the
-//! predictor-corrector is as good as the exact neighbour search), and both far better than usl
-//! with h0 off by 2x. asl3 against the best oracle-tuned usl, by N* (h_min 1 voxel):
+//! The measurements (relative L2 against analytic densities by method, N* and h_min; mass;
+//! speed; how ici's rule was found) are in docs/benchmarks.md, reproduced by
+//! `examples/accuracy.rs` and `benches/estimate.rs`. What the crate promises:
 //!
-//! | scene | best usl | N* 32 | 64 | 96 | 128 |
-//! |---|---|---|---|---|---|
-//! | knots (steep contrast) | 0.144 | 0.132 (-9%) | 0.129 | 0.128 (-11%) | 0.126 |
-//! | shell (steep contrast) | 0.227 | 0.313 (+38%) | 0.251 | 0.223 (-2%) | 0.218 |
-//! | plume (smooth) | 0.099 | 0.130 (+31%) | 0.121 | 0.114 (+15%) | 0.110 |
-//! | Cloud1-class (smooth) | 0.144 | 0.360 (+149%) | 0.256 | 0.211 (+46%) | 0.185 |
+//! - asl3 is as good as knn at the same N* (the predictor-corrector against the exact
+//!   neighbour search); both are far better than usl with h0 off by 2x.
+//! - The defaults: ici, which is at or below the best-tuned usl on every analytic test scene
+//!   with no per-scene setting; asl3 at N* = [`DEFAULT_NEIGHBOURS`] and h_min =
+//!   [`DEFAULT_H_MIN_VOXELS`] (issue #18 chose accuracy over exact mass and speed).
+//! - usl conserves mass to discretisation error; the adaptive methods do not exactly (see
+//!   "Mass" above), and tests/reference.rs `mass_is_conserved` bounds their excess;
+//!   `conserve_mass` makes it exact to the active threshold's dust.
 //!
-//! The accuracy goal (asl3 untuned within 5% of the best-tuned usl) is first met on both
-//! steep-contrast scenes at N* = 80 (knots -10.8%, shell +2.3%), at about 1.6x the time of
-//! N* = 32 and with the gather estimate's mass excess on a small smooth blob past 1% (0.6% at
-//! 32, 1.3% at 64, 1.4% at 80, 1.7% at 96); with h_min 1.2 voxels it is the default
-//! ([`DEFAULT_NEIGHBOURS`], [`DEFAULT_H_MIN_VOXELS`]; the joint table below has the trade).
-//! Where the adaptive method loses is
-//! smooth media: there the best usl averages 250+ particles per point, and an N*-neighbour
-//! kernel is noise-limited (error falls as N* grows). h_min trades the same way, and no floor
-//! suits every scene: 0.5 voxel is always worse (the grid cannot resolve the kernel); 1.5
-//! voxels beats the best usl on the shell (0.214) and the plume (0.098) but costs the knots
-//! 31% (0.188, their best usl kernel is 1 voxel); 1.25 leaves all three 5-8% behind.
-//!
-//! Raised together they do better than either alone (rel. L2 against the best usl; mass = grid
-//! / particles; the 20k-particle blob is tests/reference.rs `mass_is_conserved`'s; time =
-//! Cloud1-class whole command, median of 5 alternating runs in one session, in which usl took
-//! 0.90 s; `examples/accuracy.rs` for the errors):
-//!
-//! | N*, h_min | knots | shell | plume | Cloud1 | mass: blob, shell | time |
-//! |---|---|---|---|---|---|---|
-//! | 32, 1 voxel (the default until issue #18) | -8.6% | +38% | +31% | +149% | 1.0064, 1.0220 | 1.41 s |
-//! | 32, 1, conserve-mass | -8.9% | +36% | +31% | +143% | exact (shell 1.0000) | 1.97 s |
-//! | 64, 1.2 | +0.3% | +9.2% | +4.8% | +76% | 1.0129 (h_min 1), 1.0349 | |
-//! | 80, 1 | -10.8% | +2.3% | +18% | +59% | 1.0136, 1.0387 | |
-//! | 80, 1.2 (default) | 0.0% | +2.3% | +2.7% | +59% | 1.0127, 1.0387 | 2.25 s |
-//! | 80, 1.2, conserve-mass | -0.3% | +3.8% | +2.0% | +55% | exact (shell 1.0000) | 3.37 s |
-//!
-//! N* = 80 is the least tried that meets the accuracy goal on both steep-contrast scenes (72
-//! leaves the shell at +5.8%), and with h_min = 1.2 voxels it does on the plume too; the
-//! smooth Cloud1-class scene stays far behind whatever the setting. But it puts the blob's
-//! mass past 1% (+1.3%) and the shell's to +3.9%, and asl3 past its 1.9 s target (2.25 s,
-//! where N* 32 with h_min 1 voxel takes 1.41 s in the same runs); conserve-mass mends the
-//! mass at 1.5x its time. No setting meets the accuracy goal, the mass bound and the speed
-//! target together; issue #18 chose accuracy, so N* = 80 and h_min = 1.2 voxels are the
-//! defaults, the mass excess accepted (tests/reference.rs holds it to these figures, and to
-//! 1% at N* 32) and `--conserve-mass` the way to exact mass.
-//!
-//! conserve-mass (accuracy example, asl3; grid mass / particle mass and rel. L2, without ->
-//! with): the mass is the particles' to 1e-4 (what is left is the active threshold's dust),
-//! and L2 mostly improves a little, once not:
-//!
-//! | scene | N* 32 mass | N* 32 L2 | N* 96 mass | N* 96 L2 |
-//! |---|---|---|---|---|
-//! | knots | 1.0041 -> 1.0000 | 0.1316 -> 0.1312 | 1.0130 -> 0.9999 | 0.1276 -> 0.1263 |
-//! | shell | 1.0220 -> 1.0000 | 0.3132 -> 0.3080 | 1.0408 -> 1.0000 | 0.2226 -> 0.2289 |
-//! | plume | 1.0015 -> 1.0000 | 0.1304 -> 0.1298 | 1.0046 -> 1.0000 | 0.1144 -> 0.1133 |
-//!
-//! ici (issue #21, session 28's rule over the whole grid, the default) against a fine h0
-//! sweep of usl (its best at 1.0, 1.75, 1.5 and 3.5 voxels), relative L2 against the
-//! analytic density (rim: true rho below 2% of the maximum; examples/accuracy.rs,
-//! 2026-12-03):
-//!
-//! | scene | best usl | asl3 (80, 1.2) | ici, per-voxel rule (session 27) | ici | ici rim / asl3 rim |
-//! |---|---|---|---|---|---|
-//! | knots | 0.1440 | 0.1440 | 0.1464 | **0.1078 (-25.1%)** | 0.217 / 0.262 |
-//! | shell | 0.2188 | 0.2322 | 0.2612 | **0.2115 (-3.3%)** | 0.650 / 0.668 |
-//! | plume | 0.0992 | 0.1019 | 0.0785 | **0.0720 (-27.4%)** | 0.139 / 0.235 |
-//! | Cloud1-class | 0.1429 | 0.2292 | 0.1573 | **0.1378 (-3.6%)** | 0.485 / 0.480 |
-//!
-//! Mass 1.015, 0.998, 1.003, 0.995 (a lone kernel 1.09). At or below the best usl on every
-//! scene with no per-scene setting, so it is the default. How the rule was found and what
-//! else was measured (the oracle, Gamma, the boxes, the ladder's ends) is in
-//! docs/benchmarks.md. Time: 1.8x asl3 on the Cloud1-class command (1.72 s against 0.94 s,
-//! medians of 7 side by side).
-//!
-//! The earlier rule, for the record:
-//!
-//! ici (issue #21), at its defaults beside the best-tuned usl (of the h0 sweep), asl3 and knn
-//! (rel. L2; examples/accuracy.rs, `cargo run --profile ci -p nimbus-density --example
-//! accuracy -- knots shell plume cloud1`, 2026-12-02):
-//!
-//! | scene | best usl | asl3 N* 32, h_min 1 | asl3 80, 1.2 (default) | knn (defaults) | ici (defaults) |
-//! |---|---|---|---|---|---|
-//! | knots | 0.1440 | 0.1316 (-8.6%) | 0.1440 (0.0%) | 0.1438 | 0.1464 (+1.6%) |
-//! | shell | 0.2270 | 0.3132 (+38%) | 0.2322 (+2.3%) | 0.2424 | 0.2612 (+15.1%) |
-//! | plume | 0.0992 | 0.1304 (+31%) | 0.1019 (+2.7%) | 0.1020 | 0.0785 (-20.9%) |
-//! | Cloud1-class | 0.1444 | 0.3599 (+149%) | 0.2292 (+59%) | 0.2311 | 0.1573 (+9.0%) |
-//! | rim L2, plume (true rho < 2% of max) | 0.2529 (h0 1.5 vox) | 0.3525 | 0.2350 | 0.2355 | 0.1554 (-34% vs asl3) |
-//! | mass: knots, shell, plume, Cloud1 | 1.0000 | 1.0041, 1.0220, 1.0015, 1.0071 | 1.0078, 1.0387, 1.0031, 1.0136 | | 1.0248, 1.0417, 0.9995, 0.9929 |
-//!
-//! (The neighbour rule across brick faces; within bricks it had 0.1482, 0.2674, 0.0798,
-//! 0.1554.) So ici meets the goal (at or below the best usl) on the plume only, is within 2%
-//! on the knots and 9% on Cloud1-class, and loses 15% on the shell; overall it is far ahead
-//! of asl3 (worst +15.1% against +59%, geometric mean of the ratios to the best usl +0.2%
-//! against +13.6%), but behind it on both steep scenes. No single Gamma wins everywhere
-//! (knots, shell, plume, Cloud1; measured with the rule within bricks): Gamma 1 gives 0.1433, 0.2348, 0.0930, 0.2638; 1.5 gives 0.1449,
-//! 0.2439, 0.0803, 0.1786; 2 gives 0.1542, 0.2875, 0.0812, 0.1462; 2.5 gives Cloud1 0.1422,
-//! below the best usl. A smooth medium wants a wide noise allowance (with a narrow one, some
-//! shorter rung differs by noise alone), a thin shell a narrow one (its bias hides in the
-//! short rungs' noise); 1.75 is the least worst case. The classic intersection-of-confidence-
-//! intervals rule (the largest k whose intervals rho_j +- Gamma sd_j, j <= k, share a point)
-//! measured 0.1531, 0.2691, 0.0824, 0.1531 at its best Gamma, 1.5. Also tried and measured
-//! worse overall: rung ratios 1.4 and 1.7; Lepski's pairwise test with the nested variance;
-//! no variance floor, the one-particle floor, or the floor from the next rung up (shell
-//! 0.2256 and knots 0.1446, but Cloud1 0.22 and the mass 1.5-5% short: empty balls stop the
-//! ladder in sparse parts); a 3x3x3 mean of the rungs instead of the least.
-//!
-//! The rim (where the issue saw asl3's round blobs about isolated particles): on the plume
-//! ici averages ~510 particles per occupied point against asl3's ~120 and the rim's error
-//! falls 35%; on the other scenes it does not improve (knots 0.288 against 0.262, shell
-//! 0.869 against 0.668, Cloud1 0.498 against 0.480): there the lengths the rim takes reach
-//! into the denser medium next to it. The mass: ici is a gather with varying lengths as
-//! asl3 is; +3-4% on the steep scenes, and +10% on 20k-particle knots (tests/reference.rs
-//! `mass_is_conserved`), where a sparse point's small rungs hold few particles, their noise
-//! hides the bias and it takes a long kernel into a knot; `conserve_mass` makes it exact.
-//!
-//! Speed, whole `particles2vdb` command on Cloud1-class (`gen_particles cloud1`, 500k, the
-//! 339 x 42 x 361 grid, `--bounds 0,0,0,339,42,361 --voxel-size 1`), medians of 5
-//! alternating runs, wall (CPU) s: usl 0.68 (1.11), asl3 1.05 (1.83), ici 1.03 (1.80) with
-//! both cores free; with one taken by another job usl 1.26, asl3 2.01, ici 2.00 (1.80), so
-//! ici is at the paper's 1.90 s only with the machine to itself. The ladder pass does about 1.9x usl's kernel evaluations at the same
-//! h0 (the rungs' supports' areas relative to the top's, 1 + 0.5 + 0.25 + 0.12) with one
-//! square root per (particle, voxel) pair; the rung choice runs vectorised over a brick's
-//! voxels (per voxel and scalar it took 12% of the command).
 
 //! # Backends
 //!

@@ -12,14 +12,10 @@
 //! - Step control from the majorant: in a cell whose density bound makes one lattice step
 //!   optically thin, one sample stands for a group of up to `max_step_factor` lattice steps
 //!   (vdbmarch's `--max-step-factor`, default 1, a fixed step; [`MarchParams::step_factor`], the groups
-//!   in `Groups`), its member picked by a second random offset u. Measured on the bench
-//!   scenes against the path-traced reference (256x144, 1024 paths, mean over 6 seeds):
-//!   factor 2 leaves the relative RMSE of colour and of opacity as they were (Cloud1
-//!   0.15972 / 0.00221 both; smoke 0.0627 / 0.0041), factor 4 raises the opacity error by
-//!   3%; 1 is the plain lattice march. Single scattering alone, against a brute-force
-//!   single-scatter march, is where a longer step shows: factor 2 took the bundled plume from
-//!   0.31% to 0.51% (the cloud 0.25% to 0.34%), sampling Li_single's voxel-scale shadow edges
-//!   too sparsely, so the default is 1 (2026-12-02).
+//!   in `Groups`), its member picked by a second random offset u; 1 is the plain lattice
+//!   march. A longer step samples Li_single's voxel-scale shadow edges more sparsely, which
+//!   single scattering alone shows, so the default is 1 (docs/benchmarks.md, "Single
+//!   scattering against a brute-force march").
 //! - `spp` samples per pixel are jittered over the pixel (box filter), stratified on the
 //!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
@@ -29,8 +25,8 @@
 //!   anchored in world space, 4 nodes per `noise_scale` per axis (one per cell of the
 //!   finest of vdbmarch's 3 octaves: every octave is kept, the finest one interpolated
 //!   coarsely), over the bricks of nodes within the noise's reach of the medium,
-//!   interpolated trilinearly at each sample. Per-sample fBm had made the demo
-//!   cloud's march 60x the march without noise; see docs/benchmarks.md ("Offset noise")
+//!   interpolated trilinearly at each sample (per-sample fBm is far slower); see
+//!   docs/benchmarks.md ("Offset noise")
 //!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
 //!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
 //!   dilated by the noise's reach. Amplitude 0 costs nothing: no bake, no dilation.
