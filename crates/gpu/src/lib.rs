@@ -66,6 +66,7 @@ mod error;
 mod loop_cap;
 mod sampler;
 mod volume;
+pub mod wgsl_layout;
 
 pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
 pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};

@@ -438,8 +438,12 @@ mod tests {
     }
 
     #[test]
-    fn info_matches_the_wgsl_struct_size() {
-        // 64 (mat4) + 16 (background) + 5 x 16 (vec3 + pad).
+    fn info_matches_the_wgsl_struct() {
+        // As every stage composes volume.wgsl (PointSampler's source), on both kinds of adapter.
+        for filterable in [false, true] {
+            let host = crate::host_layout!(VolumeInfo { world_to_index, background, table_origin, _pad0, table_dims, _pad1, inv_atlas_dims, _pad2, index_min, _pad3, index_max, _pad4 });
+            crate::wgsl_layout::check_layouts(&crate::compose_shader(filterable, crate::SAMPLE_POINTS_WGSL), &[("VolumeInfo", host)]);
+        }
         assert_eq!(size_of::<VolumeInfo>(), 160);
     }
 }
