@@ -108,6 +108,18 @@ struct GpuTracer<'a> {
     _volume: GpuVolume,
 }
 
+/// The tracer's shader source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
+fn photon_source(filterable: bool, loop_guard: bool) -> String {
+    nimbus_gpu::compose_shader(
+        filterable,
+        &format!(
+            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}",
+            emission_wgsl(EMISSION_GROUP),
+            LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)
+        ),
+    )
+}
+
 impl<'a> GpuTracer<'a> {
     fn new(ctx: &'a GpuContext, density: &Volume<f32>, params: &PhotonParams, setup: &Setup) -> Result<Self, GpuError> {
         let origin = 0.5 * (setup.bounds.0 + setup.bounds.1);
@@ -130,11 +142,7 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(MEDIUM_CELLS_BINDING, true),
             ],
         )?;
-        let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            guard.wgsl(1)
-        ));
+        let source = photon_source(ctx.float32_filterable(), guard.enabled());
         let emission_layout = GpuEmission::layout(ctx)?;
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout, &emission_layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
@@ -382,9 +390,24 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuPhotonParams>(), 112);
-        assert_eq!(size_of::<GpuPhotonLight>(), 80);
-        assert_eq!(size_of::<GpuRecord>(), 48);
+        use crate::medium::GpuMediumCell;
+        use nimbus_gpu::host_layout;
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Medium", "MajorantGridInfo", "EmissionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "PhotonUniforms",
+                    host_layout!(GpuPhotonParams { medium, seed, first_index, count, capacity, light_count, mode, step, max_interactions, _pad, grid }),
+                ),
+                (
+                    "PhotonLight",
+                    host_layout!(GpuPhotonLight { origin, kind, normal, cell, tangent, cdf, bitangent, first_cell, weight, cell_count }),
+                ),
+                ("PhotonRecord", host_layout!(GpuRecord { position, path, power, interaction, dir, _pad })),
+                ("MediumCell", host_layout!(GpuMediumCell { cell, weight, threshold, _pad })),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&photon_source(filterable, loop_guard), &mirrors);
+        }
     }
 
     /// The shader's cell index against `index_from_words`, bit for bit, on words where the
