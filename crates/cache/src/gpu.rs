@@ -98,6 +98,20 @@ fn constants_wgsl() -> String {
     )
 }
 
+/// The cache kernels' source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
+fn cache_source(filterable: bool, loop_guard: bool) -> String {
+    nimbus_gpu::compose_shader(
+        filterable,
+        &format!(
+            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
+            emission_wgsl(EMISSION_GROUP),
+            light_tables_wgsl(),
+            constants_wgsl(),
+            LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)
+        ),
+    )
+}
+
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
 /// paths and estimators as [`crate::bake_cpu`], in f32.
 pub fn bake_gpu(ctx: &GpuContext, density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams) -> Result<(IlluminationCache, BakeStats), CacheError> {
@@ -287,13 +301,7 @@ impl<'a> GpuBaker<'a> {
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let emission_layout = GpuEmission::layout(ctx)?;
         let emission_group = GpuEmission::upload(ctx, emission, origin)?.bind_group(ctx, &emission_layout)?;
-        let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            light_tables_wgsl(),
-            constants_wgsl(),
-            guard.wgsl(1)
-        ));
+        let source = cache_source(ctx.float32_filterable(), guard.enabled());
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
         let (starts, sorted, dims, cell) = match bins {
@@ -449,8 +457,40 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuCacheParams>(), 176);
-        assert_eq!(size_of::<GpuPhoton>(), 48);
-        assert_eq!(size_of::<GpuOut>(), 16);
+        use nimbus_gpu::host_layout;
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Medium", "Light", "MajorantGridInfo", "LightTable", "EmissionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "CacheUniforms",
+                    host_layout!(GpuCacheParams {
+                        medium,
+                        grid,
+                        eye,
+                        step,
+                        bins_dims,
+                        bins_cell,
+                        first,
+                        count,
+                        light_count,
+                        cutoff,
+                        k,
+                        radius,
+                        radius_sq,
+                        gather_mode,
+                        max_shell,
+                        empty_below,
+                        seed,
+                        max_depth,
+                        first_path,
+                        path_count,
+                        _pad
+                    }),
+                ),
+                ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
+                ("CacheOut", host_layout!(GpuOut { li, used })),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard), &mirrors);
+        }
     }
 }
