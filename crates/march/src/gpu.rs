@@ -214,11 +214,7 @@ fn march_pixels(
     entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
-    let source = ctx.compose_shader(&format!(
-        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NOISE_WGSL}\n{MARCH_WGSL}",
-        emission_wgsl(EMISSION_GROUP),
-        tracking_wgsl_moving(MOTION_GROUP)
-    ));
+    let source = march_source(filterable, filtered);
     let emission_layout = GpuEmission::layout(ctx)?;
     let motion_layout = GpuMotion::layout(ctx)?;
     let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
@@ -349,6 +345,27 @@ impl PixelTiles<'_> {
     }
 }
 
+/// The march kernel's source, on an adapter with or without FLOAT32_FILTERABLE, reading the
+/// cache with filtered fetches or not ([`CacheLookup`]).
+fn march_source(filterable: bool, cache_filtered: bool) -> String {
+    nimbus_gpu::compose_shader(
+        filterable,
+        &format!(
+            "const CACHE_FILTERED: bool = {cache_filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NOISE_WGSL}\n{MARCH_WGSL}",
+            emission_wgsl(EMISSION_GROUP),
+            tracking_wgsl_moving(MOTION_GROUP)
+        ),
+    )
+}
+
+#[cfg(test)]
+impl GpuPixel {
+    /// The layout of the pixels the march and the reference write (each its `PixelOut`).
+    pub(crate) fn host_layout() -> nimbus_gpu::wgsl_layout::HostStruct {
+        nimbus_gpu::host_layout!(GpuPixel { single, transmittance, multiple, depth, behind, _pad, emission, _pad1 })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,8 +373,44 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuMarchParams>(), 272);
-        assert_eq!(size_of::<GpuPixel>(), 64);
+        for (filterable, cache_filtered) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Camera", "Medium", "MajorantGridInfo", "EmissionInfo", "MotionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "MarchUniforms",
+                    nimbus_gpu::host_layout!(GpuMarchParams {
+                        camera,
+                        medium,
+                        grid,
+                        background,
+                        step,
+                        noise_base,
+                        spp,
+                        noise_offset,
+                        noise_inv_scale,
+                        seed,
+                        noise_octaves,
+                        noise_seed,
+                        offset_noise,
+                        min_transmittance,
+                        flags,
+                        width,
+                        pixel_count,
+                        first_pixel,
+                        tile_pixels,
+                        _pad,
+                        offset_eye,
+                        offset_per_world,
+                        offset_lo,
+                        offset_baked,
+                        offset_dims,
+                        _pad1
+                    }),
+                ),
+                ("PixelOut", GpuPixel::host_layout()),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&march_source(filterable, cache_filtered), &mirrors);
+        }
     }
 
     #[test]
