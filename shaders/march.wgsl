@@ -1,3 +1,5 @@
+// requires: CACHE_FILTERED, emission_at, motion_begin_sample
+//
 // vdbmarch's GPU backend: one invocation per pixel (nimbus_march::render_gpu).
 //
 // Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,

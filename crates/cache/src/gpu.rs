@@ -6,7 +6,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
 use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{emission_wgsl, light_tables_wgsl, majorant_buffer, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
@@ -99,17 +99,18 @@ fn constants_wgsl() -> String {
 }
 
 /// The cache kernels' source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
-fn cache_source(filterable: bool, loop_guard: bool) -> String {
-    nimbus_gpu::compose_shader(
-        filterable,
-        &format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            light_tables_wgsl(),
-            constants_wgsl(),
-            LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)
-        ),
-    )
+fn cache_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(EMISSION_GROUP))
+        .module("tracking", TRACKING_WGSL)
+        .module("light_tables", light_tables_wgsl())
+        .module("path", PATH_WGSL)
+        .module("cache constants", constants_wgsl())
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("cache", CACHE_WGSL)
+        .build()?)
 }
 
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
@@ -301,7 +302,7 @@ impl<'a> GpuBaker<'a> {
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let emission_layout = GpuEmission::layout(ctx)?;
         let emission_group = GpuEmission::upload(ctx, emission, origin)?.bind_group(ctx, &emission_layout)?;
-        let source = cache_source(ctx.float32_filterable(), guard.enabled());
+        let source = cache_source(ctx.float32_filterable(), guard.enabled())?;
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
         let (starts, sorted, dims, cell) = match bins {
@@ -490,7 +491,7 @@ mod tests {
                 ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
                 ("CacheOut", host_layout!(GpuOut { li, used })),
             ]);
-            nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard), &mirrors);
+            nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard).unwrap(), &mirrors);
         }
     }
 }

@@ -447,9 +447,9 @@ mod tests {
 
     #[test]
     fn info_matches_the_wgsl_struct() {
-        // As every stage composes volume.wgsl (PointSampler's source), on both kinds of adapter.
+        // As every stage composes volume.wgsl (PointSampler's source here), on both kinds of adapter.
         for filterable in [false, true] {
-            crate::wgsl_layout::check_layouts(&crate::compose_shader(filterable, crate::SAMPLE_POINTS_WGSL), &[("VolumeInfo", VolumeInfo::host_layout())]);
+            crate::wgsl_layout::check_layouts(&crate::sampler::sampler_source(filterable).unwrap(), &[("VolumeInfo", VolumeInfo::host_layout())]);
         }
         assert_eq!(size_of::<VolumeInfo>(), 160);
     }

@@ -3,7 +3,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, IVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, ShaderComposer};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -214,7 +214,7 @@ fn march_pixels(
     entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
-    let source = march_source(filterable, filtered);
+    let source = march_source(filterable, filtered)?;
     let emission_layout = GpuEmission::layout(ctx)?;
     let motion_layout = GpuMotion::layout(ctx)?;
     let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
@@ -347,15 +347,16 @@ impl PixelTiles<'_> {
 
 /// The march kernel's source, on an adapter with or without FLOAT32_FILTERABLE, reading the
 /// cache with filtered fetches or not ([`CacheLookup`]).
-fn march_source(filterable: bool, cache_filtered: bool) -> String {
-    nimbus_gpu::compose_shader(
-        filterable,
-        &format!(
-            "const CACHE_FILTERED: bool = {cache_filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NOISE_WGSL}\n{MARCH_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            tracking_wgsl_moving(MOTION_GROUP)
-        ),
-    )
+fn march_source(filterable: bool, cache_filtered: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("CACHE_FILTERED", format!("const CACHE_FILTERED: bool = {cache_filtered};"))
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(EMISSION_GROUP))
+        .module("tracking (moving)", tracking_wgsl_moving(MOTION_GROUP))
+        .module("noise", NOISE_WGSL)
+        .module("march", MARCH_WGSL)
+        .build()?)
 }
 
 #[cfg(test)]
@@ -409,7 +410,7 @@ mod tests {
                 ),
                 ("PixelOut", GpuPixel::host_layout()),
             ]);
-            nimbus_gpu::wgsl_layout::check_layouts(&march_source(filterable, cache_filtered), &mirrors);
+            nimbus_gpu::wgsl_layout::check_layouts(&march_source(filterable, cache_filtered).unwrap(), &mirrors);
         }
     }
 

@@ -5,7 +5,7 @@ use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
 use nimbus_optics::{split_u64, Environment, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
 use nimbus_volume::Volume;
@@ -109,15 +109,15 @@ struct GpuTracer<'a> {
 }
 
 /// The tracer's shader source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
-fn photon_source(filterable: bool, loop_guard: bool) -> String {
-    nimbus_gpu::compose_shader(
-        filterable,
-        &format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)
-        ),
-    )
+fn photon_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(EMISSION_GROUP))
+        .module("tracking", TRACKING_WGSL)
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("photon", PHOTON_WGSL)
+        .build()?)
 }
 
 impl<'a> GpuTracer<'a> {
@@ -142,7 +142,7 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(MEDIUM_CELLS_BINDING, true),
             ],
         )?;
-        let source = photon_source(ctx.float32_filterable(), guard.enabled());
+        let source = photon_source(ctx.float32_filterable(), guard.enabled())?;
         let emission_layout = GpuEmission::layout(ctx)?;
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout, &emission_layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
@@ -406,7 +406,7 @@ mod tests {
                 ("PhotonRecord", host_layout!(GpuRecord { position, path, power, interaction, dir, _pad })),
                 ("MediumCell", host_layout!(GpuMediumCell { cell, weight, threshold, _pad })),
             ]);
-            nimbus_gpu::wgsl_layout::check_layouts(&photon_source(filterable, loop_guard), &mirrors);
+            nimbus_gpu::wgsl_layout::check_layouts(&photon_source(filterable, loop_guard).unwrap(), &mirrors);
         }
     }
 

@@ -9,7 +9,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
 use nimbus_gpu::wgsl_layout::HostStruct;
-use nimbus_gpu::{host_layout, storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard};
+use nimbus_gpu::{host_layout, storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard, ShaderComposer};
 use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, OPTICS_WGSL};
 use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
@@ -168,7 +168,7 @@ impl GpuLightTables {
         let layout = ctx.bind_group_layout("light rays", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
         let tables_layout = Self::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
-        let source = light_rays_source(ctx.float32_filterable(), guard.enabled());
+        let source = light_rays_source(ctx.float32_filterable(), guard.enabled())?;
         let pipeline = ctx.compute_pipeline("light rays", &source, "integrate_light_rays", &[&volume_layout, &layout, &tables_layout])?;
         let majorant = majorant_buffer(ctx, medium.majorant)?;
         let grid = GpuMajorantInfo::new(medium.majorant, medium.density.background());
@@ -308,11 +308,14 @@ impl GpuLightTables {
 
 /// The light-rays kernel's source ([`GpuLightTables::build`]'s pipeline) on an adapter with
 /// or without FLOAT32_FILTERABLE and a loop cap.
-fn light_rays_source(filterable: bool, loop_guard: bool) -> String {
-    nimbus_gpu::compose_shader(
-        filterable,
-        &format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{OPTICAL_DEPTH_WGSL}", light_tables_wgsl(), LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)),
-    )
+fn light_rays_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("tracking", TRACKING_WGSL)
+        .module("light_tables", light_tables_wgsl())
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("optical_depth", OPTICAL_DEPTH_WGSL)
+        .build()?)
 }
 
 /// The host mirror of the WGSL struct `wgsl_name` among those shared by the stages
@@ -363,7 +366,7 @@ mod tests {
                 host_layout!(GpuLightRays { across_i, step, across_j, extinction, along, opaque_depth, dir, light, grid, first_ray, ray_count, _pad }),
             ));
             mirrors.push(("LightColumn", host_layout!(GpuLightColumn { x, y, k0, nodes })));
-            check_layouts(&light_rays_source(filterable, loop_guard), &mirrors);
+            check_layouts(&light_rays_source(filterable, loop_guard).unwrap(), &mirrors);
         }
     }
 

@@ -1,7 +1,7 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
 use nimbus_volume::Volume;
@@ -80,7 +80,7 @@ pub fn render_reference_gpu_with(
         &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
-    let source = reference_source(ctx.float32_filterable(), guard.enabled());
+    let source = reference_source(ctx.float32_filterable(), guard.enabled())?;
     let emission_layout = GpuEmission::layout(ctx)?;
     let motion_layout = GpuMotion::layout(ctx)?;
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
@@ -128,16 +128,17 @@ pub fn render_reference_gpu_with(
 
 /// The reference kernel's source, on an adapter with or without FLOAT32_FILTERABLE and a loop
 /// cap. It ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
-fn reference_source(filterable: bool, loop_guard: bool) -> String {
-    nimbus_gpu::compose_shader(
-        filterable,
-        &format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            tracking_wgsl_moving(MOTION_GROUP),
-            LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING)
-        ),
-    )
+fn reference_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(EMISSION_GROUP))
+        .module("tracking (moving)", tracking_wgsl_moving(MOTION_GROUP))
+        .module("no light tables", NO_LIGHT_TABLES_WGSL)
+        .module("path", PATH_WGSL)
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("reference", REFERENCE_WGSL)
+        .build()?)
 }
 
 /// Pixels per dispatch that keep a reference dispatch short on any device: a quarter of a
@@ -179,7 +180,7 @@ mod tests {
                 ),
                 ("PixelOut", crate::gpu::GpuPixel::host_layout()),
             ]);
-            nimbus_gpu::wgsl_layout::check_layouts(&reference_source(filterable, loop_guard), &mirrors);
+            nimbus_gpu::wgsl_layout::check_layouts(&reference_source(filterable, loop_guard).unwrap(), &mirrors);
         }
         assert!(REFERENCE_WGSL.contains(&format!("REFERENCE_DOMAIN: u32 = 0x{REFERENCE_DOMAIN:08x}u")));
         assert!(REFERENCE_WGSL.contains("fn path_light(index: u32) -> Light"));
