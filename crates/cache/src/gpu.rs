@@ -6,10 +6,10 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
-use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{emission_wgsl, light_tables_wgsl, majorant_buffer, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{light_tables_wgsl, majorant_buffer, medium_stage, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
@@ -100,11 +100,7 @@ fn constants_wgsl() -> String {
 
 /// The cache kernels' source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
 fn cache_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
-    Ok(ShaderComposer::stage(filterable)
-        .module("optics", OPTICS_WGSL)
-        .module("environment", ENVIRONMENT_WGSL)
-        .module("emission", emission_wgsl(EMISSION_GROUP))
-        .module("tracking", TRACKING_WGSL)
+    Ok(medium_stage(filterable, EMISSION_GROUP, None)
         .module("light_tables", light_tables_wgsl())
         .module("path", PATH_WGSL)
         .module("cache constants", constants_wgsl())

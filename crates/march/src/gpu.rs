@@ -3,9 +3,9 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, IVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, ShaderComposer};
-use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium};
+use nimbus_tracking::{medium_stage, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::offsets::Offsets;
@@ -348,12 +348,8 @@ impl PixelTiles<'_> {
 /// The march kernel's source, on an adapter with or without FLOAT32_FILTERABLE, reading the
 /// cache with filtered fetches or not ([`CacheLookup`]).
 fn march_source(filterable: bool, cache_filtered: bool) -> Result<String, GpuError> {
-    Ok(ShaderComposer::stage(filterable)
+    Ok(medium_stage(filterable, EMISSION_GROUP, Some(MOTION_GROUP))
         .module("CACHE_FILTERED", format!("const CACHE_FILTERED: bool = {cache_filtered};"))
-        .module("optics", OPTICS_WGSL)
-        .module("environment", ENVIRONMENT_WGSL)
-        .module("emission", emission_wgsl(EMISSION_GROUP))
-        .module("tracking (moving)", tracking_wgsl_moving(MOTION_GROUP))
         .module("noise", NOISE_WGSL)
         .module("march", MARCH_WGSL)
         .build()?)

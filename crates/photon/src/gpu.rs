@@ -5,9 +5,9 @@ use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
-use nimbus_optics::{split_u64, Environment, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_optics::{split_u64, Environment, GpuMedium};
+use nimbus_tracking::{majorant_buffer, medium_stage, EmissionField, GpuEmission, GpuMajorantInfo};
 use nimbus_volume::Volume;
 
 use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup, Source};
@@ -110,11 +110,7 @@ struct GpuTracer<'a> {
 
 /// The tracer's shader source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
 fn photon_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
-    Ok(ShaderComposer::stage(filterable)
-        .module("optics", OPTICS_WGSL)
-        .module("environment", ENVIRONMENT_WGSL)
-        .module("emission", emission_wgsl(EMISSION_GROUP))
-        .module("tracking", TRACKING_WGSL)
+    Ok(medium_stage(filterable, EMISSION_GROUP, None)
         .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
         .module("photon", PHOTON_WGSL)
         .build()?)
@@ -451,7 +447,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
         assert!(cases.iter().any(|c| index_from_words(c[0], c[1], c[2]) != index_from_words(c[0], 0, c[2])), "no case carries");
         let layout = ctx.bind_group_layout("index test", &[storage_entry(0, true), storage_entry(1, false)]).unwrap();
-        let source = format!("{OPTICS_WGSL}\n{function}\n{kernel}");
+        let source = format!("{}\n{function}\n{kernel}", nimbus_optics::OPTICS_WGSL);
         let pipeline = ctx.compute_pipeline("index test", &source, "main", &[&layout]).unwrap();
         let words = ctx.storage_buffer("words", &cases).unwrap();
         let indices = ctx.storage_buffer_zeroed("indices", cases.len() as u64 * 4).unwrap();

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
 use nimbus_gpu::wgsl_layout::HostStruct;
 use nimbus_gpu::{host_layout, storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard, ShaderComposer};
-use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, OPTICS_WGSL};
+use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
 use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume};
@@ -303,6 +303,21 @@ impl GpuLightTables {
             })
             .collect();
         Ok(LightDepths { per_light })
+    }
+}
+
+/// The head of every stage shader that walks the medium: [`ShaderComposer::stage`] (the
+/// volume), optics, environment, emission (its bindings at `emission_group`, see
+/// [`emission_wgsl`]) and tracking: static, or over a moving medium with motion.wgsl's
+/// bindings at `motion_group` ([`tracking_wgsl_moving`]). The stage adds its own modules.
+pub fn medium_stage(filterable: bool, emission_group: u32, motion_group: Option<u32>) -> ShaderComposer {
+    let composer = ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(emission_group));
+    match motion_group {
+        Some(group) => composer.module("tracking (moving)", tracking_wgsl_moving(group)),
+        None => composer.module("tracking", TRACKING_WGSL),
     }
 }
 

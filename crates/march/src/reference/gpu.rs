@@ -1,9 +1,9 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard, ShaderComposer};
-use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium};
+use nimbus_tracking::{majorant_buffer, medium_stage, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
 use nimbus_volume::Volume;
 
 use super::ReferenceParams;
@@ -129,11 +129,7 @@ pub fn render_reference_gpu_with(
 /// The reference kernel's source, on an adapter with or without FLOAT32_FILTERABLE and a loop
 /// cap. It ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
 fn reference_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
-    Ok(ShaderComposer::stage(filterable)
-        .module("optics", OPTICS_WGSL)
-        .module("environment", ENVIRONMENT_WGSL)
-        .module("emission", emission_wgsl(EMISSION_GROUP))
-        .module("tracking (moving)", tracking_wgsl_moving(MOTION_GROUP))
+    Ok(medium_stage(filterable, EMISSION_GROUP, Some(MOTION_GROUP))
         .module("no light tables", NO_LIGHT_TABLES_WGSL)
         .module("path", PATH_WGSL)
         .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
