@@ -1,3 +1,5 @@
+// requires: trace_path, light_table_lookup, CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, CACHE_MAX_ORIGINS, BALL_SHELLS, BALL_DIRECTIONS, loop_guard_check
+//
 // vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0, sampled exactly) + optics.wgsl

@@ -1,3 +1,5 @@
+// requires: dispatch_linear_index
+//
 // SPH density estimation on the GPU (nimbus-density, design.md section 8): one invocation per
 // voxel of the proposed bricks and per pass, each a gather over the particle cells its support
 // sphere overlaps. The host (crates/density/src/gpu.rs) sorts the particles into cells once

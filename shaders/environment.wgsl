@@ -1,3 +1,5 @@
+// requires: env_word
+//
 // The environment on the GPU: the WGSL twin of nimbus_optics::Environment's radiance,
 // sampling and pdf, reading the array Environment::gpu_words packs (header: kind 0 none,
 // 1 uniform, 2 map; width, height, strength, cos and sin of the rotation; a uniform sky's RGB

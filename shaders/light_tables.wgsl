@@ -1,3 +1,5 @@
+// requires: volume_lerp, LIGHT_TABLE_BRICK_LOG2, LIGHT_TABLE_SPREAD, LIGHT_TABLE_ALONG_FLOOR
+//
 // The lights' tabled transmittance on the GPU (nimbus_tracking::GpuLightTables): the twin of
 // nimbus_tracking::LightDepths::get (which lights have a table) and of
 // OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).

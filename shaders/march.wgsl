@@ -1,9 +1,11 @@
+// requires: CACHE_FILTERED, emission_at, motion_begin_sample
+//
 // vdbmarch's GPU backend: one invocation per pixel (nimbus_march::render_gpu).
 //
-// Composed as `const CACHE_FILTERED` + volume.wgsl (density = default volume, group 0,
+// Composed (nimbus_march's march_source) as volume.wgsl (density = default volume, group 0,
 // sampled exactly) + optics.wgsl + environment.wgsl + emission.wgsl (group 2) + tracking.wgsl
 // (majorant DDA; nimbus_tracking::tracking_wgsl_moving, with motion.wgsl's velocity grid at group 3
-// for motion blur) + noise.wgsl + this file.
+// for motion blur), nimbus_tracking::medium_stage, then `const CACHE_FILTERED` + noise.wgsl + this file.
 // Mirrors crates/march/src/cpu.rs: pixel i's Rng is (seed, i, MARCH_DOMAIN) with the same
 // draws in the same order (jitter x, y when spp > 1, stratified as pixel_jitter, then the
 // lattice offset xi, per sample; the group member offset u from its own stream

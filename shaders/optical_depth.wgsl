@@ -1,3 +1,5 @@
+// requires: light_table_nodes, loop_guard_check
+//
 // A sun's light table built on the GPU (nimbus_tracking::GpuLightTables::build): one
 // invocation per ray of its lattice, the twin of nimbus_tracking::ray_optical_depths over
 // the same LightTablePlan (the host decides the lattice, which bricks are stored and their

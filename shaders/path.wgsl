@@ -1,3 +1,5 @@
+// requires: majorant_fetch, env_word, emission_active, emission_at, path_light, light_table_lookup
+//
 // Volumetric path tracing: the WGSL twin of nimbus_tracking::trace_path, shared by the
 // reference path tracer (shaders/reference.wgsl: paths from the eye) and vdbcache's
 // path-traced multiple scattering (shaders/cache.wgsl: paths from a cache voxel).

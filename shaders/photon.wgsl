@@ -1,3 +1,5 @@
+// requires: emission_at, loop_guard_check
+//
 // vdbphoton's GPU backend: one invocation per photon path (nimbus_photon::trace_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + environment.wgsl

@@ -1,3 +1,5 @@
+// requires: trace_path, motion_begin_sample, loop_guard_check
+//
 // vdbmarch --reference on the GPU: one invocation per pixel (nimbus_march::render_reference_gpu).
 //
 // Composed as volume.wgsl (density = default volume, group 0) + optics.wgsl + environment.wgsl

@@ -1,3 +1,5 @@
+// requires: volume_sample_index_in, volume_sample_index_filtered_in
+//
 // Samples the default volume (group 0) at a list of index-space points: the GPU side of
 // nimbus_gpu::PointSampler, used to hold the GPU sampler to the CPU one and to benchmark it.
 // Composed after volume.wgsl.

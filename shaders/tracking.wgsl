@@ -1,3 +1,5 @@
+// requires: Rng, majorant_fetch
+//
 // Rays through the density volume: the WGSL twin of crates/tracking (nimbus_tracking::MediumRay)
 // and of nimbus_volume::MajorantGrid's DDA walk, shared by the photon and march stages.
 //

@@ -1,5 +1,7 @@
 // Sparse-volume sampling shared by every nimbus stage shader.
 //
+// requires: VOLUME_FILTERABLE
+//
 // Stage shaders are compiled as `volume.wgsl + stage.wgsl` (nimbus_gpu::compose_shader), which
 // also prepends `const VOLUME_FILTERABLE: bool` telling whether the device can linearly filter
 // 32-bit float textures (wgpu Features::FLOAT32_FILTERABLE).

@@ -7,9 +7,9 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{emission_wgsl, light_tables_wgsl, majorant_buffer, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL, TRACKING_WGSL};
+use nimbus_tracking::{light_tables_wgsl, majorant_buffer, medium_stage, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
@@ -96,6 +96,17 @@ fn constants_wgsl() -> String {
         shells.join(", "),
         dirs.join(", ")
     )
+}
+
+/// The cache kernels' source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
+fn cache_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(medium_stage(filterable, EMISSION_GROUP, None)
+        .module("light_tables", light_tables_wgsl())
+        .module("path", PATH_WGSL)
+        .module("cache constants", constants_wgsl())
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("cache", CACHE_WGSL)
+        .build()?)
 }
 
 /// Bakes the cache on the GPU: the same plans, light tables, shadow rays, photon search,
@@ -288,13 +299,7 @@ impl<'a> GpuBaker<'a> {
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let emission_layout = GpuEmission::layout(ctx)?;
         let emission_group = GpuEmission::upload(ctx, emission, origin)?.bind_group(ctx, &emission_layout)?;
-        let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PATH_WGSL}\n{}\n{}\n{CACHE_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            light_tables_wgsl(),
-            constants_wgsl(),
-            guard.wgsl(1)
-        ));
+        let source = cache_source(ctx.float32_filterable(), guard.enabled())?;
 
         let lights: Vec<GpuLight> = params.lights.iter().map(|l| GpuLight::new(l, origin)).collect();
         let (starts, sorted, dims, cell) = match bins {
@@ -450,8 +455,40 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuCacheParams>(), 176);
-        assert_eq!(size_of::<GpuPhoton>(), 48);
-        assert_eq!(size_of::<GpuOut>(), 16);
+        use nimbus_gpu::host_layout;
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Medium", "Light", "MajorantGridInfo", "LightTable", "EmissionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "CacheUniforms",
+                    host_layout!(GpuCacheParams {
+                        medium,
+                        grid,
+                        eye,
+                        step,
+                        bins_dims,
+                        bins_cell,
+                        first,
+                        count,
+                        light_count,
+                        cutoff,
+                        k,
+                        radius,
+                        radius_sq,
+                        gather_mode,
+                        max_shell,
+                        empty_below,
+                        seed,
+                        max_depth,
+                        first_path,
+                        path_count,
+                        _pad
+                    }),
+                ),
+                ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
+                ("CacheOut", host_layout!(GpuOut { li, used })),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard).unwrap(), &mirrors);
+        }
     }
 }

@@ -59,6 +59,11 @@ struct GpuDensityParams {
     ici_h: [f32; 8],
 }
 
+/// The density kernels' source (every pass's pipeline): no volume, so not composed after it.
+fn density_source() -> Result<String, GpuError> {
+    Ok(nimbus_gpu::ShaderComposer::new().module("dispatch", nimbus_gpu::DISPATCH_WGSL).module("density", DENSITY_WGSL).build()?)
+}
+
 fn method_code(method: Method) -> u32 {
     match method {
         Method::Usl => 0,
@@ -173,7 +178,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         &layout,
         &[&uniform_buffer, &particle_buffer, &cell_buffer, &brick_buffer, &n0, &h, &rho, &used],
     )?;
-    let source = format!("{}\n{DENSITY_WGSL}", nimbus_gpu::DISPATCH_WGSL);
+    let source = density_source()?;
     let pipelines = passes(method)
         .iter()
         .map(|&entry| Ok((entry, ctx.compute_pipeline(entry, &source, entry, &[&layout])?)))
@@ -358,7 +363,7 @@ impl<'a> AttributePass<'a> {
         uniforms.attribute_stride = (stride / 4) as u32;
         let layout = ctx.bind_group_layout("density attributes particles", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, true)])?;
         let attribute_layout = ctx.bind_group_layout("density attributes", &[storage_entry(3, true), storage_entry(4, true), storage_entry(5, false)])?;
-        let source = format!("{}\n{DENSITY_WGSL}", nimbus_gpu::DISPATCH_WGSL);
+        let source = density_source()?;
         let limits = ctx.limits();
         let binding_limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let sums_per_brick = (BRICK_VOXELS * ATTRIBUTE_GROUP * 4) as u64;
@@ -487,7 +492,28 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuDensityParams>(), 128);
+        let host = nimbus_gpu::host_layout!(GpuDensityParams {
+            cell_origin,
+            cell_edge,
+            cell_dims,
+            n_star,
+            grid_dims,
+            h0,
+            h_min,
+            relax,
+            k,
+            voxel_count,
+            first_brick,
+            method,
+            particle_count,
+            plane_first,
+            plane_count,
+            attribute_stride,
+            attribute_group,
+            ici_rungs,
+            ici_h
+        });
+        nimbus_gpu::wgsl_layout::check_layouts(&density_source().unwrap(), &[("DensityUniforms", host)]);
     }
 
     #[test]

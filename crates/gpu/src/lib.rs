@@ -45,7 +45,10 @@
 //! # Shaders and volumes
 //!
 //! A stage shader is `shaders/<stage>.wgsl` composed after [`VOLUME_WGSL`]
-//! (`shaders/volume.wgsl`) with [`GpuContext::compose_shader`]. A [`GpuVolume`] uploads a
+//! (`shaders/volume.wgsl`) and the shared modules it needs, by a [`ShaderComposer`] (an
+//! ordered list of named modules that checks each module's `// requires:` names are defined),
+//! or for a single kernel with [`GpuContext::compose_shader`]. The host structs uploaded to
+//! WGSL structs are checked against the composed source through naga ([`wgsl_layout`]). A [`GpuVolume`] uploads a
 //! `nimbus_volume::Volume<f32>` (R32Float) or `Volume<Vec3>` (Rgba32Float) as a brick atlas
 //! (9^3-texel slots: the brick plus a high-side apron of neighbour values) and a dense
 //! indirection table over the bricks' bounding box. Group 0 of every stage pipeline is the
@@ -60,13 +63,16 @@
 //! [`PointSampler`] runs either sampler over a list of points; the tests and the `sampling`
 //! bench use it to compare against the CPU.
 
+mod compose;
 mod context;
 mod device;
 mod error;
 mod loop_cap;
 mod sampler;
 mod volume;
+pub mod wgsl_layout;
 
+pub use compose::{ComposeError, ShaderComposer};
 pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
 pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
 pub use error::GpuError;
@@ -90,7 +96,7 @@ pub const SAMPLE_POINTS_WGSL: &str = include_str!("../../../shaders/sample_point
 /// [`VOLUME_WGSL`], then `stage`. `filterable` must be [`GpuContext::float32_filterable`] of the device the
 /// pipeline is built on (prefer [`GpuContext::compose_shader`]).
 pub fn compose_shader(filterable: bool, stage: &str) -> String {
-    format!("const VOLUME_FILTERABLE: bool = {filterable};\n{DISPATCH_WGSL}\n{VOLUME_WGSL}\n{stage}")
+    ShaderComposer::stage(filterable).module("stage", stage).source()
 }
 
 /// The process-wide device for tests and benchmarks: any adapter, software (lavapipe)

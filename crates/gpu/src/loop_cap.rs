@@ -107,11 +107,15 @@ impl LoopGuard {
 
     /// WGSL declaring the flag at `@group(group)`, the guard's binding, and `loop_guard_check()`.
     pub fn wgsl(&self, group: u32) -> String {
-        let binding = self.binding;
+        Self::wgsl_for(self.enabled, group, self.binding)
+    }
+
+    /// [`LoopGuard::wgsl`] of a guard made at `binding` on an adapter with (`enabled`) or
+    /// without a loop cap: what a stage's shader source builds from, with no device needed.
+    pub fn wgsl_for(enabled: bool, group: u32, binding: u32) -> String {
         format!(
-            "const LOOP_GUARD: bool = {};\n\
-             @group({group}) @binding({binding}) var<storage, read_write> loop_guard: array<atomic<u32>, 2>;\n{}",
-            self.enabled, LOOP_GUARD_WGSL
+            "const LOOP_GUARD: bool = {enabled};\n\
+             @group({group}) @binding({binding}) var<storage, read_write> loop_guard: array<atomic<u32>, 2>;\n{LOOP_GUARD_WGSL}"
         )
     }
 

@@ -30,7 +30,7 @@ impl PointSampler {
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         let volume_layout = GpuVolume::bind_group_layout(ctx)?;
         let points_layout = ctx.bind_group_layout("sample points", &[storage_entry(0, true), storage_entry(1, false)])?;
-        let source = ctx.compose_shader(SAMPLE_POINTS_WGSL);
+        let source = sampler_source(ctx.float32_filterable())?;
         let layouts = [&volume_layout, &points_layout];
         let exact = ctx.compute_pipeline("sample points (exact)", &source, "sample_exact", &layouts)?;
         let filtered = ctx.compute_pipeline("sample points (filtered)", &source, "sample_filtered", &layouts)?;
@@ -54,4 +54,9 @@ impl PointSampler {
         let texels: Vec<[f32; 4]> = ctx.read_buffer(&samples_buffer)?;
         Ok(texels.into_iter().map(T::from_texel).collect())
     }
+}
+
+/// The sampler kernel's source on an adapter with or without FLOAT32_FILTERABLE.
+pub(crate) fn sampler_source(filterable: bool) -> Result<String, GpuError> {
+    Ok(crate::ShaderComposer::stage(filterable).module("sample_points", SAMPLE_POINTS_WGSL).build()?)
 }

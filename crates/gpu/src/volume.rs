@@ -79,6 +79,14 @@ pub struct VolumeInfo {
     _pad4: u32,
 }
 
+impl VolumeInfo {
+    /// This mirror's layout, for the stages' checks against their composed WGSL
+    /// ([`crate::wgsl_layout`]).
+    pub fn host_layout() -> crate::wgsl_layout::HostStruct {
+        crate::host_layout!(VolumeInfo { world_to_index, background, table_origin, _pad0, table_dims, _pad1, inv_atlas_dims, _pad2, index_min, _pad3, index_max, _pad4 })
+    }
+}
+
 /// Sizes of an uploaded volume, for `-v` and for tests.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct AtlasStats {
@@ -438,8 +446,11 @@ mod tests {
     }
 
     #[test]
-    fn info_matches_the_wgsl_struct_size() {
-        // 64 (mat4) + 16 (background) + 5 x 16 (vec3 + pad).
+    fn info_matches_the_wgsl_struct() {
+        // As every stage composes volume.wgsl (PointSampler's source here), on both kinds of adapter.
+        for filterable in [false, true] {
+            crate::wgsl_layout::check_layouts(&crate::sampler::sampler_source(filterable).unwrap(), &[("VolumeInfo", VolumeInfo::host_layout())]);
+        }
         assert_eq!(size_of::<VolumeInfo>(), 160);
     }
 }

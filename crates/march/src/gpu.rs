@@ -4,8 +4,8 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, IVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
-use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, tracking_wgsl_moving, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium};
+use nimbus_tracking::{medium_stage, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::offsets::Offsets;
@@ -214,11 +214,7 @@ fn march_pixels(
     entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
-    let source = ctx.compose_shader(&format!(
-        "const CACHE_FILTERED: bool = {filtered};\n{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NOISE_WGSL}\n{MARCH_WGSL}",
-        emission_wgsl(EMISSION_GROUP),
-        tracking_wgsl_moving(MOTION_GROUP)
-    ));
+    let source = march_source(filterable, filtered)?;
     let emission_layout = GpuEmission::layout(ctx)?;
     let motion_layout = GpuMotion::layout(ctx)?;
     let pipeline = ctx.compute_pipeline("march", &source, "march_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
@@ -349,6 +345,24 @@ impl PixelTiles<'_> {
     }
 }
 
+/// The march kernel's source, on an adapter with or without FLOAT32_FILTERABLE, reading the
+/// cache with filtered fetches or not ([`CacheLookup`]).
+fn march_source(filterable: bool, cache_filtered: bool) -> Result<String, GpuError> {
+    Ok(medium_stage(filterable, EMISSION_GROUP, Some(MOTION_GROUP))
+        .module("CACHE_FILTERED", format!("const CACHE_FILTERED: bool = {cache_filtered};"))
+        .module("noise", NOISE_WGSL)
+        .module("march", MARCH_WGSL)
+        .build()?)
+}
+
+#[cfg(test)]
+impl GpuPixel {
+    /// The layout of the pixels the march and the reference write (each its `PixelOut`).
+    pub(crate) fn host_layout() -> nimbus_gpu::wgsl_layout::HostStruct {
+        nimbus_gpu::host_layout!(GpuPixel { single, transmittance, multiple, depth, behind, _pad, emission, _pad1 })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -356,8 +370,44 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuMarchParams>(), 272);
-        assert_eq!(size_of::<GpuPixel>(), 64);
+        for (filterable, cache_filtered) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Camera", "Medium", "MajorantGridInfo", "EmissionInfo", "MotionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "MarchUniforms",
+                    nimbus_gpu::host_layout!(GpuMarchParams {
+                        camera,
+                        medium,
+                        grid,
+                        background,
+                        step,
+                        noise_base,
+                        spp,
+                        noise_offset,
+                        noise_inv_scale,
+                        seed,
+                        noise_octaves,
+                        noise_seed,
+                        offset_noise,
+                        min_transmittance,
+                        flags,
+                        width,
+                        pixel_count,
+                        first_pixel,
+                        tile_pixels,
+                        _pad,
+                        offset_eye,
+                        offset_per_world,
+                        offset_lo,
+                        offset_baked,
+                        offset_dims,
+                        _pad1
+                    }),
+                ),
+                ("PixelOut", GpuPixel::host_layout()),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&march_source(filterable, cache_filtered).unwrap(), &mirrors);
+        }
     }
 
     #[test]

@@ -1,8 +1,5 @@
 //! `shaders/optics.wgsl` compiles (naga, the compiler inside wgpu), composes with the volume
-//! prelude, and its structs have exactly the bytes of the Rust `Gpu*` structs, in both the
-//! uniform and storage address spaces.
-
-use std::mem::{offset_of, size_of};
+//! prelude, and its structs have exactly the fields and bytes of the Rust `Gpu*` structs.
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 use nimbus_optics::{GpuCamera, GpuLight, GpuMedium, OPTICS_WGSL};
@@ -13,18 +10,6 @@ fn compile(source: &str) -> naga::Module {
         .validate(&module)
         .unwrap_or_else(|e| panic!("{}", e.emit_to_string(source)));
     module
-}
-
-/// (size, [(member, offset)]) of a WGSL struct.
-fn layout(module: &naga::Module, name: &str) -> (u32, Vec<(String, u32)>) {
-    for (_, ty) in module.types.iter() {
-        if ty.name.as_deref() == Some(name) {
-            if let naga::TypeInner::Struct { members, span } = &ty.inner {
-                return (*span, members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect());
-            }
-        }
-    }
-    panic!("no struct {name} in optics.wgsl");
 }
 
 /// A kernel using every function, with the structs bound as uniforms (the validator checks
@@ -66,32 +51,20 @@ fn optics_wgsl_composes_with_the_volume_prelude() {
     compile(&format!("const VOLUME_FILTERABLE: bool = false;\n{volume}\n{OPTICS_WGSL}\n{USE_EVERYTHING}"));
 }
 
-macro_rules! rust_layout {
-    ($t:ty; $($field:ident),*) => {
-        (size_of::<$t>() as u32, vec![$((stringify!($field).to_string(), offset_of!($t, $field) as u32)),*])
-    };
-}
-
+/// The module's own structs through the layout check every stage runs over its composed source
+/// (`nimbus_gpu::wgsl_layout`; the stages take these mirrors from `nimbus_tracking::wgsl_mirror`).
 #[test]
 fn struct_layouts_match_the_rust_mirrors() {
-    let module = compile(OPTICS_WGSL);
-
-    let (size, members) = layout(&module, "Medium");
-    let (rsize, rmembers) = rust_layout!(GpuMedium; albedo, extinction, g, albedo_mean, _pad);
-    assert_eq!((size, rsize), (32, 32));
-    // WGSL pads with two f32 where Rust has one [f32; 2].
-    assert_eq!(members[..4], rmembers[..4]);
-    assert_eq!((members[4].1, members[5].1), (rmembers[4].1, rmembers[4].1 + 4));
-
-    let (size, members) = layout(&module, "Light");
-    let (rsize, rmembers) = rust_layout!(GpuLight; vector, kind, power, disc);
-    assert_eq!((size, &members), (rsize, &rmembers));
-    assert_eq!(size, 32);
-
-    let (size, members) = layout(&module, "Camera");
-    let (rsize, rmembers) = rust_layout!(GpuCamera; eye, width, forward, height, right, tan_half_fov_x, up, tan_half_fov_y);
-    assert_eq!((size, &members), (rsize, &rmembers));
-    assert_eq!(size, 64);
+    use nimbus_gpu::host_layout;
+    let source = format!("{}\n{OPTICS_WGSL}", nimbus_gpu::compose_shader(false, ""));
+    nimbus_gpu::wgsl_layout::check_layouts(
+        &source,
+        &[
+            ("Medium", host_layout!(GpuMedium { albedo, extinction, g, albedo_mean, _pad })),
+            ("Light", host_layout!(GpuLight { vector, kind, power, disc })),
+            ("Camera", host_layout!(GpuCamera { eye, width, forward, height, right, tan_half_fov_x, up, tan_half_fov_y })),
+        ],
+    );
 }
 
 #[test]

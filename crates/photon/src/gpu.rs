@@ -6,8 +6,8 @@ use std::ops::Range;
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
 use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, Environment, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, EmissionField, GpuEmission, GpuMajorantInfo, TRACKING_WGSL};
+use nimbus_optics::{split_u64, Environment, GpuMedium};
+use nimbus_tracking::{majorant_buffer, medium_stage, EmissionField, GpuEmission, GpuMajorantInfo};
 use nimbus_volume::Volume;
 
 use crate::batch::{prepare, run_batches, Batch, BatchPhoton, PathEnd, PathSummary, Prepared, Setup, Source};
@@ -108,6 +108,14 @@ struct GpuTracer<'a> {
     _volume: GpuVolume,
 }
 
+/// The tracer's shader source, on an adapter with or without FLOAT32_FILTERABLE and a loop cap.
+fn photon_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(medium_stage(filterable, EMISSION_GROUP, None)
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("photon", PHOTON_WGSL)
+        .build()?)
+}
+
 impl<'a> GpuTracer<'a> {
     fn new(ctx: &'a GpuContext, density: &Volume<f32>, params: &PhotonParams, setup: &Setup) -> Result<Self, GpuError> {
         let origin = 0.5 * (setup.bounds.0 + setup.bounds.1);
@@ -130,11 +138,7 @@ impl<'a> GpuTracer<'a> {
                 storage_entry(MEDIUM_CELLS_BINDING, true),
             ],
         )?;
-        let source = ctx.compose_shader(&format!(
-            "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{TRACKING_WGSL}\n{}\n{PHOTON_WGSL}",
-            emission_wgsl(EMISSION_GROUP),
-            guard.wgsl(1)
-        ));
+        let source = photon_source(ctx.float32_filterable(), guard.enabled())?;
         let emission_layout = GpuEmission::layout(ctx)?;
         let pipeline = ctx.compute_pipeline("photon trace", &source, "trace_photons", &[&volume_layout, &layout, &emission_layout])?;
         let volume_group = volume.bind_group(ctx, &volume_layout)?;
@@ -382,9 +386,24 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(size_of::<GpuPhotonParams>(), 112);
-        assert_eq!(size_of::<GpuPhotonLight>(), 80);
-        assert_eq!(size_of::<GpuRecord>(), 48);
+        use crate::medium::GpuMediumCell;
+        use nimbus_gpu::host_layout;
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Medium", "MajorantGridInfo", "EmissionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "PhotonUniforms",
+                    host_layout!(GpuPhotonParams { medium, seed, first_index, count, capacity, light_count, mode, step, max_interactions, _pad, grid }),
+                ),
+                (
+                    "PhotonLight",
+                    host_layout!(GpuPhotonLight { origin, kind, normal, cell, tangent, cdf, bitangent, first_cell, weight, cell_count }),
+                ),
+                ("PhotonRecord", host_layout!(GpuRecord { position, path, power, interaction, dir, _pad })),
+                ("MediumCell", host_layout!(GpuMediumCell { cell, weight, threshold, _pad })),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&photon_source(filterable, loop_guard).unwrap(), &mirrors);
+        }
     }
 
     /// The shader's cell index against `index_from_words`, bit for bit, on words where the
@@ -428,7 +447,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
         assert!(cases.iter().any(|c| index_from_words(c[0], c[1], c[2]) != index_from_words(c[0], 0, c[2])), "no case carries");
         let layout = ctx.bind_group_layout("index test", &[storage_entry(0, true), storage_entry(1, false)]).unwrap();
-        let source = format!("{OPTICS_WGSL}\n{function}\n{kernel}");
+        let source = format!("{}\n{function}\n{kernel}", nimbus_optics::OPTICS_WGSL);
         let pipeline = ctx.compute_pipeline("index test", &source, "main", &[&layout]).unwrap();
         let words = ctx.storage_buffer("words", &cases).unwrap();
         let indices = ctx.storage_buffer_zeroed("indices", cases.len() as u64 * 4).unwrap();

@@ -8,8 +8,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard};
-use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, OPTICS_WGSL};
+use nimbus_gpu::wgsl_layout::HostStruct;
+use nimbus_gpu::{host_layout, storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard, ShaderComposer};
+use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
 use crate::{DensityMedium, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume};
@@ -167,7 +168,7 @@ impl GpuLightTables {
         let layout = ctx.bind_group_layout("light rays", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
         let tables_layout = Self::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
-        let source = ctx.compose_shader(&format!("{OPTICS_WGSL}\n{TRACKING_WGSL}\n{}\n{}\n{OPTICAL_DEPTH_WGSL}", light_tables_wgsl(), guard.wgsl(1)));
+        let source = light_rays_source(ctx.float32_filterable(), guard.enabled())?;
         let pipeline = ctx.compute_pipeline("light rays", &source, "integrate_light_rays", &[&volume_layout, &layout, &tables_layout])?;
         let majorant = majorant_buffer(ctx, medium.majorant)?;
         let grid = GpuMajorantInfo::new(medium.majorant, medium.density.background());
@@ -305,17 +306,83 @@ impl GpuLightTables {
     }
 }
 
+/// The head of every stage shader that walks the medium: [`ShaderComposer::stage`] (the
+/// volume), optics, environment, emission (its bindings at `emission_group`, see
+/// [`emission_wgsl`]) and tracking: static, or over a moving medium with motion.wgsl's
+/// bindings at `motion_group` ([`tracking_wgsl_moving`]). The stage adds its own modules.
+pub fn medium_stage(filterable: bool, emission_group: u32, motion_group: Option<u32>) -> ShaderComposer {
+    let composer = ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("environment", ENVIRONMENT_WGSL)
+        .module("emission", emission_wgsl(emission_group));
+    match motion_group {
+        Some(group) => composer.module("tracking (moving)", tracking_wgsl_moving(group)),
+        None => composer.module("tracking", TRACKING_WGSL),
+    }
+}
+
+/// The light-rays kernel's source ([`GpuLightTables::build`]'s pipeline) on an adapter with
+/// or without FLOAT32_FILTERABLE and a loop cap.
+fn light_rays_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(ShaderComposer::stage(filterable)
+        .module("optics", OPTICS_WGSL)
+        .module("tracking", TRACKING_WGSL)
+        .module("light_tables", light_tables_wgsl())
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("optical_depth", OPTICAL_DEPTH_WGSL)
+        .build()?)
+}
+
+/// The host mirror of the WGSL struct `wgsl_name` among those shared by the stages
+/// (optics', this crate's and the volume's), for [`nimbus_gpu::wgsl_layout::check_layouts`]
+/// over a stage's source.
+pub fn wgsl_mirror(wgsl_name: &str) -> HostStruct {
+    use nimbus_optics::{GpuCamera, GpuLight, GpuMedium};
+    match wgsl_name {
+        "Medium" => host_layout!(GpuMedium { albedo, extinction, g, albedo_mean, _pad }),
+        "Light" => host_layout!(GpuLight { vector, kind, power, disc }),
+        "Camera" => host_layout!(GpuCamera { eye, width, forward, height, right, tan_half_fov_x, up, tan_half_fov_y }),
+        "EmissionInfo" => host_layout!(GpuEmissionInfo {
+            color,
+            strength,
+            temperature_scale,
+            blackbody_intensity,
+            flags,
+            table_len,
+            table_min,
+            table_max,
+            table_inv_step,
+            stefan_boltzmann
+        }),
+        "MajorantGridInfo" => host_layout!(GpuMajorantInfo { origin, cell_size, dims, outside }),
+        "LightTable" => host_layout!(GpuLightTable { world_to_lattice, brick_min, index_first, brick_dims, tabled }),
+        "MotionInfo" => host_layout!(GpuMotionInfo { density_to_velocity, shutter, _pad }),
+        "VolumeInfo" => nimbus_gpu::VolumeInfo::host_layout(),
+        _ => panic!("no shared host mirror of WGSL struct {wgsl_name}"),
+    }
+}
+
+/// [`wgsl_mirror`] of each name, paired with it for [`nimbus_gpu::wgsl_layout::check_layouts`].
+pub fn wgsl_mirrors<'a>(wgsl_names: &[&'a str]) -> Vec<(&'a str, HostStruct)> {
+    wgsl_names.iter().map(|&n| (n, wgsl_mirror(n))).collect()
+}
+
 #[cfg(test)]
 mod tests {
+    use super::*;
+    use nimbus_gpu::wgsl_layout::check_layouts;
+
     #[test]
-    fn layout_matches_the_wgsl_struct() {
-        assert_eq!(size_of::<super::GpuMajorantInfo>(), 32);
-        assert!(super::TRACKING_WGSL.contains("struct MajorantGridInfo"));
-        assert_eq!(size_of::<super::GpuLightTable>(), 96);
-        assert!(super::LIGHT_TABLES_WGSL.contains("struct LightTable"));
-        assert_eq!(size_of::<super::GpuLightRays>(), 112);
-        assert_eq!(size_of::<super::GpuLightColumn>(), 16);
-        assert!(super::OPTICAL_DEPTH_WGSL.contains("struct LightRays") && super::OPTICAL_DEPTH_WGSL.contains("struct LightColumn"));
+    fn layouts_match_the_wgsl_structs() {
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = wgsl_mirrors(&["MajorantGridInfo", "LightTable", "VolumeInfo"]);
+            mirrors.push((
+                "LightRays",
+                host_layout!(GpuLightRays { across_i, step, across_j, extinction, along, opaque_depth, dir, light, grid, first_ray, ray_count, _pad }),
+            ));
+            mirrors.push(("LightColumn", host_layout!(GpuLightColumn { x, y, k0, nodes })));
+            check_layouts(&light_rays_source(filterable, loop_guard).unwrap(), &mirrors);
+        }
     }
 
     /// The host dispatches a brick column's rays per workgroup, as the kernel takes them.

@@ -1,9 +1,9 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuVolume, GpuVolumeOptions, LoopGuard};
-use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium, ENVIRONMENT_WGSL, OPTICS_WGSL};
-use nimbus_tracking::{emission_wgsl, majorant_buffer, tracking_wgsl_moving, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
+use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium};
+use nimbus_tracking::{majorant_buffer, medium_stage, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
 use nimbus_volume::Volume;
 
 use super::ReferenceParams;
@@ -80,12 +80,7 @@ pub fn render_reference_gpu_with(
         &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
-    let source = ctx.compose_shader(&format!(
-        "{OPTICS_WGSL}\n{ENVIRONMENT_WGSL}\n{}\n{}\n{NO_LIGHT_TABLES_WGSL}\n{PATH_WGSL}\n{}\n{REFERENCE_WGSL}",
-        emission_wgsl(EMISSION_GROUP),
-        tracking_wgsl_moving(MOTION_GROUP),
-        guard.wgsl(1)
-    ));
+    let source = reference_source(ctx.float32_filterable(), guard.enabled())?;
     let emission_layout = GpuEmission::layout(ctx)?;
     let motion_layout = GpuMotion::layout(ctx)?;
     let pipeline = ctx.compute_pipeline("reference", &source, "reference_pixels", &[&volume_layout, &layout, &emission_layout, &motion_layout])?;
@@ -131,6 +126,17 @@ pub fn render_reference_gpu_with(
     Ok(Image::from_rays(camera.width(), camera.height(), &pixels, background, params.aovs))
 }
 
+/// The reference kernel's source, on an adapter with or without FLOAT32_FILTERABLE and a loop
+/// cap. It ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
+fn reference_source(filterable: bool, loop_guard: bool) -> Result<String, GpuError> {
+    Ok(medium_stage(filterable, EMISSION_GROUP, Some(MOTION_GROUP))
+        .module("no light tables", NO_LIGHT_TABLES_WGSL)
+        .module("path", PATH_WGSL)
+        .module("loop guard", LoopGuard::wgsl_for(loop_guard, 1, GUARD_BINDING))
+        .module("reference", REFERENCE_WGSL)
+        .build()?)
+}
+
 /// Pixels per dispatch that keep a reference dispatch short on any device: a quarter of a
 /// 1024 x 1024 image at 4 paths per pixel.
 pub fn reference_tile_pixels() -> u64 {
@@ -145,7 +151,33 @@ mod tests {
     /// The path's constants are checked where they live (nimbus_tracking's path.wgsl test).
     #[test]
     fn layout_and_constants_match_the_wgsl() {
-        assert_eq!(size_of::<GpuReferenceParams>() % 16, 0);
+        for (filterable, loop_guard) in [(false, false), (true, true)] {
+            let mut mirrors = nimbus_tracking::wgsl_mirrors(&["Camera", "Medium", "Light", "MajorantGridInfo", "EmissionInfo", "MotionInfo", "VolumeInfo"]);
+            mirrors.extend([
+                (
+                    "ReferenceUniforms",
+                    nimbus_gpu::host_layout!(GpuReferenceParams {
+                        camera,
+                        medium,
+                        grid,
+                        background,
+                        spp,
+                        seed,
+                        max_depth,
+                        light_count,
+                        width,
+                        first_pixel,
+                        tile_pixels,
+                        first_sample,
+                        sample_count,
+                        map_visible,
+                        _pad
+                    }),
+                ),
+                ("PixelOut", crate::gpu::GpuPixel::host_layout()),
+            ]);
+            nimbus_gpu::wgsl_layout::check_layouts(&reference_source(filterable, loop_guard).unwrap(), &mirrors);
+        }
         assert!(REFERENCE_WGSL.contains(&format!("REFERENCE_DOMAIN: u32 = 0x{REFERENCE_DOMAIN:08x}u")));
         assert!(REFERENCE_WGSL.contains("fn path_light(index: u32) -> Light"));
     }
