@@ -14,9 +14,9 @@ use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3, Vec4};
 use nimbus_optics::noise::fbm3_vec_block;
 use nimbus_volume::{MajorantGrid, Volume, BRICK_LOG2};
 
-use crate::layout::{CellBox, Lattice, Visit, EDGE};
+use crate::layout::{CellBox, Lattice, Visit};
 use crate::cpu::NOISE_REACH;
-use crate::simd::Arith;
+use crate::simd::{Arith, EDGE};
 use crate::MarchParams;
 
 /// The baked displacement field.
