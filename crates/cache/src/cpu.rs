@@ -11,6 +11,7 @@ use nimbus_photon::PhotonMap;
 use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
 
+use crate::plan::Prologue;
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
@@ -253,15 +254,9 @@ pub fn bake_cpu_emitting(
     params: &CacheParams,
     emission: Option<&EmissionField>,
 ) -> Result<(IlluminationCache, BakeStats), CacheError> {
-    params.validate()?;
-    let emission = emission.filter(|e| e.params.is_active());
-    // Only the paths read the field: the photon estimator's emission came with the photons.
-    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
     let start = std::time::Instant::now();
-    let majorant = MajorantGrid::build(density);
-    let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
-    let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
+    let Prologue { emission, majorant, plan, own_plan, mut stats } = Prologue::new(density, photons, params, emission)?;
+    let emits = emission.is_some();
     stats.stages.push(("plan", start.elapsed().as_millis() as u64));
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };

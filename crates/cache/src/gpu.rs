@@ -14,6 +14,7 @@ use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
+use crate::plan::Prologue;
 use crate::{
     transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathPlan, PhotonBins,
     PATH_MAX_DEPTH,
@@ -113,11 +114,8 @@ pub fn bake_gpu_emitting(
     params: &CacheParams,
     emission: Option<&EmissionField>,
 ) -> Result<(IlluminationCache, BakeStats), CacheError> {
-    params.validate()?;
-    let emission = emission.filter(|e| e.params.is_active());
-    // Only the paths read the field: the photon estimator's emission came with the photons.
-    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
-    let emission = emission.filter(|_| emits);
+    let Prologue { emission, majorant, plan, own_plan, mut stats } = Prologue::new(density, photons, params, emission)?;
+    let emits = emission.is_some();
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons, emits);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
@@ -128,10 +126,6 @@ pub fn bake_gpu_emitting(
             )));
         }
     }
-    let majorant = MajorantGrid::build(density);
-    let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
-    let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emits);
-    let mut stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
     // Bin-local positions are then exactly the CPU's f32 values.

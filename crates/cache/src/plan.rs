@@ -9,13 +9,42 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use nimbus_photon::PhotonMap;
 
-use crate::{BakeStats, CacheParams};
+use nimbus_tracking::EmissionField;
+
+use crate::{BakeStats, CacheError, CacheParams, MultipleEstimator};
 
 /// The cache lattice: the density lattice scaled by `scale`, so cache voxel c sits at density
 /// index scale * c and both share the origin.
 pub fn cache_transform(density: &Transform, scale: f64) -> Transform {
     Transform::new(density.index_to_world() * DAffine3::from_scale(DVec3::splat(scale)))
         .expect("a positive scale of an invertible map is invertible")
+}
+
+/// What both backends decide before they bake: the emission the paths gather, the majorant,
+/// the plans and the stats they start from. One function, so the CPU and GPU bakes cannot
+/// drift apart in what they bake.
+pub(crate) struct Prologue<'a, 'e> {
+    /// The medium's emission where the paths gather it, else None: the photon estimator's
+    /// emission came with the photons.
+    pub emission: Option<&'a EmissionField<'e>>,
+    pub majorant: MajorantGrid,
+    /// Li_single's plan, and Li_multiple's where its lattice is the same.
+    pub plan: CachePlan,
+    /// Li_multiple's own plan, where `multiple_scale` gives it another lattice.
+    pub own_plan: Option<CachePlan>,
+    pub stats: BakeStats,
+}
+
+impl<'a, 'e> Prologue<'a, 'e> {
+    pub fn new(density: &Volume<f32>, photons: &PhotonMap, params: &CacheParams, emission: Option<&'a EmissionField<'e>>) -> Result<Self, CacheError> {
+        params.validate()?;
+        let emission = emission.filter(|e| e.params.is_active() && matches!(params.estimator, MultipleEstimator::Paths { .. }));
+        let majorant = MajorantGrid::build(density);
+        let plan = CachePlan::new(density, &majorant, &params.camera, params.cache_scale);
+        let own_plan = CachePlan::for_multiple(density, &majorant, params, &plan, photons, emission.is_some());
+        let stats = plan.stats_with(own_plan.as_ref(), params.bakes_single());
+        Ok(Prologue { emission, majorant, plan, own_plan, stats })
+    }
 }
 
 /// The cache bricks to bake and, in each, the voxels to bake.
