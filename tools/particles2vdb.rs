@@ -2,12 +2,10 @@
 //! density estimation with adaptive smoothing lengths. The engine is `nimbus-density`.
 
 use std::path::PathBuf;
-use std::process::ExitCode;
 
 use clap::Parser;
 use glam::DVec3;
-use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
-use nimbus_cli::{parse_dvec3, run, CommonArgs, Failure, Input, MetaWriter, VdbOutputArgs};
+use nimbus_cli::{parse_dvec3, CommonArgs, Failure, Input, MetaWriter, SequenceArgs, Tool, VdbOutputArgs};
 use nimbus_density::{estimate_cpu, estimate_gpu, read_particles_with, Attribute, AttributeVolume, DensityParams, Format, HMin, Method, NoiseParams, ParticleSet, Resolution, H0};
 use nimbus_vdb::{GridClass, PointAttribute, VdbFile, VectorType};
 
@@ -130,17 +128,7 @@ fn parse_bounds(s: &str) -> Result<(DVec3, DVec3), String> {
     Ok((lo, hi))
 }
 
-fn main() -> ExitCode {
-    let (args, _) = nimbus_cli::parse_args::<Args>();
-    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
-    run(move || {
-        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
-        for_each_frame("particles2vdb", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
-            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
-            particles2vdb(Args { input, out, ..args.clone() })
-        })
-    })
-}
+nimbus_cli::tool!(Args, "particles2vdb", particles2vdb, input: input, outputs: [out.output]);
 
 /// `--h-min`: a world length, or a number of voxels with the suffix `vox`.
 fn parse_h_min(text: &str) -> Result<HMin, String> {
@@ -258,7 +246,7 @@ fn keep_members(set: ParticleSet, member: &[bool]) -> ParticleSet {
 }
 
 fn particles2vdb(args: Args) -> Result<(), Failure> {
-    let log = args.common.log("particles2vdb");
+    let log = args.common.log(Args::NAME);
     let input = Input::from_arg(args.input.as_deref())?;
     let format = match args.format.as_deref().or(input.extension().as_deref()) {
         Some("ply") => Some(Format::Ply),
@@ -412,7 +400,7 @@ fn particles2vdb(args: Args) -> Result<(), Failure> {
         ("used_std", format!("{:.3}", s.used_std)),
         ("attributes", attribute_record.join(";")),
     ];
-    MetaWriter::new(&mut file).density_grid("density")?.seed(args.seed)?.tool("particles2vdb", &record, &log.times())?;
+    MetaWriter::new(&mut file).density_grid("density")?.seed(args.seed)?.tool(Args::NAME, &record, &log.times())?;
     log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
     log.finish();
     Ok(())

@@ -2,15 +2,10 @@
 //! illumination cache baked for the camera. The engine is `nimbus-cache`.
 
 use std::path::PathBuf;
-use std::process::ExitCode;
 
 use clap::Parser;
 use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, CacheError, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode, SINGLE_LATTICE_TOLERANCE};
-use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
-use nimbus_cli::{
-    read_density, read_vdb, run, CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta,
-    Quality, VdbOutputArgs,
-};
+use nimbus_cli::{CameraArgs, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, LightArgs, MediumArgs, Quality, SequenceArgs, Stage, Tool, VdbOutputArgs};
 use nimbus_photon::PhotonMap;
 use nimbus_vdb::{GridClass, GridKind, VdbFile};
 
@@ -51,9 +46,9 @@ struct Args {
     cache_scale: Option<f64>,
     /// Li_single's lattice without --cache-scale: each axis of the preset's lattice is
     /// halved (up to 4 times finer) while the estimated relative error of interpolating
-    /// Li_single between its voxels, as the camera sees it, exceeds this (flat voxels, thin
-    /// dense layers and grazing suns need it; 0 refines as far as it goes). [default: 0.006;
-    /// the draft preset does not refine]
+    /// Li_single between its voxels, as the camera sees it, exceeds a third of this (flat
+    /// voxels, thin dense layers and grazing suns need it; 0 refines as far as it goes).
+    /// [default: 0.006; the draft preset does not refine]
     #[arg(long, value_name = "TOLERANCE", conflicts_with = "cache_scale", help_heading = "Quality")]
     single_tolerance: Option<f64>,
     /// Li_multiple's own cache voxel edge in density voxels: multiple scattering is smoother
@@ -113,17 +108,7 @@ struct Args {
     common: CommonArgs,
 }
 
-fn main() -> ExitCode {
-    let (args, _) = nimbus_cli::parse_args::<Args>();
-    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
-    run(move || {
-        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
-        for_each_frame("vdbcache", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
-            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
-            vdbcache(Args { input, out, ..args.clone() })
-        })
-    })
-}
+nimbus_cli::tool!(Args, "vdbcache", vdbcache, input: input, outputs: [out.output]);
 
 fn read_photons(file: &VdbFile) -> Result<PhotonMap, Failure> {
     if !file.has_grid("photons") {
@@ -161,22 +146,19 @@ fn transmittance_grid_name(index: usize, lights: usize) -> String {
 }
 
 fn vdbcache(args: Args) -> Result<(), Failure> {
-    let log = args.common.log("vdbcache");
-    let input = Input::from_arg(args.input.as_deref())?;
-    let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
-    let (grid, density) = read_density(&file, args.grid.as_deref())?;
-    let photons = read_photons(&file)?;
-    log.verbose(format!("{}; {} photons", nimbus_cli::describe_density(&grid, &density), photons.len()));
-    let meta = PipelineMeta::of(&file);
+    let mut stage = Stage::open(Args::NAME, &args.common, args.input.as_deref(), args.grid.as_deref())?;
+    let (log, density, meta) = (&stage.log, &stage.density, &stage.meta);
+    let photons = read_photons(&stage.file)?;
+    log.verbose(format!("{}; {} photons", nimbus_cli::describe_density(&stage.grid, density), photons.len()));
     let traced = (!photons.is_empty()).then_some("the photons were traced with");
     let voxel = density.transform().voxel_size().min_element();
     let preset = Quality::settings_or_default(args.quality);
-    let environment = args.environment.resolve(&meta, &log, traced)?;
+    let (medium, lights, environment) = stage.scene(&args.medium, &args.lights, &args.environment, traced)?;
     let params = CacheParams {
-        medium: args.medium.resolve(&meta, &log, traced)?,
-        lights: args.lights.resolve(&meta, &log, traced, environment.is_some())?,
+        medium,
+        lights,
         environment,
-        camera: args.camera.resolve(&meta, density.world_bounds(), &log, None)?,
+        camera: args.camera.resolve(meta, density.world_bounds(), log, None)?,
         step: args.step,
         cache_scale: args.cache_scale.unwrap_or(preset.cache_scale),
         multiple_scale: Some(args.multiple_scale.unwrap_or(preset.multiple_scale)),
@@ -216,7 +198,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             photons.len()
         ));
     }
-    let emission = args.emission.resolve(&file, &log)?;
+    let emission = args.emission.resolve(&stage.file, log)?;
     let paths = matches!(params.estimator, MultipleEstimator::Paths { .. });
     let photons_emission = meta.emission().unwrap_or("none").to_string();
     if let (Some(e), false) = (&emission, paths) {
@@ -227,14 +209,14 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
             ));
         }
     }
-    let device = args.common.compute_device(&log)?;
+    let device = args.common.compute_device(log)?;
     let field = emission.as_ref().map(|e| e.field());
     let (cache, stats) = log
         .stage(
             "bake",
             || match device.gpu() {
-                Some(ctx) => bake_gpu_emitting(ctx, &density, &photons, &params, field.as_ref()),
-                None => bake_cpu_emitting(&density, &photons, &params, field.as_ref()),
+                Some(ctx) => bake_gpu_emitting(ctx, density, &photons, &params, field.as_ref()),
+                None => bake_cpu_emitting(density, &photons, &params, field.as_ref()),
             },
             |r| {
                 r.as_ref()
@@ -259,6 +241,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     if stats.nonfinite > 0 {
         log.warn(format!("{} cache voxels came out non-finite and were set to zero", stats.nonfinite));
     }
+    let file = &mut stage.file;
     if !args.keep_photons {
         file.remove_grid("photons");
     }
@@ -307,15 +290,9 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         (Some(_), _) if paths => "none".to_string(),
         (Some(_), _) => photons_emission,
     };
-    MetaWriter::new(&mut file)
-        .density_grid(&grid)?
-        .medium(&params.medium)?
-        .lights(&params.lights)?
-        .environment(params.environment.as_ref())?
-        .camera(&params.camera)?
-        .emission(&scattered_emission)?
-        .tool("vdbcache", &record, &log.times())?;
-    log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
-    log.finish();
-    Ok(())
+    let scene = (&params.medium, &params.lights[..], params.environment.as_ref());
+    stage.write(Args::NAME, &args.out, scene, &record, |meta| {
+        meta.camera(&params.camera)?.emission(&scattered_emission)?;
+        Ok(())
+    })
 }

@@ -3,18 +3,13 @@
 //! tracer (the ground truth, needing no photons or cache). The engine is `nimbus-march`.
 
 use std::path::PathBuf;
-use std::process::ExitCode;
 
 use clap::{Parser, ValueEnum};
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
-use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
-use nimbus_cli::Log;
-use nimbus_vdb::VdbFile;
-use nimbus_volume::Volume;
 use nimbus_cli::{
-    parse_rgb, Quality, read_density, read_vdb, read_vec3_grid, run, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, MotionArgs, Velocity,
-    Input, LightArgs, MediumArgs, Output, PipelineMeta,
+    parse_rgb, read_vec3_grid, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, Input, LightArgs, Log, MediumArgs, MotionArgs, Output,
+    PipelineMeta, Quality, SequenceArgs, Stage, Tool, Velocity,
 };
 use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
 use nimbus_march::{default_spp, default_step, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
@@ -136,20 +131,10 @@ struct Args {
     common: CommonArgs,
 }
 
-fn main() -> ExitCode {
-    let (args, _) = nimbus_cli::parse_args::<Args>();
-    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
-    run(move || {
-        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
-        let outputs = [args.output.as_deref(), args.preview.as_deref()];
-        for_each_frame("vdbmarch", &args.sequence, verbosity, args.input.as_deref(), &outputs, |input, outputs| {
-            vdbmarch(Args { input, output: outputs[0].clone(), preview: outputs[1].clone(), ..args.clone() })
-        })
-    })
-}
+nimbus_cli::tool!(Args, "vdbmarch", vdbmarch, input: input, outputs: [output, preview]);
 
 fn vdbmarch(args: Args) -> Result<(), Failure> {
-    let log = args.common.log("vdbmarch");
+    let log = args.common.log(Args::NAME);
     let input = Input::from_arg(args.input.as_deref())?;
     let output = Output::from_arg(args.output.as_deref())?;
     if let Some(ext) = output.extension() {
@@ -157,12 +142,12 @@ fn vdbmarch(args: Args) -> Result<(), Failure> {
             return Err(Failure::usage(format!("the output is an EXR image; '{}' does not end in .exr", output.name())));
         }
     }
-    let file = log.stage("read", || read_vdb(&input), |_| String::new())?;
-    let (grid, density) = read_density(&file, args.grid.as_deref())?;
-    log.verbose(nimbus_cli::describe_density(&grid, &density));
-    let velocity = args.motion.resolve(&file, &log)?;
+    let stage = Stage::read(log, &input, args.grid.as_deref())?;
+    let log = &stage.log;
+    log.verbose(nimbus_cli::describe_density(&stage.grid, &stage.density));
+    let velocity = args.motion.resolve(&stage.file, log)?;
     let (mut image, emission) =
-        if args.reference { reference(&args, &file, &density, velocity.as_ref(), &log)? } else { march(&args, &file, &density, velocity.as_ref(), &log)? };
+        if args.reference { reference(&args, &stage, velocity.as_ref())? } else { march(&args, &stage, velocity.as_ref())? };
     image.metadata.push(("nimbus:motion_blur".into(), velocity.as_ref().map_or("none".into(), |v| v.describe())));
     // What emission the image holds, as the pipeline records its parameters (design.md
     // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
@@ -188,8 +173,8 @@ fn march_failure(e: MarchError, what: &str) -> Failure {
 }
 
 /// The path-traced ground truth: medium, lights and camera from flags, else the file.
-fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&Velocity>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
-    let meta = PipelineMeta::of(file);
+fn reference(args: &Args, stage: &Stage, velocity: Option<&Velocity>) -> Result<(Image, Option<EmissionGrids>), Failure> {
+    let (file, density, meta, log) = (&stage.file, &stage.density, &stage.meta, &stage.log);
     let march_only = [
         (args.step.is_some(), "--step"),
         (args.max_step_factor.is_some(), "--max-step-factor"),
@@ -203,13 +188,13 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Optio
         }
     }
     let emission = args.emission.resolve(file, log)?;
-    let environment = args.environment.resolve(&meta, log, None)?;
+    let environment = args.environment.resolve(meta, log, None)?;
     let params = ReferenceParams {
-        lights: args.lights.resolve(&meta, log, None, environment.is_some())?,
+        lights: args.lights.resolve(meta, log, None, environment.is_some())?,
         environment,
         environment_visible: args.background.is_none(),
-        medium: args.medium.resolve(&meta, log, None)?,
-        camera: args.camera.resolve(&meta, density.world_bounds(), log, None)?,
+        medium: args.medium.resolve(meta, log, None)?,
+        camera: args.camera.resolve(meta, density.world_bounds(), log, None)?,
         spp: args.spp.unwrap_or(1),
         max_depth: args.max_depth,
         background: args.background.unwrap_or(Vec3::ZERO),
@@ -236,7 +221,8 @@ fn reference(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Optio
 }
 
 /// The marched image from the illumination cache.
-fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&Velocity>, log: &Log) -> Result<(Image, Option<EmissionGrids>), Failure> {
+fn march(args: &Args, stage: &Stage, velocity: Option<&Velocity>) -> Result<(Image, Option<EmissionGrids>), Failure> {
+    let (file, density, meta, log) = (&stage.file, &stage.density, &stage.meta, &stage.log);
     if args.lights.given().is_some() {
         log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
     }
@@ -245,14 +231,13 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
     if cache.li_single.is_none() && cache.li_multiple.is_none() && emission.is_none() {
         log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
     }
-    let meta = PipelineMeta::of(file);
     let voxel = density.transform().voxel_size();
     let preset = Quality::settings_or_default(args.quality);
-    let camera = args.camera.resolve(&meta, density.world_bounds(), log, Some("the cache was baked for"))?;
+    let camera = args.camera.resolve(meta, density.world_bounds(), log, Some("the cache was baked for"))?;
     let params = MarchParams {
-        environment: args.environment.resolve(&meta, log, Some("the cache was baked with"))?,
+        environment: args.environment.resolve(meta, log, Some("the cache was baked with"))?,
         environment_visible: args.background.is_none(),
-        medium: args.medium.resolve(&meta, log, Some("the cache was baked with"))?,
+        medium: args.medium.resolve(meta, log, Some("the cache was baked with"))?,
         spp: args.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
         camera,
         step: args.step.unwrap_or(default_step(density.transform()) * preset.step_factor),
@@ -269,7 +254,7 @@ fn march(args: &Args, file: &VdbFile, density: &Volume<f32>, velocity: Option<&V
     params.validate().map_err(Failure::usage)?;
     let device = args.common.compute_device(log)?;
     let blur = velocity.map(Velocity::blur);
-    scattered_emission_note(&meta, &cache, emission.as_ref(), &params, log);
+    scattered_emission_note(meta, &cache, emission.as_ref(), &params, log);
     let field = emission.as_ref().map(EmissionGrids::field);
     let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
     let image = log.stage(

@@ -3,14 +3,9 @@
 //! nonhomogeneous medium. The engine is `nimbus-photon`.
 
 use std::path::PathBuf;
-use std::process::ExitCode;
 
 use clap::Parser;
-use nimbus_cli::{for_each_frame, SequenceArgs, Verbosity};
-use nimbus_cli::{
-    read_density, read_vdb, run, CommonArgs, EmissionArgs, EnvironmentArgs, Failure, Input, LightArgs, MediumArgs, MetaWriter, PipelineMeta, Quality,
-    VdbOutputArgs,
-};
+use nimbus_cli::{CommonArgs, EmissionArgs, EnvironmentArgs, Failure, LightArgs, MediumArgs, Quality, SequenceArgs, Stage, Tool, VdbOutputArgs};
 use nimbus_photon::{trace_cpu_emitting, trace_gpu_emitting, DistanceSampling, PhotonError, PhotonParams};
 use nimbus_vdb::PointSet;
 
@@ -71,30 +66,17 @@ struct Args {
     common: CommonArgs,
 }
 
-fn main() -> ExitCode {
-    let (args, _) = nimbus_cli::parse_args::<Args>();
-    // A sequence runs the body once per frame with the frame's names (nimbus_cli::frames).
-    run(move || {
-        let verbosity = Verbosity::from_flags(args.common.quiet, args.common.verbose);
-        for_each_frame("vdbphoton", &args.sequence, verbosity, args.input.as_deref(), &[args.out.output.as_deref()], |input, outputs| {
-            let out = VdbOutputArgs { output: outputs[0].clone(), ..args.out.clone() };
-            vdbphoton(Args { input, out, ..args.clone() })
-        })
-    })
-}
+nimbus_cli::tool!(Args, "vdbphoton", vdbphoton, input: input, outputs: [out.output]);
 
 fn vdbphoton(args: Args) -> Result<(), Failure> {
-    let log = args.common.log("vdbphoton");
-    let input = Input::from_arg(args.input.as_deref())?;
-    let mut file = log.stage("read", || read_vdb(&input), |_| String::new())?;
-    let (grid, density) = read_density(&file, args.grid.as_deref())?;
-    log.verbose(nimbus_cli::describe_density(&grid, &density));
-    let meta = PipelineMeta::of(&file);
+    let mut stage = Stage::open(Args::NAME, &args.common, args.input.as_deref(), args.grid.as_deref())?;
+    let log = &stage.log;
+    log.verbose(nimbus_cli::describe_density(&stage.grid, &stage.density));
     let preset = args.quality.map(Quality::settings);
-    let environment = args.environment.resolve(&meta, &log, None)?;
+    let (medium, lights, environment) = stage.scene(&args.medium, &args.lights, &args.environment, None)?;
     let params = PhotonParams {
-        medium: args.medium.resolve(&meta, &log, None)?,
-        lights: args.lights.resolve(&meta, &log, None, environment.is_some())?,
+        medium,
+        lights,
         environment,
         distance: match (args.distance, preset) {
             (Some(d), _) => d,
@@ -105,17 +87,17 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
         photons: args.photons.or(preset.map(|q| q.photons)).unwrap_or(200_000),
         max_emitted: args.max_emitted,
         max_interactions: args.max_interactions,
-        seed: args.seed.or(meta.seed()).unwrap_or(0),
+        seed: args.seed.or(stage.meta.seed()).unwrap_or(0),
     };
     params.validate().map_err(|e| Failure::usage(e))?;
-    let emission = args.emission.resolve(&file, &log)?;
-    let device = args.common.compute_device(&log)?;
+    let emission = args.emission.resolve(&stage.file, log)?;
+    let device = args.common.compute_device(log)?;
     let field = emission.as_ref().map(|e| e.field());
     let traced = log.stage(
         "trace",
         || match device.gpu() {
-            Some(ctx) => trace_gpu_emitting(ctx, &density, &params, field.as_ref()),
-            None => trace_cpu_emitting(&density, &params, field.as_ref()),
+            Some(ctx) => trace_gpu_emitting(ctx, &stage.density, &params, field.as_ref()),
+            None => trace_cpu_emitting(&stage.density, &params, field.as_ref()),
         },
         |r| {
             r.as_ref()
@@ -139,9 +121,9 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     }
 
     // The photons replace any earlier photon map; everything else passes through.
-    file.remove_grid("photons");
+    stage.file.remove_grid("photons");
     let points = PointSet::new(map.positions).with_vec3("power", map.power).with_vec3("dir", map.dir);
-    file.insert_points("photons", &points, None).map_err(|e| Failure::runtime(e, "photons grid"))?;
+    stage.file.insert_points("photons", &points, None).map_err(|e| Failure::runtime(e, "photons grid"))?;
     let record = [
         ("distance", params.distance.name().to_string()),
         ("step", params.step.to_string()),
@@ -155,19 +137,14 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
         ("truncated", stats.truncated.to_string()),
         ("interactions", stats.interactions.to_string()),
     ];
-    MetaWriter::new(&mut file)
-        .density_grid(&grid)?
-        .medium(&params.medium)?
-        .lights(&params.lights)?
-        .environment(params.environment.as_ref())?
-        .seed(params.seed)?
-        // The emission the photons carry (vdbcache's photon gather holds it scattered).
-        .emission(&match (&emission, &stats.skipped) {
-            (Some(e), None) => e.params.describe(),
-            _ => "none".to_string(),
-        })?
-        .tool("vdbphoton", &record, &log.times())?;
-    log.stage("write", || nimbus_cli::write_vdb(&file, &args.out), |_| String::new())?;
-    log.finish();
-    Ok(())
+    let scene = (&params.medium, &params.lights[..], params.environment.as_ref());
+    stage.write(Args::NAME, &args.out, scene, &record, |meta| {
+        meta.seed(params.seed)?
+            // The emission the photons carry (vdbcache's photon gather holds it scattered).
+            .emission(&match (&emission, &stats.skipped) {
+                (Some(e), None) => e.params.describe(),
+                _ => "none".to_string(),
+            })?;
+        Ok(())
+    })
 }

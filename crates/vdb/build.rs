@@ -1,5 +1,6 @@
-//! Compiles the C++ bridge (ffi/nimbus_vdb.cpp) and generates Rust bindings from its plain C
-//! header. Links OpenVDB 10 and what its headers pull in (TBB; Imath for half floats).
+//! Compiles the C++ bridge (ffi/*.cpp: files, grids, points, metadata) and generates Rust
+//! bindings from its plain C header. Links OpenVDB 10 and what its headers pull in (TBB;
+//! Imath for half floats).
 
 use std::env;
 use std::path::PathBuf;
@@ -8,9 +9,12 @@ fn main() {
     let manifest = PathBuf::from(env::var("CARGO_MANIFEST_DIR").unwrap());
     let ffi = manifest.join("../../ffi").canonicalize().expect("ffi/ beside crates/");
     let header = ffi.join("nimbus_vdb.h");
-    let source = ffi.join("nimbus_vdb.cpp");
+    let sources = ["nimbus_vdb.cpp", "grids.cpp", "points.cpp", "metadata.cpp"].map(|f| ffi.join(f));
     println!("cargo:rerun-if-changed={}", header.display());
-    println!("cargo:rerun-if-changed={}", source.display());
+    println!("cargo:rerun-if-changed={}", ffi.join("nimbus_vdb_internal.h").display());
+    for source in &sources {
+        println!("cargo:rerun-if-changed={}", source.display());
+    }
     println!("cargo:rerun-if-env-changed=NIMBUS_VDB_INCLUDE");
 
     // Debian installs OpenVDB under /usr/include; NIMBUS_VDB_INCLUDE adds another prefix.
@@ -21,7 +25,7 @@ fn main() {
         .opt_level(2)
         .include(&include)
         .include(&ffi)
-        .file(&source)
+        .files(&sources)
         // OpenVDB's headers are noisy under -Wall; the bridge is checked with -Wall by hand.
         .warnings(false)
         .flag_if_supported("-w")

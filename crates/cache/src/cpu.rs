@@ -11,6 +11,7 @@ use nimbus_photon::PhotonMap;
 use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
 use nimbus_volume::{MajorantGrid, Volume};
 
+use crate::plan::Prologue;
 use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
@@ -253,12 +254,8 @@ pub fn bake_cpu_emitting(
     params: &CacheParams,
     emission: Option<&EmissionField>,
 ) -> Result<(IlluminationCache, BakeStats), CacheError> {
-    params.validate()?;
-    let emission = emission.filter(|e| e.params.is_active());
-    // Only the paths read the field: the photon estimator's emission came with the photons.
-    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
-    let mut timed = BakeStats::default();
-    let majorant = timed.time("majorant", || MajorantGrid::build(density));
+    let Prologue { emission, majorant, mut timed } = Prologue::new(density, params, emission)?;
+    let emits = emission.is_some();
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let depths = timed.time("light tables", || params.light_depths(medium, photons, emits));
     let (plan, own_plan, mut stats) = CachePlan::for_bake(density, &majorant, params, &depths, photons, emits, timed);

@@ -12,6 +12,7 @@ use nimbus_photon::PhotonMap;
 use nimbus_tracking::{light_tables_wgsl, majorant_buffer, medium_stage, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
+use crate::plan::Prologue;
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
@@ -124,11 +125,8 @@ pub fn bake_gpu_emitting(
     params: &CacheParams,
     emission: Option<&EmissionField>,
 ) -> Result<(IlluminationCache, BakeStats), CacheError> {
-    params.validate()?;
-    let emission = emission.filter(|e| e.params.is_active());
-    // Only the paths read the field: the photon estimator's emission came with the photons.
-    let emits = emission.is_some() && matches!(params.estimator, MultipleEstimator::Paths { .. });
-    let emission = emission.filter(|_| emits);
+    let Prologue { emission, majorant, mut timed } = Prologue::new(density, params, emission)?;
+    let emits = emission.is_some();
     let single = params.bakes_single();
     let multiple = params.bakes_multiple(photons, emits);
     let gathers = multiple && params.estimator == MultipleEstimator::Photons;
@@ -139,8 +137,6 @@ pub fn bake_gpu_emitting(
             )));
         }
     }
-    let mut timed = BakeStats::default();
-    let majorant = timed.time("majorant", || MajorantGrid::build(density));
     let bins = gathers.then(|| PhotonBins::new(&photons.positions, gather_cell(photons, params.gather)));
     // Bin-local positions are then exactly the CPU's f32 values.
     let origin = match (&bins, density.world_bounds()) {

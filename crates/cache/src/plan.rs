@@ -9,15 +9,38 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use nimbus_photon::PhotonMap;
 
-use nimbus_tracking::{DensityMedium, LightDepths};
+use nimbus_tracking::{DensityMedium, EmissionField, LightDepths};
 
-use crate::{choose_single_lattice, BakeStats, CacheParams};
+use crate::{choose_single_lattice, BakeStats, CacheError, CacheParams, MultipleEstimator};
 
 /// The cache lattice: the density lattice scaled by `scale`, so cache voxel c sits at density
 /// index scale * c and both share the origin.
 pub fn cache_transform(density: &Transform, scale: DVec3) -> Transform {
     Transform::new(density.index_to_world() * DAffine3::from_scale(scale))
         .expect("a positive scale of an invertible map is invertible")
+}
+
+/// What both backends decide before they table the lights: the parameters checked, the
+/// emission the paths gather and the majorant. After the tables, [`CachePlan::for_bake`]
+/// plans both. One function each, so the CPU and GPU bakes cannot drift apart in what they
+/// bake.
+pub(crate) struct Prologue<'a, 'e> {
+    /// The medium's emission where the paths gather it, else None: the photon estimator's
+    /// emission came with the photons.
+    pub emission: Option<&'a EmissionField<'e>>,
+    pub majorant: MajorantGrid,
+    /// The stages' times so far.
+    pub timed: BakeStats,
+}
+
+impl<'a, 'e> Prologue<'a, 'e> {
+    pub fn new(density: &Volume<f32>, params: &CacheParams, emission: Option<&'a EmissionField<'e>>) -> Result<Self, CacheError> {
+        params.validate()?;
+        let emission = emission.filter(|e| e.params.is_active() && matches!(params.estimator, MultipleEstimator::Paths { .. }));
+        let mut timed = BakeStats::default();
+        let majorant = timed.time("majorant", || MajorantGrid::build(density));
+        Ok(Prologue { emission, majorant, timed })
+    }
 }
 
 /// The cache bricks to bake and, in each, the voxels to bake.

@@ -17,6 +17,8 @@
 //! - [`MotionArgs`]: vdbmarch's motion blur flags and the velocity grid they find.
 //! - [`SequenceArgs`] and [`for_each_frame`] ([`frames`]): frame patterns (`####`, `%04d`,
 //!   `$F4`), `--frames` sets, and the per-frame loop every tool runs over a sequence.
+//! - [`Tool`], [`main`] and [`Stage`]: the runner: a tool's `main`, its frames, and a stage's
+//!   read of the chain's VDB and write of what it added with its record.
 
 mod args;
 mod environment;
@@ -27,6 +29,7 @@ mod io;
 mod log;
 pub mod meta;
 mod motion;
+mod runner;
 mod vdbio;
 
 pub use args::{command, fit_view, given_flags, parse_args, parse_args_from, parse_direction, parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
@@ -38,4 +41,5 @@ pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
 pub use motion::{MotionArgs, Velocity, VELOCITY_GRIDS};
+pub use runner::{main, Stage, Tool};
 pub use vdbio::{describe_density, read_density, UPSTREAM_FAILED, read_vdb, read_vec3_grid, write_vdb};

@@ -27,7 +27,7 @@ use glam::{IVec3, Vec3};
 use nimbus_volume::{brick_local, brick_offset, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
-use crate::ici::RungSums;
+use crate::ici::{Lengths, RungSums};
 use crate::kernel::{clamp_h, correct_h, ici_ladder, m4_shape, predict_h1, ICI_MAX_RUNGS, KAPPA};
 use crate::params::Method;
 use crate::setup::Prepared;
@@ -156,9 +156,6 @@ pub(crate) fn estimate_bricks(prep: &Prepared, method: Method, conserve_mass: bo
 /// A brick's raw sums: rho, h and used per voxel.
 type Sums = (Box<[f32; BRICK_VOXELS]>, Box<[f32; BRICK_VOXELS]>, Box<[u32; BRICK_VOXELS]>);
 
-/// A brick's final smoothing lengths (index units), kept between the conserve-mass passes:
-/// 0 at voxels no pass evaluates (outside the grid, or no particle within kappa*h0).
-pub(crate) type Lengths = Box<[f32; BRICK_VOXELS]>;
 
 /// What one visit of a brick does after gathering its particles.
 #[derive(Clone, Copy)]

@@ -19,9 +19,13 @@ use glam::IVec3;
 use nimbus_volume::{BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
-use crate::cpu::Lengths;
 use crate::kernel::{ici_pair_noise, ici_scales};
 use crate::Prepared;
+
+/// A brick's final smoothing lengths (index units), what ici's rule chooses and the density
+/// passes read, kept between the conserve-mass passes: 0 at voxels no pass evaluates
+/// (outside the grid, or no particle within kappa*h0).
+pub(crate) type Lengths = Box<[f32; BRICK_VOXELS]>;
 
 /// The bias's averaging box, radius in units of the longer rung of a pair (voxels): 0.5,
 /// 0.75 and 1 measured 0.2325, 0.2223, 0.2188 on the shell (Cloud1-class 0.1377, 0.1361,

@@ -32,10 +32,8 @@ use nimbus_cache::IlluminationCache;
 use nimbus_volume::{Voxel, Volume, BRICK_DIM, BRICK_LOG2};
 use rayon::prelude::*;
 
-use crate::simd::Arith;
+use crate::simd::{Arith, EDGE};
 
-/// Lattice points a brick stores per axis: its 8 cells' lower corners and the apron.
-pub(crate) const EDGE: usize = BRICK_DIM as usize + 1;
 const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
 const EMPTY: u32 = u32::MAX;
 /// Offsets of a cell's +x, +y neighbours in a brick's points (z fastest).

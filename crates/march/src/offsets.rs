@@ -14,9 +14,9 @@ use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3, Vec4};
 use nimbus_optics::noise::fbm3_vec_block;
 use nimbus_volume::{MajorantGrid, Volume, BRICK_LOG2};
 
-use crate::layout::{CellBox, Lattice, Visit, EDGE};
+use crate::layout::{CellBox, Lattice, Visit};
 use crate::cpu::NOISE_REACH;
-use crate::simd::Arith;
+use crate::simd::{Arith, EDGE};
 use crate::MarchParams;
 
 /// The baked displacement field.
@@ -39,15 +39,12 @@ impl Offsets {
         let to_world = density.transform().index_to_world();
         let cell = medium.cell_size() as f64;
         // Each non-empty cell's world box grown by the reach, in world node coordinates.
-        let dims = medium.dims();
         let mut boxes = Vec::new();
-        for (i, &m) in medium.values().iter().enumerate() {
+        for (lo, m) in medium.cells() {
             if !(m > 0.0) {
                 continue;
             }
-            let (yz, z) = (i / dims.z as usize, (i % dims.z as usize) as i32);
-            let c = IVec3::new((yz / dims.y as usize) as i32, (yz % dims.y as usize) as i32, z);
-            let lo = (medium.origin() + c * medium.cell_size()).as_dvec3();
+            let lo = lo.as_dvec3();
             let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
             for k in 0..8 {
                 let corner = lo + DVec3::new((k >> 2 & 1) as f64, (k >> 1 & 1) as f64, (k & 1) as f64) * cell;
@@ -59,6 +56,8 @@ impl Offsets {
         let brick = (1u32 << BRICK_LOG2) as f64;
         let anchor = boxes.iter().fold(DVec3::INFINITY, |m, b| m.min(b.0));
         let anchor = if anchor.is_finite() { (anchor / brick).floor() * brick } else { DVec3::ZERO };
+        // Neighbouring cells' boxes share most of their bricks: Lattice::build marks each
+        // brick once, so the repeats need no sort here.
         let mut bricks = Vec::new();
         for (a, b) in boxes {
             let (lo, hi) = (((a - anchor) / brick).floor().as_ivec3(), ((b - anchor) / brick).floor().as_ivec3());
@@ -70,8 +69,6 @@ impl Offsets {
                 }
             }
         }
-        bricks.sort_unstable_by_key(|b| (b.x, b.y, b.z));
-        bricks.dedup();
         let (octaves, seed, amplitude) = (params.noise_octaves, params.seed as u32, params.offset_noise);
         let world_to_index = DAffine3 { matrix3: DMat3::from_diagonal(DVec3::splat(per_world)), translation: -anchor };
         let inv_nodes = 1.0 / nodes_per_scale as f64;

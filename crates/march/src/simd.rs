@@ -7,7 +7,10 @@ use glam::{IVec3, Vec3A, Vec4};
 
 use nimbus_volume::BRICK_DIM;
 
-use crate::layout::EDGE;
+/// Lattice points a brick stores per axis: its 8 cells' lower corners and the apron. The
+/// layout's ([`crate::layout`]), defined here because [`Arith::cells`] indexes the points
+/// with it, and the layout builds on this arithmetic.
+pub(crate) const EDGE: usize = BRICK_DIM as usize + 1;
 
 /// Samples a march handles together: their cells are found together (vectorised), and
 /// their exponentials computed together.

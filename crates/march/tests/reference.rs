@@ -4,10 +4,8 @@
 mod common;
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
 use nimbus_march::{render_cpu, render_reference_cpu, render_reference_gpu, Image, MarchParams, MediumFields, ReferenceParams};
 use nimbus_optics::{Camera, Light, Medium};
-use nimbus_photon::PhotonMap;
 use nimbus_volume::Volume;
 
 const VOXEL: f64 = 0.05;
@@ -57,41 +55,8 @@ fn single_scattering_matches_the_cached_chain() {
     let medium = Medium { extinction: 2.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.4 };
     let sun = Light::sun(Vec3::new(0.4, 0.2, -0.9).normalize(), Vec3::splat(3.0)).unwrap();
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
-    let cache_params = CacheParams {
-        environment: None,
-        medium,
-        lights: vec![sun],
-        camera,
-        step: 0.5,
-        cache_scale: 1.0,
-        single_tolerance: None,
-        multiple_scale: None,
-        single: true,
-        multiple: false,
-        gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
-        estimator: MultipleEstimator::Photons,
-        seed: 0,
-        min_transmittance: 0.0,
-        shadows: ShadowMode::Table(LightLattice::default()),
-    };
-    let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams {
-        environment: None,
-        environment_visible: false,
-        medium,
-        camera,
-        step: VOXEL / 4.0,
-        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
-        spp: 4,
-        background: Vec3::ZERO,
-        offset_noise: 0.0,
-        noise_scale: 1.0,
-        noise_octaves: 1,
-        noise_eval: Default::default(),
-        min_transmittance: 0.0,
-        seed: 3,
-        aovs: true,
-    };
+    let (cache, march) = common::single_scattering_chain(&density, medium, sun, &camera, VOXEL / 4.0);
+    let march = MarchParams { max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR, spp: 4, aovs: true, ..march };
     let chain = render_cpu(&density, &cache, &march).unwrap();
     let reference = render_reference_cpu(&density, &params(medium, vec![sun], camera, 256), &no_progress).unwrap();
     let (c, r) = (chain.aovs.as_ref().unwrap(), reference.aovs.as_ref().unwrap());

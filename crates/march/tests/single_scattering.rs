@@ -5,10 +5,8 @@
 mod common;
 
 use glam::{DVec3, Vec3};
-use nimbus_cache::{bake_cpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
-use nimbus_march::{render_cpu, MarchParams};
+use nimbus_march::render_cpu;
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
-use nimbus_photon::PhotonMap;
 use nimbus_volume::Volume;
 
 const VOXEL: f64 = 0.05;
@@ -24,41 +22,7 @@ fn single_scattering_chain_matches_a_brute_force_render() {
     let sun_dir = Vec3::new(0.4, 0.2, -0.9).normalize();
     let sun = Light::sun(sun_dir, Vec3::splat(3.0)).unwrap();
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 30.0, 20, 16).unwrap();
-    let cache_params = CacheParams {
-        environment: None,
-        medium,
-        lights: vec![sun],
-        camera: camera.clone(),
-        step: 0.5,
-        cache_scale: 1.0,
-        single_tolerance: None,
-        multiple_scale: None,
-        single: true,
-        multiple: false,
-        gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
-        estimator: MultipleEstimator::Photons,
-        seed: 0,
-        min_transmittance: 0.0,
-        shadows: ShadowMode::Table(LightLattice::default()),
-    };
-    let (cache, _) = bake_cpu(&density, &PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams {
-        environment: None,
-        environment_visible: false,
-        medium,
-        camera: camera.clone(),
-        step: VOXEL / 4.0,
-        max_step_factor: 1,
-        spp: 1,
-        background: Vec3::ZERO,
-        offset_noise: 0.0,
-        noise_scale: 1.0,
-        noise_octaves: 1,
-        noise_eval: Default::default(),
-        min_transmittance: 0.0,
-        seed: 3,
-        aovs: false,
-    };
+    let (cache, march) = common::single_scattering_chain(&density, medium, sun, &camera, VOXEL / 4.0);
     let image = render_cpu(&density, &cache, &march).unwrap();
 
     // Brute force: midpoint rule along the camera ray over the ball's bounding sphere, and at

@@ -8,7 +8,8 @@
 //!
 //! - `ffi/nimbus_vdb.h` — a plain C header: opaque handles (`nimbus_file`, `nimbus_grid`,
 //!   `nimbus_leaf_iter`, `nimbus_meta`), int status codes, plain structs.
-//! - `ffi/nimbus_vdb.cpp` — the C++17 implementation. Every entry point runs inside
+//! - `ffi/nimbus_vdb.cpp` (errors, files), `grids.cpp`, `points.cpp`, `metadata.cpp` — the
+//!   C++17 implementation, sharing `nimbus_vdb_internal.h`. Every entry point runs inside
 //!   `guarded()`, which catches every exception (OpenVDB's, the standard library's, and
 //!   anything else) and turns it into `NIMBUS_ERR` plus a thread-local message read with
 //!   `nimbus_last_error()`: no exception ever unwinds into Rust. `openvdb::initialize()` runs

@@ -239,6 +239,18 @@ impl MajorantGrid {
         &self.values
     }
 
+    /// The index-space lowest corner of the cell whose bound is `values()[i]`.
+    pub fn cell_lo(&self, i: usize) -> IVec3 {
+        let (ny, nz) = (self.dims.y as usize, self.dims.z as usize);
+        let c = IVec3::new((i / (ny * nz)) as i32, (i / nz % ny) as i32, (i % nz) as i32);
+        self.origin + c * self.cell_size()
+    }
+
+    /// Each cell's index-space lowest corner and bound, in [`MajorantGrid::values`]' order.
+    pub fn cells(&self) -> impl Iterator<Item = (IVec3, f32)> + '_ {
+        self.values.iter().enumerate().map(|(i, &m)| (self.cell_lo(i), m))
+    }
+
     /// The largest bound anywhere: a global majorant.
     pub fn max(&self) -> f32 {
         self.values.iter().copied().fold(self.outside, f32::max)

@@ -6,7 +6,7 @@ use glam::{DVec3, IVec3, Vec3};
 use nimbus_cache::IlluminationCache;
 use nimbus_gpu::GpuContext;
 use nimbus_march::MarchParams;
-use nimbus_optics::{Camera, Medium};
+use nimbus_optics::{Camera, Light, Medium};
 use nimbus_volume::{Transform, Volume};
 
 /// The process-wide test device (see [`nimbus_gpu::test_context`]).
@@ -122,6 +122,50 @@ fn cache_grid(density: &Volume<f32>, t: Transform, f: &dyn Fn(DVec3) -> Vec3) ->
         }
     }
     v
+}
+
+/// The cached chain's single scattering as its two checks run it (against the reference
+/// path tracer, and against a brute-force render): Li_single alone, baked on the density
+/// lattice for `medium` lit by `sun` with tabled shadows, and the march over it at `step`,
+/// one sample per pixel on the plain lattice, no noise.
+pub fn single_scattering_chain(density: &Volume<f32>, medium: Medium, sun: Light, camera: &Camera, step: f64) -> (IlluminationCache, MarchParams) {
+    use nimbus_cache::{bake_cpu, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
+    let cache_params = CacheParams {
+        environment: None,
+        medium,
+        lights: vec![sun],
+        camera: camera.clone(),
+        step: 0.5,
+        cache_scale: 1.0,
+        single_tolerance: None,
+        multiple_scale: None,
+        single: true,
+        multiple: false,
+        gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
+        estimator: MultipleEstimator::Photons,
+        seed: 0,
+        min_transmittance: 0.0,
+        shadows: ShadowMode::Table(LightLattice::default()),
+    };
+    let (cache, _) = bake_cpu(density, &nimbus_photon::PhotonMap::default(), &cache_params).unwrap();
+    let march = MarchParams {
+        environment: None,
+        environment_visible: false,
+        medium,
+        camera: camera.clone(),
+        step,
+        max_step_factor: 1,
+        spp: 1,
+        background: Vec3::ZERO,
+        offset_noise: 0.0,
+        noise_scale: 1.0,
+        noise_octaves: 1,
+        noise_eval: Default::default(),
+        min_transmittance: 0.0,
+        seed: 3,
+        aovs: false,
+    };
+    (cache, march)
 }
 
 /// Looks at `centre` from -Y and a little above, the cloud filling most of the frame.
