@@ -358,6 +358,11 @@ fn quality_presets_set_the_tools_and_flags_override_them() {
         for expected in ["cache_scale=1", "multiple_scale=2", "multiple_estimator=photons", "gather=neighbours:32:"] {
             assert!(photons.contains(expected), "{expected} missing from {photons}");
         }
+        // Li_single's lattice as chosen per axis: one entry of the comma-separated record,
+        // three positive scales no coarser than the requested 1.
+        let single_scale = paths.split([',', '\n', ' ']).find_map(|e| e.strip_prefix("single_scale=")).unwrap_or_else(|| panic!("no single_scale in {paths}"));
+        let scales: Vec<f64> = single_scale.split(':').map(|v| v.parse().unwrap_or_else(|_| panic!("single_scale={single_scale}"))).collect();
+        assert!(scales.len() == 3 && scales.iter().all(|&s| s > 0.0 && s <= 1.0), "single_scale={single_scale}");
     }
     let bad = Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "ultra"]).arg("-o").arg(dir.join("x.exr")).output().unwrap();
     assert_eq!(bad.status.code(), Some(2));

@@ -262,7 +262,8 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
         ("step", params.step.to_string()),
         ("cache_scale", params.cache_scale.to_string()),
         ("single_scale", match &stats.single_lattice {
-            Some(l) => format!("{},{},{}", l.scale.x, l.scale.y, l.scale.z),
+            // ':' as the record's other compound values: ',' separates its entries.
+            Some(l) => format!("{}:{}:{}", l.scale.x, l.scale.y, l.scale.z),
             None => params.cache_scale.to_string(),
         }),
         ("multiple_scale", params.multiple_scale().to_string()),
