@@ -258,7 +258,7 @@ pub fn bake_cpu_emitting(
     let emits = emission.is_some();
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let depths = timed.time("light tables", || params.light_depths(medium, photons, emits));
-    let (plan, own_plan, mut stats) = CachePlan::for_bake(density, &majorant, params, &depths, photons, emits, timed);
+    let (plan, own_plan, mut stats) = CachePlan::for_bake(medium, params, &depths, photons, emits, timed);
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     let step = params.single_step(density);
     let camera = &params.camera;

@@ -168,7 +168,7 @@ pub fn bake_gpu_emitting(
         })
     })?;
     // The host chooses the lattice and plans the voxels by the CPU's very rule.
-    let (plan, own_plan, mut stats) = CachePlan::for_bake(density, &majorant, params, &depths, photons, emits, timed);
+    let (plan, own_plan, mut stats) = CachePlan::for_bake(medium, params, &depths, photons, emits, timed);
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
     // The paths, their counts and origins, are decided on the host by the CPU's very rule.
     let path_plan = match params.estimator {

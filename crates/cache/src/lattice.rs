@@ -63,13 +63,14 @@ impl SingleLattice {
 
 /// Li_single's lattice for `params`: `params.cache_scale` on every axis, each axis halved
 /// as [the module](self) says while `params.single_tolerance` asks for it.
-pub fn choose_single_lattice(density: &Volume<f32>, medium: DensityMedium, params: &CacheParams, depths: &LightDepths) -> SingleLattice {
+pub fn choose_single_lattice(medium: DensityMedium, params: &CacheParams, depths: &LightDepths) -> SingleLattice {
+    let density = medium.density;
     let base = params.cache_scale;
     let Some(tolerance) = params.single_tolerance.filter(|_| params.bakes_single() && !params.lights.is_empty()) else {
         return SingleLattice::uniform(base);
     };
     let samples = sample_voxels(density, LATTICE_SAMPLES);
-    let estimate = interpolation_error(density, medium, params, depths, &samples, base);
+    let estimate = interpolation_error(medium, params, depths, &samples, base);
     // Each axis keeps its third of the tolerance on its own: an axis that cannot get there
     // within MAX_REFINEMENT does not make the others finer for it.
     let mut refinement = DVec3::ONE;
@@ -104,7 +105,8 @@ fn sample_voxels(density: &Volume<f32>, most: usize) -> Vec<DVec3> {
 
 /// Per cache axis (density index axis a, spacing `scale` voxels): the camera-weighted sum
 /// of |Li(midpoint) - mean of Li at the two nodes| over the weighted sum of Li.
-fn interpolation_error(density: &Volume<f32>, medium: DensityMedium, params: &CacheParams, depths: &LightDepths, samples: &[DVec3], scale: f64) -> DVec3 {
+fn interpolation_error(medium: DensityMedium, params: &CacheParams, depths: &LightDepths, samples: &[DVec3], scale: f64) -> DVec3 {
+    let density = medium.density;
     let transform = density.transform();
     let camera: &Camera = &params.camera;
     let step = params.single_step(density);

@@ -119,18 +119,9 @@ impl CachePlan {
     /// chosen from them ([`choose_single_lattice`]), its plan, Li_multiple's own plan where
     /// it has one ([`CachePlan::for_multiple`]), and their counts in `timed` with the
     /// lattice's and the plans' times.
-    #[allow(clippy::too_many_arguments)]
-    pub fn for_bake(
-        density: &Volume<f32>,
-        majorant: &MajorantGrid,
-        params: &CacheParams,
-        depths: &LightDepths,
-        photons: &PhotonMap,
-        emits: bool,
-        mut timed: BakeStats,
-    ) -> (CachePlan, Option<CachePlan>, BakeStats) {
-        let medium = DensityMedium { motion: None, density, majorant, extinction: params.medium.extinction };
-        let lattice = timed.time("single lattice", || choose_single_lattice(density, medium, params, depths));
+    pub fn for_bake(medium: DensityMedium, params: &CacheParams, depths: &LightDepths, photons: &PhotonMap, emits: bool, mut timed: BakeStats) -> (CachePlan, Option<CachePlan>, BakeStats) {
+        let (density, majorant) = (medium.density, medium.majorant);
+        let lattice = timed.time("single lattice", || choose_single_lattice(medium, params, depths));
         let (plan, own) = timed.time("plan", || {
             let plan = CachePlan::new(density, majorant, &params.camera, lattice.scale);
             let own = CachePlan::for_multiple(density, majorant, params, &plan, photons, emits);

@@ -182,10 +182,10 @@ impl OpticalDepthVolume {
         let p = self.transmittance.transform().to_index(x);
         let Some((cell, uvw)) = lattice_cell(p) else { return TabledTransmittance { table: 1.0, ray_weight: 1.0 } };
         let c = self.transmittance.corners(cell);
-        let rho = self.node_depth.corners(cell);
+        let rate = self.node_depth.corners(cell);
         let uvw = uvw.as_vec3();
         // Corner n's bit 0 is the lattice z, the light's axis: pairs (n, n + 1) are one ray.
-        let ray = |n: usize| along_ray(c[n], c[n + 1], rho[n], rho[n + 1], uvw.z);
+        let ray = |n: usize| along_ray(c[n], c[n + 1], rate[n], rate[n + 1], uvw.z);
         let lerp = |a: f32, b: f32, w: f32| a + (b - a) * w;
         let table = lerp(lerp(ray(0), ray(2), uvw.y), lerp(ray(4), ray(6), uvw.y), uvw.x);
         let weight = |n: usize| {
@@ -341,9 +341,9 @@ impl LightTablePlan {
         let mut node_depth = Volume::new(self.transform, 0.0f32);
         const ALL: [u64; 8] = [u64::MAX; 8];
         for (origin, values) in bricks {
-            let (t, rho) = values.split_at(BRICK_VOXELS);
+            let (t, rate) = values.split_at(BRICK_VOXELS);
             transmittance.insert_brick(origin, t, &ALL);
-            node_depth.insert_brick(origin, rho, &ALL);
+            node_depth.insert_brick(origin, rate, &ALL);
         }
         OpticalDepthVolume { transmittance, node_depth, opaque_depth, lattice: self.geometry.lattice }
     }
