@@ -99,6 +99,69 @@ fn hg_sample(g: f32, w_in: vec3<f32>, u: vec2<f32>) -> HgSample {
     return HgSample(w_out, hg_eval_sided(g, a.z, a.w));
 }
 
+// The phase function's lobes about the directions toward the lights at a collision, a
+// second way to reach the next collision's light (nimbus_optics::LightLobes: why; the same
+// bound GUIDED_LIGHTS). Shares are unnormalised (each light's luminance at the collision).
+const GUIDED_LIGHTS: u32 = 4u;
+
+struct LightLobes {
+    toward: array<vec3<f32>, 4>,
+    share: vec4<f32>,
+    count: u32,
+}
+
+fn light_lobes_none() -> LightLobes {
+    return LightLobes(array<vec3<f32>, 4>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0)), vec4<f32>(0.0), 0u);
+}
+
+// Rec. 709 luminance (nimbus_optics::luminance).
+fn luminance(c: vec3<f32>) -> f32 {
+    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z;
+}
+
+fn light_lobes_add(lobes: ptr<function, LightLobes>, toward: vec3<f32>, strength: f32) {
+    let n = (*lobes).count;
+    if (n < GUIDED_LIGHTS && strength > 0.0 && strength < 3.0e38) {
+        (*lobes).toward[n] = toward;
+        (*lobes).share[n] = strength;
+        (*lobes).count = n + 1u;
+    }
+}
+
+// The lobes' density for w (0 without lobes).
+fn light_lobes_pdf(g: f32, lobes_in: LightLobes, w: vec3<f32>) -> f32 {
+    var lobes = lobes_in;
+    let total = dot(lobes.share, vec4<f32>(1.0));
+    var pdf = 0.0;
+    for (var i = 0u; i < lobes.count; i = i + 1u) {
+        pdf = pdf + lobes.share[i] / total * hg_eval(g, dot(lobes.toward[i], w));
+    }
+    return pdf;
+}
+
+// A direction from the lobes (call only with lobes): pick in [0,1) the lobe, u the direction.
+fn light_lobes_sample(g: f32, lobes_in: LightLobes, pick: f32, u: vec2<f32>) -> vec3<f32> {
+    var lobes = lobes_in;
+    var rest = pick * dot(lobes.share, vec4<f32>(1.0));
+    var axis = lobes.toward[lobes.count - 1u];
+    for (var i = 0u; i < lobes.count; i = i + 1u) {
+        rest = rest - lobes.share[i];
+        if (rest < 0.0) {
+            axis = lobes.toward[i];
+            break;
+        }
+    }
+    return normalize(hg_sample(g, axis, u).w_out);
+}
+
+// The balance heuristic's weight of the phase-sampled flight along w from a collision whose
+// path travelled along w_in, against one probe from the lobes (the probe's: one less this).
+fn light_lobes_phase_weight(g: f32, lobes: LightLobes, w_in: vec3<f32>, w: vec3<f32>) -> f32 {
+    let phase = hg_eval(g, dot(w_in, w));
+    let sum = phase + light_lobes_pdf(g, lobes, w);
+    return select(0.0, phase / sum, sum > 0.0);
+}
+
 // ---------------------------------------------------------------------------------------
 // Sampling helpers
 

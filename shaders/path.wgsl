@@ -27,6 +27,8 @@
 const ROULETTE_FROM_DEPTH: u32 = 3u;
 // Ratio-tracking estimates below this go to Russian roulette (nimbus_tracking::RATIO_ROULETTE).
 const RATIO_ROULETTE: f32 = 0.05;
+// From this |g| on, each collision sends a probe toward the lights (nimbus_tracking::PROBE_FROM_G).
+const PROBE_FROM_G: f32 = 0.5;
 
 // One path's light, split by the collision it was scattered at: the first (single) and every
 // later one (multiple), and the medium's own emission (from every collision).
@@ -80,6 +82,38 @@ fn environment_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGrid
     return s.radiance * (tr * p * weight / s.pdf);
 }
 
+// The delta lights' next-event estimate at x toward w_out (nimbus_tracking's lights_nee):
+// each light's E p(w_light, w_out) T, T from the light's table where it has one and
+// ratio-tracked otherwise; a sun's disc takes one direction per estimate (no draw for
+// parallel light). With `add_lobes`, a lobe toward each light that lights x goes to `lobes`.
+fn lights_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo, light_count: u32, add_lobes: bool,
+              lobes: ptr<function, LightLobes>, rng: ptr<function, Rng>) -> vec3<f32> {
+    var direct = vec3<f32>(0.0);
+    for (var i = 0u; i < light_count; i = i + 1u) {
+        let light = path_light(i);
+        var inc = light_incident(light, x);
+        if (light.disc > 0.0) {
+            inc = light_incident_over_disc(light, x, rng_next_vec2(rng));
+        }
+        if (all(inc.irradiance == vec3<f32>(0.0))) {
+            continue;
+        }
+        if (add_lobes) {
+            light_lobes_add(lobes, inc.to_light, luminance(inc.irradiance));
+        }
+        let table = light_table_lookup(i, x);
+        var tr = table.x;
+        if (table.y > 0.0) {
+            tr = mix(table.x, track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
+                                                        min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng), table.y);
+        }
+        if (tr > 0.0) {
+            direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, w_out)));
+        }
+    }
+    return direct;
+}
+
 // The radiance arriving at `origin` from direction -dir, scattered in the medium, by one
 // path: delta-tracked free flights, albedo at each collision, next-event estimation toward
 // every light, its transmittance looked up where the light has a table and ratio-tracked
@@ -99,6 +133,11 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
     var beta = vec3<f32>(1.0);
     let kind = env_kind();
     var flight_pdf = first_pdf;
+    // Probes toward the lights where the phase function is peaked (nimbus_tracking::PROBE_FROM_G).
+    let probes = abs(m.g) >= PROBE_FROM_G;
+    var probed = false;
+    var probed_lobes = light_lobes_none();
+    var probed_w_in = vec3<f32>(0.0);
     for (var depth = 1u; depth <= max_depth; depth = depth + 1u) {
         let t = track_sample_delta(path_track_ray(x, w, m.extinction), grid, rng);
         if (t < 0.0) {
@@ -126,26 +165,11 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             }
         }
         beta = beta * m.albedo;
-        var direct = vec3<f32>(0.0);
-        for (var i = 0u; i < light_count; i = i + 1u) {
-            // A sun's disc: one direction over it per estimate (no draw for parallel light).
-            let light = path_light(i);
-            var inc = light_incident(light, x);
-            if (light.disc > 0.0) {
-                inc = light_incident_over_disc(light, x, rng_next_vec2(rng));
-            }
-            if (all(inc.irradiance == vec3<f32>(0.0))) {
-                continue;
-            }
-            let table = light_table_lookup(i, x);
-            var tr = table.x;
-            if (table.y > 0.0) {
-                tr = mix(table.x, track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
-                                                            min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng), table.y);
-            }
-            if (tr > 0.0) {
-                direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, -w)));
-            }
+        var lobes = light_lobes_none();
+        var direct = lights_nee(x, -w, m, grid, light_count, true, &lobes, rng);
+        // The previous collision's probe reached these lights' estimate too (LightLobes).
+        if (probed) {
+            direct = direct * light_lobes_phase_weight(m.g, probed_lobes, probed_w_in, w);
         }
         if (kind != 0u) {
             direct = direct + environment_nee(x, -w, m, grid, depth == max_depth, rng);
@@ -154,6 +178,20 @@ fn trace_path(origin: vec3<f32>, dir: vec3<f32>, m: Medium, grid: MajorantGridIn
             out.single = out.single + beta * direct;
         } else {
             out.multiple = out.multiple + beta * direct;
+        }
+        probed = false;
+        if (probes && depth < max_depth && lobes.count > 0u) {
+            let pick = rng_next_f32(rng);
+            let toward = light_lobes_sample(m.g, lobes, pick, rng_next_vec2(rng));
+            let tp = track_sample_delta(path_track_ray(x, toward, m.extinction), grid, rng);
+            if (tp >= 0.0) {
+                var none = light_lobes_none();
+                let seen = lights_nee(x + toward * tp, -toward, m, grid, light_count, false, &none, rng);
+                out.multiple = out.multiple + beta * m.albedo * seen * light_lobes_phase_weight(m.g, lobes, w, toward);
+            }
+            probed = true;
+            probed_lobes = lobes;
+            probed_w_in = w;
         }
         if (depth >= ROULETTE_FROM_DEPTH) {
             let q = max(beta.x, max(beta.y, beta.z));

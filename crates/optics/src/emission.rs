@@ -273,10 +273,7 @@ pub fn blackbody_rgb(t: f64) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn luminance(c: Vec3) -> f32 {
-        0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-    }
+    use crate::luminance;
 
     #[test]
     fn the_colour_of_6500_k_is_near_white() {

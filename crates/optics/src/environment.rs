@@ -120,9 +120,9 @@ pub fn power_heuristic(a: f32, b: f32) -> f32 {
     }
 }
 
-/// Rec. 709 luminance, the weight sampling follows.
+/// Rec. 709 luminance: the weight an environment's sampling and a path's light lobes follow.
 #[inline]
-fn luminance(c: Vec3) -> f32 {
+pub fn luminance(c: Vec3) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 

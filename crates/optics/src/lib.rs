@@ -58,13 +58,13 @@ mod rng;
 mod sampling;
 
 pub use emission::{blackbody_rgb, blackbody_table, Emission, EmissionError, GpuEmissionInfo};
-pub use environment::{power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample, GPU_ENVIRONMENT_HEADER};
+pub use environment::{luminance, power_heuristic, Distribution1D, Environment, EnvironmentError, EnvironmentMap, EnvironmentRecord, EnvironmentSample, GPU_ENVIRONMENT_HEADER};
 pub use camera::{Camera, CameraError, DEFAULT_FOV_DEG, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_PIXELS, MAX_SIDE};
 pub use gpu::{GpuCamera, GpuLight, GpuMedium, LIGHT_POINT, LIGHT_SUN};
 pub use light::{format_lights, parse_lights, Incident, Light, LightError};
 pub use medium::{Medium, MediumError};
 pub use params::ParseError;
-pub use phase::{HenyeyGreenstein, HG_G_MAX};
+pub use phase::{HenyeyGreenstein, LightLobes, GUIDED_LIGHTS, HG_G_MAX};
 pub use rng::{philox4x32_10, r2_point, split_u64, unit_f32, Rng, R2_STEP};
 pub use sampling::{orthonormal_basis, sample_uniform_disk_concentric, sample_uniform_sphere};
 

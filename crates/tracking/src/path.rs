@@ -3,7 +3,7 @@
 //! vdbcache's path-traced multiple scattering starts them at a cache voxel.
 
 use glam::{DVec3, Vec3};
-use nimbus_optics::{power_heuristic, Environment, HenyeyGreenstein, Light, Medium, Rng};
+use nimbus_optics::{luminance, power_heuristic, Environment, HenyeyGreenstein, Light, LightLobes, Medium, Rng};
 
 use crate::{DensityMedium, EmissionField, FreePath, MediumRay, Shadowing};
 
@@ -84,7 +84,10 @@ pub fn environment_nee(medium: DensityMedium, phase: HenyeyGreenstein, environme
 /// [`ROULETTE_FROM_DEPTH`]; at most `max_depth` collisions.
 ///
 /// Suns and points are delta lights: next-event estimation is the only way their light
-/// enters a path. A map (`sources.environment`) enters two ways, combined by the power
+/// enters a path. Where |g| >= [`PROBE_FROM_G`], each collision also sends one probe flight
+/// along a direction drawn from the phase function's lobes about the lights
+/// ([`LightLobes`]: why), which adds the lights' estimate at the probe's collision; that and
+/// the path's own estimate at its next collision are weighed by the balance heuristic. A map (`sources.environment`) enters two ways, combined by the power
 /// heuristic: [`environment_nee`] at each collision, and a phase-sampled flight that
 /// escapes, which adds the environment's radiance in its direction (see [`PathStart`] for
 /// the first flight); a uniform sky by escaping flights alone. At the last collision `max_depth` no flight follows, so its
@@ -114,6 +117,24 @@ pub fn trace_path(
     rng: &mut Rng,
     sources: PathSources,
 ) -> PathLight {
+    trace_path_probing(medium, optics, lights, shadowing, origin, dir, start, max_depth, rng, sources, optics.phase().g.abs() >= PROBE_FROM_G)
+}
+
+/// [`trace_path`], with probes toward the lights at each collision or without.
+#[allow(clippy::too_many_arguments)]
+fn trace_path_probing(
+    medium: DensityMedium,
+    optics: &Medium,
+    lights: &[Light],
+    shadowing: Shadowing,
+    origin: DVec3,
+    dir: DVec3,
+    start: PathStart,
+    max_depth: u32,
+    rng: &mut Rng,
+    sources: PathSources,
+    probes: bool,
+) -> PathLight {
     let phase = optics.phase();
     let environment = sources.environment.filter(|e| !e.is_black());
     let mut light = PathLight::default();
@@ -124,6 +145,7 @@ pub fn trace_path(
         PathStart::Camera => None,
         PathStart::Scattered { w_in } => Some(phase.pdf(w_in, dir.as_vec3())),
     };
+    let mut probed: Option<(LightLobes, Vec3)> = None;
     for depth in 1..=max_depth {
         let FreePath::Interaction(t) = MediumRay::new(medium, x, w, 0.0, f64::INFINITY).sample_delta(rng) else {
             if let (Some(env), Some(pdf)) = (environment, flight_pdf) {
@@ -149,22 +171,11 @@ pub fn trace_path(
         }
         beta *= optics.albedo;
         let w_out = -w.as_vec3();
-        let mut direct = Vec3::ZERO;
-        for (index, l) in lights.iter().enumerate() {
-            // A sun's disc: one direction over it per estimate (no draw for parallel light,
-            // so its paths keep their random numbers).
-            let incident = if l.has_disc() { l.incident_over_disc(x, rng.next_vec2()) } else { l.incident(x) };
-            if incident.irradiance == Vec3::ZERO {
-                continue;
-            }
-            let mut ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
-            let tr = match shadowing {
-                Shadowing::Tabled(depths) => depths.transmittance(index, x, ray),
-                Shadowing::RatioTracked => ray(),
-            } as f32;
-            if tr > 0.0 {
-                direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
-            }
+        let mut lobes = LightLobes::new(phase);
+        let mut direct = lights_nee(medium, phase, lights, shadowing, x, w_out, Some(&mut lobes), rng);
+        // The previous collision's probe reached these lights' estimate too (LightLobes).
+        if let Some((before, w_in)) = &probed {
+            direct *= before.phase_weight(*w_in, w.as_vec3());
         }
         if let Some(env) = environment {
             direct += environment_nee(medium, phase, env, x, w_out, depth == max_depth, rng);
@@ -173,6 +184,19 @@ pub fn trace_path(
             light.single += beta * direct;
         } else {
             light.multiple += beta * direct;
+        }
+        probed = None;
+        if probes && depth < max_depth && lobes.count() > 0 {
+            let toward = lobes.sample(rng.next_f32(), rng.next_vec2());
+            let w_in = w.as_vec3();
+            if let FreePath::Interaction(t) = MediumRay::new(medium, x, toward.as_dvec3(), 0.0, f64::INFINITY).sample_delta(rng) {
+                let y = x + toward.as_dvec3() * t;
+                // phase / lobes (the draw's density) times the probe's balance weight,
+                // lobes / (phase + lobes): the phase-sampled flight's weight.
+                let weight = lobes.phase_weight(w_in, toward);
+                light.multiple += beta * optics.albedo * lights_nee(medium, phase, lights, shadowing, y, -toward, None, rng) * weight;
+            }
+            probed = Some((lobes, w_in));
         }
         if depth >= ROULETTE_FROM_DEPTH {
             let q = beta.max_element();
@@ -191,4 +215,95 @@ pub fn trace_path(
         flight_pdf = Some(pdf);
     }
     light
+}
+
+/// From this |g| on, each collision of a path sends a probe toward the lights ([`LightLobes`]).
+/// Measured (vdbcache at 160 x 90, seed-to-seed noise against whole-run CPU time, 2026-12-03):
+/// efficiency 1.5x at g 0.9, 1.2-1.4x at g 0.6, 0.87-0.91x at g 0.3, where the lobes are
+/// broad and the phase function's own flights already find the lights.
+pub const PROBE_FROM_G: f32 = 0.5;
+
+
+/// The delta lights' next-event estimate at `x` toward `w_out`: each light's
+/// `E p(w_light, w_out) T`, T as `shadowing` finds it (ratio tracking, or the light's tabled
+/// optical depth); a sun's disc takes one direction over it per estimate (no draw for
+/// parallel light, so its paths keep their random numbers). `lobes`, when given, takes a lobe
+/// toward each light that lights `x`.
+#[allow(clippy::too_many_arguments)]
+fn lights_nee(medium: DensityMedium, phase: HenyeyGreenstein, lights: &[Light], shadowing: Shadowing, x: DVec3, w_out: Vec3, mut lobes: Option<&mut LightLobes>, rng: &mut Rng) -> Vec3 {
+    let mut direct = Vec3::ZERO;
+    for (index, l) in lights.iter().enumerate() {
+        let incident = if l.has_disc() { l.incident_over_disc(x, rng.next_vec2()) } else { l.incident(x) };
+        if incident.irradiance == Vec3::ZERO {
+            continue;
+        }
+        if let Some(lobes) = lobes.as_deref_mut() {
+            lobes.add(incident.to_light, luminance(incident.irradiance));
+        }
+        let mut ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
+        let tr = match shadowing {
+            Shadowing::Tabled(depths) => depths.transmittance(index, x, ray),
+            Shadowing::RatioTracked => ray(),
+        } as f32;
+        if tr > 0.0 {
+            direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
+        }
+    }
+    direct
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::IVec3;
+    use nimbus_volume::{MajorantGrid, Transform, Volume};
+
+    /// A ball of unit density, radius 1, on 0.1 voxels, lit by a sun from behind the eye: a
+    /// strongly forward-scattering medium seen from the side the light enters.
+    fn ball() -> Volume<f32> {
+        let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0);
+        for i in -11..=11 {
+            for j in -11..=11 {
+                for k in -11..=11 {
+                    let p = IVec3::new(i, j, k);
+                    if (p.as_dvec3() * 0.1).length() <= 1.0 {
+                        v.set(p, 1.0);
+                    }
+                }
+            }
+        }
+        v
+    }
+
+    /// Mean and variance of the paths' total light (luminance) from the eye into the ball.
+    fn paths(probes: bool, n: u64) -> (f64, f64) {
+        let v = ball();
+        let majorant = MajorantGrid::build(&v);
+        let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 3.0 };
+        let optics = Medium { extinction: 3.0, albedo: Vec3::splat(0.95), g: 0.9 };
+        // The sun travels nearly along the eye's rays: the light must turn round to be seen.
+        let lights = [Light::sun(Vec3::new(0.2, 1.0, -0.1).normalize(), Vec3::ONE).unwrap()];
+        let origin = DVec3::new(0.0, -3.0, 0.0);
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for i in 0..n {
+            let mut rng = Rng::new(11, i);
+            let dir = (DVec3::new(0.1 * (rng.next_f64() - 0.5), 3.0, 0.1 * (rng.next_f64() - 0.5)) - DVec3::ZERO).normalize();
+            let l = trace_path_probing(medium, &optics, &lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, 64, &mut rng, PathSources::default(), probes);
+            let y = luminance(l.total()) as f64;
+            sum += y;
+            sum2 += y * y;
+        }
+        let mean = sum / n as f64;
+        (mean, sum2 / n as f64 - mean * mean)
+    }
+
+    #[test]
+    fn probes_toward_the_lights_keep_the_mean_and_cut_the_variance_of_a_forward_scattering_medium() {
+        let n = 40_000;
+        let (plain, plain_var) = paths(false, n);
+        let (probed, probed_var) = paths(true, n);
+        let sigma = ((plain_var + probed_var) / n as f64).sqrt();
+        assert!((plain - probed).abs() < 4.0 * sigma, "means {plain} and {probed} differ by more than 4 sigma ({sigma})");
+        assert!(probed_var < 0.7 * plain_var, "variance with probes {probed_var}, without {plain_var}");
+    }
 }
