@@ -119,9 +119,21 @@ fn error_halves_when_paths_quadruple_and_renders_repeat() {
 
 #[test]
 fn gpu_and_cpu_agree_in_distribution() {
+    gpu_and_cpu_agree_at(0.3);
+}
+
+/// Where |g| >= PROBE_FROM_G both backends send a probe toward the lights at each collision
+/// (nimbus_tracking::trace_path): the WGSL twin must draw the same streams in the same order.
+#[test]
+fn gpu_and_cpu_agree_in_distribution_with_probes_toward_the_lights() {
+    assert!(0.8 >= nimbus_tracking::PROBE_FROM_G);
+    gpu_and_cpu_agree_at(0.8);
+}
+
+fn gpu_and_cpu_agree_at(g: f32) {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
     let density = ball();
-    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.85, 0.8), g: 0.3 };
+    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.85, 0.8), g };
     let camera = Camera::new(DVec3::new(0.1, -3.0, 0.4), DVec3::ZERO, DVec3::Z, 20.0, 12, 9).unwrap();
     let lights = vec![
         Light::sun(Vec3::new(-0.3, 0.5, -0.8).normalize(), Vec3::splat(2.0)).unwrap(),
