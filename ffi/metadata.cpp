@@ -5,6 +5,21 @@
 
 using namespace nimbus_bridge;
 
+namespace {
+
+// Where `m` is an M: its kind in `out`, and its value through `store`.
+template <class M, class Store>
+bool read_as(const vdb::Metadata& m, nimbus_meta_kind kind, nimbus_meta_value* out, Store store)
+{
+    const M* typed = dynamic_cast<const M*>(&m);
+    if (!typed) return false;
+    out->kind = kind;
+    store(typed->value());
+    return true;
+}
+
+} // namespace
+
 extern "C" {
 
 // ---- metadata -------------------------------------------------------------------------
@@ -43,35 +58,19 @@ int nimbus_meta_get(const nimbus_meta* meta, size_t index, nimbus_meta_value* ou
         out->name = it->first.c_str();
         out->type_name = m.typeName().c_str();
         out->kind = NIMBUS_META_UNKNOWN;
-        if (auto s = dynamic_cast<const vdb::StringMetadata*>(&m)) {
-            out->kind = NIMBUS_META_STRING;
-            out->str = s->value().data();
-            out->str_len = s->value().size();
-        } else if (auto b = dynamic_cast<const vdb::BoolMetadata*>(&m)) {
-            out->kind = NIMBUS_META_BOOL;
-            out->i = b->value() ? 1 : 0;
-        } else if (auto i32 = dynamic_cast<const vdb::Int32Metadata*>(&m)) {
-            out->kind = NIMBUS_META_I32;
-            out->i = i32->value();
-        } else if (auto i64 = dynamic_cast<const vdb::Int64Metadata*>(&m)) {
-            out->kind = NIMBUS_META_I64;
-            out->i = i64->value();
-        } else if (auto f32 = dynamic_cast<const vdb::FloatMetadata*>(&m)) {
-            out->kind = NIMBUS_META_F32;
-            out->f = f32->value();
-        } else if (auto f64 = dynamic_cast<const vdb::DoubleMetadata*>(&m)) {
-            out->kind = NIMBUS_META_F64;
-            out->f = f64->value();
-        } else if (auto v3i = dynamic_cast<const vdb::Vec3IMetadata*>(&m)) {
-            out->kind = NIMBUS_META_VEC3I;
-            for (int c = 0; c < 3; ++c) out->v[c] = v3i->value()[c];
-        } else if (auto v3f = dynamic_cast<const vdb::Vec3SMetadata*>(&m)) {
-            out->kind = NIMBUS_META_VEC3F;
-            for (int c = 0; c < 3; ++c) out->v[c] = v3f->value()[c];
-        } else if (auto v3d = dynamic_cast<const vdb::Vec3DMetadata*>(&m)) {
-            out->kind = NIMBUS_META_VEC3D;
-            for (int c = 0; c < 3; ++c) out->v[c] = v3d->value()[c];
-        }
+        auto integer = [&](auto x) { out->i = int64_t(x); };
+        auto real = [&](auto x) { out->f = double(x); };
+        auto vec3 = [&](const auto& x) { for (int c = 0; c < 3; ++c) out->v[c] = double(x[c]); };
+        auto string = [&](const std::string& s) { out->str = s.data(); out->str_len = s.size(); };
+        (void)(read_as<vdb::StringMetadata>(m, NIMBUS_META_STRING, out, string)
+            || read_as<vdb::BoolMetadata>(m, NIMBUS_META_BOOL, out, integer)
+            || read_as<vdb::Int32Metadata>(m, NIMBUS_META_I32, out, integer)
+            || read_as<vdb::Int64Metadata>(m, NIMBUS_META_I64, out, integer)
+            || read_as<vdb::FloatMetadata>(m, NIMBUS_META_F32, out, real)
+            || read_as<vdb::DoubleMetadata>(m, NIMBUS_META_F64, out, real)
+            || read_as<vdb::Vec3IMetadata>(m, NIMBUS_META_VEC3I, out, vec3)
+            || read_as<vdb::Vec3SMetadata>(m, NIMBUS_META_VEC3F, out, vec3)
+            || read_as<vdb::Vec3DMetadata>(m, NIMBUS_META_VEC3D, out, vec3));
     });
 }
 

@@ -39,6 +39,18 @@ void copy_attribute(const PointDataGrid& grid, size_t pos, float* out, size_t co
     if (i != count) fail(grid_label(grid) + ": fewer points than the caller expected");
 }
 
+// What a read of `count` values of the points' `what` (attribute, group) `name` into `out`
+// starts from: the arguments checked, the points grid, and the read's label for its errors.
+std::pair<const PointDataGrid&, std::string> points_read(const nimbus_grid* grid, const std::string& what, const char* name,
+    const void* out, size_t count)
+{
+    require(grid, "grid");
+    require(name, (what + " name").c_str());
+    if (!out && count) fail("null output");
+    const PointDataGrid& points = as_points(*grid->grid);
+    return {points, grid_label(points) + " " + what + " '" + name + "'"};
+}
+
 } // namespace
 
 extern "C" {
@@ -167,11 +179,7 @@ int nimbus_points_read_attribute(const nimbus_grid* grid, const char* name, nimb
     float* out, size_t count)
 {
     return guarded([&] {
-        require(grid, "grid");
-        require(name, "attribute name");
-        if (!out && count) fail("null output");
-        const PointDataGrid& points = as_points(*grid->grid);
-        const std::string label = grid_label(points) + " attribute '" + name + "'";
+        const auto [points, label] = points_read(grid, "attribute", name, out, count);
         auto leaf = points.tree().cbeginLeaf();
         if (!leaf) {
             if (count) fail(label + ": the grid has no points");
@@ -210,11 +218,7 @@ int nimbus_points_group_names(const nimbus_grid* grid, char** names)
 int nimbus_points_read_group(const nimbus_grid* grid, const char* name, uint8_t* out, size_t count)
 {
     return guarded([&] {
-        require(grid, "grid");
-        require(name, "group name");
-        if (!out && count) fail("null output");
-        const PointDataGrid& points = as_points(*grid->grid);
-        const std::string label = grid_label(points) + " group '" + name + "'";
+        const auto [points, label] = points_read(grid, "group", name, out, count);
         size_t i = 0;
         for (auto leaf = points.tree().cbeginLeaf(); leaf; ++leaf) {
             if (!leaf->attributeSet().descriptor().hasGroup(name)) fail(label + " does not exist");

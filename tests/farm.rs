@@ -11,44 +11,14 @@ use std::time::{Duration, Instant};
 
 mod common;
 
-use common::{bin, read_rgba, run, write_ball};
+use common::{bin, read_rgba, root_or_skip, run, write_ball, RENDER};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn root_or_skip(what: &str) -> bool {
-    let uid = String::from_utf8(Command::new("id").arg("-u").output().unwrap().stdout).unwrap();
-    if uid.trim() == "0" {
-        return true;
-    }
-    if std::env::var("NIMBUS_SKIP_ROOT_TESTS").as_deref() == Ok("1") {
-        eprintln!("SKIPPED {what}: not root and NIMBUS_SKIP_ROOT_TESTS=1");
-        return false;
-    }
-    panic!("{what} needs root (make test runs as root on CI); set NIMBUS_SKIP_ROOT_TESTS=1 to skip it");
-}
-
-
-
-/// Small and quick: 32x24 draft frames of a ball on a 16-voxel grid.
-const RENDER: &[&str] = &[
-    "--sun",
-    "dir=0.3,0.2,-1,irradiance=3",
-    "--eye",
-    "0,-6,1",
-    "--look-at",
-    "0,0,0",
-    "--width",
-    "32",
-    "--height",
-    "24",
-    "--quality",
-    "draft",
-    "--particles2vdb",
-    "--resolution 16 --neighbours 16",
-    "-q",
-];
+/// Small and quick frames (common::RENDER), quietly.
+const QUIET: &str = "-q";
 
 /// The cluster, stopped however the test ends.
 struct Cluster {
@@ -115,6 +85,7 @@ fn submit(cluster: &Cluster, dir: &Path, out_dir: &str, frames: &str, chunk: &st
         .env("NIMBUS_RENDER", bin("nimbus-render"))
         .args(["p.$F4.ply", "-o", &format!("{out_dir}/i.$F4.exr"), "--frames", frames, "--chunk", chunk, "--max-running", max_running, "--log-dir", "logs", "--"])
         .args(RENDER)
+        .arg(QUIET)
         .args(extra));
     let job = String::from_utf8_lossy(&out.stdout).trim().to_string();
     assert!(!job.is_empty() && job.chars().all(|c| c.is_ascii_digit()), "sbatch --parsable printed the job id: '{job}'");
@@ -147,7 +118,7 @@ fn slurm_renders_a_sequence_and_a_cancelled_task_costs_no_frame() {
     assert_eq!(cluster.states(&job), ["COMPLETED"; 3], "logs: {:?}", files(&dir.join("logs")));
     assert_eq!(files(&dir.join("frames")), ["i.0001.exr", "i.0002.exr", "i.0003.exr"]);
     // The farm's frame is the one a local run renders.
-    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "2"]).args(RENDER));
+    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "2"]).args(RENDER).arg(QUIET));
     assert_eq!(std::fs::read(dir.join("frames/i.0002.exr")).unwrap(), std::fs::read(dir.join("local/i.0002.exr")).unwrap());
     for f in 1..=3 {
         assert!(read_rgba(&dir.join(format!("frames/i.{f:04}.exr"))).iter().any(|p| p[3] > 0.05), "frame {f} shows the ball");
@@ -209,7 +180,7 @@ fn the_openjd_template_renders_a_sequence_in_chunks() {
     for f in 1..=3 {
         write_ball(&dir.join(format!("p.{f:04}.ply")), 1200, 0.2 * f as f64);
     }
-    let extra = RENDER.iter().map(|w| format!("'{w}'")).collect::<Vec<_>>().join(" ");
+    let extra = RENDER.iter().chain(&[QUIET]).map(|w| format!("'{w}'")).collect::<Vec<_>>().join(" ");
     let out = run(Command::new(&openjd).current_dir(&dir).arg("run").arg(&template).args(["--step", "Render"]).args([
         "-p".to_string(),
         "Input=p.$F4.ply".into(),
@@ -229,7 +200,7 @@ fn the_openjd_template_renders_a_sequence_in_chunks() {
     let report = String::from_utf8_lossy(&out.stdout);
     assert!(report.contains("Chunks run: 2"), "frames 1-2 and 3: {report}");
     assert_eq!(files(&dir.join("frames")), ["i.0001.exr", "i.0002.exr", "i.0003.exr"], "{report}");
-    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "3"]).args(RENDER));
+    run(Command::new(bin("nimbus-render")).current_dir(&dir).args(["p.####.ply", "-o", "local/i.####.exr", "--frame", "3"]).args(RENDER).arg(QUIET));
     assert_eq!(std::fs::read(dir.join("frames/i.0003.exr")).unwrap(), std::fs::read(dir.join("local/i.0003.exr")).unwrap());
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -8,7 +8,7 @@ use std::process::{Command, Output};
 
 mod common;
 
-use common::{bin, read_rgba, run, write_ball};
+use common::{bin, read_rgba, root_or_skip, run, write_ball, RENDER, SUN};
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch("seq", name)
@@ -16,7 +16,6 @@ fn scratch(name: &str) -> PathBuf {
 
 
 const P2V: &[&str] = &["--resolution", "16", "--neighbours", "16"];
-const SUN: &str = "dir=0.3,0.2,-1,irradiance=3";
 const CACHE: &[&str] = &["--width", "32", "--height", "24", "--quality", "draft", "--sun", SUN, "--eye", "0,-6,1", "--look-at", "0,0,0"];
 const MARCH: &[&str] = &["--quality", "draft"];
 
@@ -145,23 +144,6 @@ fn by_hand(dir: &Path, ply: &Path, name: &str) -> Vec<u8> {
     std::fs::read(e).unwrap()
 }
 
-/// nimbus-render's flags for the chain `by_hand` runs: the shared ones once, the rest per tool.
-const RENDER: &[&str] = &[
-    "--sun",
-    SUN,
-    "--eye",
-    "0,-6,1",
-    "--look-at",
-    "0,0,0",
-    "--width",
-    "32",
-    "--height",
-    "24",
-    "--quality",
-    "draft",
-    "--particles2vdb",
-    "--resolution 16 --neighbours 16",
-];
 
 #[test]
 fn nimbus_render_runs_the_chain_over_a_sequence() {
@@ -284,20 +266,6 @@ fn a_static_volume_gives_identical_frames_and_reruns_are_bit_identical() {
     run(tool("nimbus-render", &dir).args(["p.####.ply", "-o", "plain/i.####.exr", "--frame", "1", "-q", "--vdbcache", "--paths 8", "--vdbmarch", "--spp 2"]).args(RENDER));
     assert_ne!(read_rgba(&dir.join("plain/i.0001.exr")), read_rgba(&dir.join("s/i.0001.exr")));
     std::fs::remove_dir_all(&dir).ok();
-}
-
-/// Whether the root-only tests may run: as root yes; otherwise they fail, unless
-/// NIMBUS_SKIP_ROOT_TESTS=1 says to skip them.
-pub fn root_or_skip(what: &str) -> bool {
-    let uid = String::from_utf8(Command::new("id").arg("-u").output().unwrap().stdout).unwrap();
-    if uid.trim() == "0" {
-        return true;
-    }
-    if std::env::var("NIMBUS_SKIP_ROOT_TESTS").as_deref() == Ok("1") {
-        eprintln!("SKIPPED {what}: not root and NIMBUS_SKIP_ROOT_TESTS=1");
-        return false;
-    }
-    panic!("{what} needs root (make test runs as root on CI); set NIMBUS_SKIP_ROOT_TESTS=1 to skip it");
 }
 
 /// Unmounts the test's tmpfs however the test ends.

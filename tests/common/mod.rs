@@ -6,6 +6,28 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+/// A sun for the small scenes.
+pub const SUN: &str = "dir=0.3,0.2,-1,irradiance=3";
+
+/// nimbus-render's flags for small and quick frames, 32x24 drafts of a ball on a 16-voxel
+/// grid: the shared flags once (the first 12 words), particles2vdb's through its own flag.
+pub const RENDER: &[&str] = &[
+    "--sun",
+    SUN,
+    "--eye",
+    "0,-6,1",
+    "--look-at",
+    "0,0,0",
+    "--width",
+    "32",
+    "--height",
+    "24",
+    "--quality",
+    "draft",
+    "--particles2vdb",
+    "--resolution 16 --neighbours 16",
+];
+
 /// The built binary of one of the four tools, or of nimbus-render.
 pub fn bin(name: &str) -> PathBuf {
     match name {
@@ -141,4 +163,18 @@ pub fn write_points_ply(path: &Path, points: impl ExactSizeIterator<Item = [f64;
 pub fn write_ball(path: &Path, n: usize, shift: f64) {
     let mut rng = Lcg::new(11);
     write_points_ply(path, (0..n).map(|_| rng.in_unit_ball()).map(|p| [p[0] + shift, p[1], p[2]]));
+}
+
+/// Whether the root-only tests may run: as root yes; otherwise they fail, unless
+/// NIMBUS_SKIP_ROOT_TESTS=1 says to skip them.
+pub fn root_or_skip(what: &str) -> bool {
+    let uid = String::from_utf8(Command::new("id").arg("-u").output().unwrap().stdout).unwrap();
+    if uid.trim() == "0" {
+        return true;
+    }
+    if std::env::var("NIMBUS_SKIP_ROOT_TESTS").as_deref() == Ok("1") {
+        eprintln!("SKIPPED {what}: not root and NIMBUS_SKIP_ROOT_TESTS=1");
+        return false;
+    }
+    panic!("{what} needs root (make test runs as root on CI); set NIMBUS_SKIP_ROOT_TESTS=1 to skip it");
 }

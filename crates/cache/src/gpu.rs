@@ -225,6 +225,17 @@ enum Kernel<'a> {
     Paths(&'a PathPlan),
 }
 
+impl Kernel<'_> {
+    /// The progress task's name, the CPU's.
+    fn name(self) -> &'static str {
+        match self {
+            Kernel::Single => "single scattering",
+            Kernel::Photons => "photon gather",
+            Kernel::Paths(_) => "paths",
+        }
+    }
+}
+
 /// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
 /// enough that lavapipe's loop limit (see cache.wgsl) is far off for ordinary media.
 const PATHS_PER_DISPATCH: u32 = 4;
@@ -413,6 +424,31 @@ impl<'a> GpuBaker<'a> {
             }
         };
         let rngs = ctx.storage_buffer_zeroed("cache path rngs", rng_bytes)?;
+        // Progress in the CPU's units: voxels, or for the paths the paths traced (up to
+        // PATHS_PER_DISPATCH a voxel a `bake_paths` pass).
+        let done = |entry: &str, first_path: u32, range: std::ops::Range<usize>| -> u64 {
+            match kernel {
+                Kernel::Paths(paths) if entry == "bake_paths" => {
+                    paths.counts[range].iter().map(|&c| u64::from(c.saturating_sub(first_path).min(PATHS_PER_DISPATCH))).sum()
+                }
+                Kernel::Paths(_) => 0,
+                _ => range.len() as u64,
+            }
+        };
+        let total = match kernel {
+            Kernel::Paths(paths) => paths.counts.iter().map(|&c| u64::from(c)).sum(),
+            _ => voxels,
+        };
+        let task = nimbus_progress::task(kernel.name(), total);
+        // Heard, the host waits for the GPU about STEPS times a kernel, as the work done
+        // reaches each step; the paths' passes are steps enough, the one-pass kernels go in
+        // smaller dispatches.
+        let every = total.div_ceil(nimbus_progress::STEPS).max(1);
+        let mut pending = 0;
+        let chunk = match kernel {
+            Kernel::Paths(_) => CHUNK,
+            _ => nimbus_progress::step_size(voxels, CHUNK, u64::from(WORKGROUP_SIZE)),
+        };
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
         for &(entry, first_path) in &passes {
             if !pipelines.iter().any(|(e, _)| *e == entry) {
@@ -421,7 +457,7 @@ impl<'a> GpuBaker<'a> {
             let pipeline = &pipelines.iter().find(|(e, _)| *e == entry).expect("compiled above").1;
             let mut first = 0;
             while first < voxels {
-                let count = (voxels - first).min(CHUNK);
+                let count = (voxels - first).min(chunk);
                 let dispatch = GpuCacheParams { first: first as u32, count: count as u32, first_path, ..uniforms };
                 let uniform_buffer = ctx.uniform_buffer("cache params", &dispatch)?;
                 let [lights, starts, sorted] = &self.buffers;
@@ -432,11 +468,18 @@ impl<'a> GpuBaker<'a> {
                     &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment],
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
+                pending += done(entry, first_path, first as usize..(first + count) as usize);
+                if task.shown() && pending >= every {
+                    ctx.wait()?;
+                    task.advance(std::mem::take(&mut pending));
+                }
                 first += count;
             }
         }
         self.guard.check(ctx, work, remedy)?;
-        ctx.read_buffer(&out)
+        let values = ctx.read_buffer(&out)?;
+        task.advance(pending);
+        Ok(values)
     }
 }
 

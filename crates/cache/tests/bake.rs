@@ -1,43 +1,15 @@
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, MultipleEstimator, ShadowMode, LightLattice};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, MultipleEstimator};
 use nimbus_optics::{Camera, HenyeyGreenstein, Light, Medium};
 use nimbus_photon::PhotonMap;
-use nimbus_volume::{Transform, Volume};
+use nimbus_volume::Volume;
 
-const VOXEL: f64 = 0.1;
+mod support;
 
-/// Constant density on the index box [lo, hi].
-fn block(lo: IVec3, hi: IVec3, value: impl Fn(IVec3) -> f32) -> Volume<f32> {
-    let mut v = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), 0.0);
-    for x in lo.x..=hi.x {
-        for y in lo.y..=hi.y {
-            for z in lo.z..=hi.z {
-                let c = IVec3::new(x, y, z);
-                v.set(c, value(c));
-            }
-        }
-    }
-    v
-}
+use support::{block, VOXEL};
 
 fn params(camera: Camera) -> CacheParams {
-    CacheParams {
-        environment: None,
-        medium: Medium { extinction: 3.0, albedo: Vec3::splat(0.8), g: 0.3 },
-        lights: vec![Light::sun(Vec3::NEG_Z, Vec3::new(1.0, 2.0, 3.0)).unwrap()],
-        camera,
-        step: 0.25,
-        cache_scale: 1.0,
-        single_tolerance: None,
-        multiple_scale: None,
-        single: true,
-        multiple: false,
-        gather: Gather::Neighbours { k: 32, max_radius: 1.0 },
-        estimator: MultipleEstimator::Photons,
-        seed: 0,
-        min_transmittance: 0.0,
-        shadows: ShadowMode::Table(LightLattice::default()),
-    }
+    support::params(Medium { extinction: 3.0, albedo: Vec3::splat(0.8), g: 0.3 }, vec![Light::sun(Vec3::NEG_Z, Vec3::new(1.0, 2.0, 3.0)).unwrap()], camera)
 }
 
 fn side_camera(v: &Volume<f32>) -> Camera {

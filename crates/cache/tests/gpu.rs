@@ -3,10 +3,12 @@
 //! both single scattering and the paths' next-event estimation.
 
 use glam::{DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode};
+use nimbus_cache::{bake_cpu, bake_gpu, CacheParams, Gather, IlluminationCache, MultipleEstimator, ShadowMode};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::{trace_cpu, PhotonMap, PhotonParams};
 use nimbus_volume::{Transform, Volume};
+
+mod support;
 
 /// A lumpy ball, 25 voxels across, at a large world offset (f32 positions stay relative).
 fn lumpy_ball() -> Volume<f32> {
@@ -29,25 +31,32 @@ fn lumpy_ball() -> Volume<f32> {
 fn params(v: &Volume<f32>) -> CacheParams {
     let (lo, hi) = v.world_bounds().unwrap();
     let centre = 0.5 * (lo + hi);
+    let lights = vec![
+        Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),
+        Light::point(centre + DVec3::new(0.3, -2.0, 1.5), Vec3::splat(2.0)).unwrap(),
+    ];
+    let medium = Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.3 };
     CacheParams {
-        environment: None,
-        medium: Medium { extinction: 3.0, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.3 },
-        lights: vec![
-            Light::sun(Vec3::new(0.3, 0.2, -1.0).normalize(), Vec3::new(1.0, 2.0, 3.0)).unwrap(),
-            Light::point(centre + DVec3::new(0.3, -2.0, 1.5), Vec3::splat(2.0)).unwrap(),
-        ],
-        camera: Camera::default_for_bounds(lo, hi).unwrap(),
         step: 0.5,
         cache_scale: 1.5,
-        single_tolerance: None,
-        multiple_scale: None,
-        single: true,
         multiple: true,
         gather: Gather::Neighbours { k: 32, max_radius: 0.6 },
-        estimator: MultipleEstimator::Photons,
-        seed: 0,
         min_transmittance: 1e-4,
-        shadows: ShadowMode::Table(LightLattice::default()),
+        ..support::params(medium, lights, Camera::default_for_bounds(lo, hi).unwrap())
+    }
+}
+
+/// Li_multiple alone, by 8 paths a voxel on its own, coarser lattice (the voxel count stays
+/// small for lavapipe), from the random streams of `seed`; no photons at all: paths need none.
+fn paths_only(v: &Volume<f32>, seed: u64) -> CacheParams {
+    CacheParams {
+        single: false,
+        cache_scale: 1.5,
+        single_tolerance: None,
+        multiple_scale: Some(2.5),
+        estimator: MultipleEstimator::Paths { per_voxel: 8 },
+        seed,
+        ..params(v)
     }
 }
 
@@ -98,6 +107,14 @@ fn assert_single_agrees(cpu: &IlluminationCache, gpu: &IlluminationCache, what: 
     assert!(worst <= 1e-5 * peak, "single scattering ({what}): worst {worst} of peak {peak}");
 }
 
+/// Li_multiple of the photon gather on both backends: the same photons, values to 1e-4.
+fn assert_multiple_agrees(cpu: &IlluminationCache, gpu: &IlluminationCache, what: &str) {
+    let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
+    eprintln!("multiple ({what}): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
+    assert!(peak > 0.0);
+    assert!(worst <= 1e-4 * peak, "multiple scattering ({what}): worst {worst} of peak {peak}");
+}
+
 /// The transmittance grids of both backends: one for each of the `tabled` lights, the same
 /// voxels, and values to 1e-5 of the transmittance itself (f32 sums of the tables' optical
 /// depth; measured 2e-6) over the voxels above 1e-3, of which there must be `min_lit`, a
@@ -139,10 +156,7 @@ fn single_and_multiple_scattering_agree_with_the_cpu() {
     assert_single_agrees(&cpu, &gpu, "the sun tabled, the point light by shadow rays");
     // The sun's, not the point light's.
     assert_transmittance_agrees(&cpu, &gpu, &[0], 3000);
-    let (worst, peak, n) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
-    eprintln!("multiple (k nearest): {n} voxels, worst {worst:.3e} of peak {peak:.3e}");
-    assert!(peak > 0.0);
-    assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+    assert_multiple_agrees(&cpu, &gpu, "k nearest");
 }
 
 /// Shadow rays instead of tables (`--shadows rays`): composite Simpson on both backends, and
@@ -181,10 +195,7 @@ fn a_fixed_radius_gather_agrees_with_the_cpu() {
     let map = photons(&v, &p);
     let Some((cpu, gpu)) = both(&v, &map, &p) else { return };
     assert!(cpu.li_single.is_none() && gpu.li_single.is_none());
-    let (worst, peak, _) = compare(cpu.li_multiple.as_ref().unwrap(), gpu.li_multiple.as_ref().unwrap());
-    eprintln!("multiple (radius): worst {worst:.3e} of peak {peak:.3e}");
-    assert!(peak > 0.0);
-    assert!(worst <= 1e-4 * peak, "multiple scattering: worst {worst} of peak {peak}");
+    assert_multiple_agrees(&cpu, &gpu, "radius");
 }
 
 #[test]
@@ -203,14 +214,7 @@ fn too_many_neighbours_is_an_error_not_a_panic() {
 #[test]
 fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
-    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
-    for x in -3..3 {
-        for y in -3..3 {
-            for z in -3..3 {
-                v.set(IVec3::new(x, y, z), 2.0);
-            }
-        }
-    }
+    let v = support::block(IVec3::splat(-3), IVec3::splat(2), |_| 2.0);
     let n = 70_000;
     let mut rng = 12345u64;
     let mut next = move || {
@@ -286,17 +290,7 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
     let v = lumpy_ball();
     let per_voxel = 8;
-    // Li_multiple on its own, coarser lattice (the voxel count stays small for lavapipe);
-    // no photons at all: paths need none.
-    let p = CacheParams {
-        single: false,
-        cache_scale: 1.5,
-        single_tolerance: None,
-        multiple_scale: Some(2.5),
-        estimator: MultipleEstimator::Paths { per_voxel },
-        seed: 5,
-        ..params(&v)
-    };
+    let p = paths_only(&v, 5);
     let none = PhotonMap::default();
     let (cpu, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
     let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
@@ -332,17 +326,7 @@ fn the_environment_in_the_paths_agrees_with_the_cpu_in_distribution() {
     let v = lumpy_ball();
     let sky = nimbus_optics::Environment::uniform(Vec3::new(0.3, 0.5, 0.9)).unwrap();
     for (sky, lights) in [(sky.clone(), vec![]), (sky, params(&v).lights), (test_map(), vec![])] {
-        let p = CacheParams {
-            single: false,
-            cache_scale: 1.5,
-            single_tolerance: None,
-            multiple_scale: Some(2.5),
-            estimator: MultipleEstimator::Paths { per_voxel: 8 },
-            environment: Some(sky.clone()),
-            lights: lights.clone(),
-            seed: 9,
-            ..params(&v)
-        };
+        let p = CacheParams { environment: Some(sky.clone()), lights: lights.clone(), ..paths_only(&v, 9) };
         let none = PhotonMap::default();
         let (cpu, _) = bake_cpu(&v, &none, &p).unwrap();
         let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
@@ -426,14 +410,7 @@ fn li_multiple_takes_its_own_lattice_on_the_gpu_as_on_the_cpu() {
 #[test]
 fn paths_longer_than_a_software_adapter_runs_are_refused() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
-    let mut v = Volume::new(Transform::uniform(0.1, DVec3::ZERO), 0.0f32);
-    for x in -5..5 {
-        for y in -5..5 {
-            for z in -5..5 {
-                v.set(IVec3::new(x, y, z), 300.0);
-            }
-        }
-    }
+    let v = support::block(IVec3::splat(-5), IVec3::splat(4), |_| 300.0);
     let (lo, hi) = v.world_bounds().unwrap();
     let suns = [(0.3, 0.2, -1.0), (-0.5, 0.1, -0.8), (0.1, -0.9, -0.3), (0.7, 0.7, 0.1), (-0.2, 0.4, 0.9), (0.0, 0.0, 1.0)];
     // Shadow rays (tables would look the suns up, with no loop to run out of).
@@ -490,16 +467,7 @@ fn emission_in_the_paths_agrees_with_the_cpu_in_distribution() {
     };
     let field = nimbus_tracking::EmissionField { grid: Some(&v), temperature: Some(&temperature), params: &emission };
     for lights in [vec![], params(&v).lights] {
-        let p = CacheParams {
-            single: false,
-            cache_scale: 1.5,
-            single_tolerance: None,
-            multiple_scale: Some(2.5),
-            estimator: MultipleEstimator::Paths { per_voxel: 8 },
-            lights: lights.clone(),
-            seed: 4,
-            ..params(&v)
-        };
+        let p = CacheParams { lights: lights.clone(), ..paths_only(&v, 4) };
         let none = PhotonMap::default();
         let (cpu, cpu_stats) = nimbus_cache::bake_cpu_emitting(&v, &none, &p, Some(&field)).unwrap();
         let (gpu, gpu_stats) = nimbus_cache::bake_gpu_emitting(ctx, &v, &none, &p, Some(&field)).unwrap();

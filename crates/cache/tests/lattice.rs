@@ -3,11 +3,13 @@
 //! where it would not.
 
 use glam::{DAffine3, DVec3, IVec3, Vec3};
-use nimbus_cache::{bake_cpu, bake_gpu, li_single, toward_eye, CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu, bake_gpu, li_single, toward_eye, CacheParams, SINGLE_LATTICE_TOLERANCE};
 use nimbus_optics::{Camera, Light, Medium};
 use nimbus_photon::PhotonMap;
 use nimbus_tracking::{DensityMedium, LightDepths};
 use nimbus_volume::{MajorantGrid, Transform, Volume};
+
+mod support;
 
 /// A sheet of flat voxels (0.04 x 0.04 x 0.01), `thickness` voxels thick, density `rho`
 /// rising from its edges, away from the origin.
@@ -28,24 +30,11 @@ fn sheet(rho: f32, thickness: i32) -> Volume<f32> {
 fn params(v: &Volume<f32>, tolerance: Option<f64>) -> CacheParams {
     let (lo, hi) = v.world_bounds().unwrap();
     let centre = 0.5 * (lo + hi);
-    CacheParams {
-        environment: None,
-        medium: Medium { extinction: 1.0, albedo: Vec3::splat(0.9), g: 0.3 },
-        // A grazing sun: its optical depth changes fastest across the sheet's thin axis.
-        lights: vec![Light::sun(Vec3::new(0.8, 0.2, -0.45), Vec3::splat(3.0)).unwrap()],
-        camera: Camera::new(centre + DVec3::new(-0.6, -1.6, 0.9), centre, DVec3::Z, 45.0, 96, 64).unwrap(),
-        step: 0.25,
-        cache_scale: 1.0,
-        single_tolerance: tolerance,
-        multiple_scale: None,
-        single: true,
-        multiple: false,
-        gather: Gather::Neighbours { k: 32, max_radius: 1.0 },
-        estimator: MultipleEstimator::Photons,
-        seed: 0,
-        min_transmittance: 0.0,
-        shadows: ShadowMode::Table(LightLattice::default()),
-    }
+    let medium = Medium { extinction: 1.0, albedo: Vec3::splat(0.9), g: 0.3 };
+    // A grazing sun: its optical depth changes fastest across the sheet's thin axis.
+    let sun = Light::sun(Vec3::new(0.8, 0.2, -0.45), Vec3::splat(3.0)).unwrap();
+    let camera = Camera::new(centre + DVec3::new(-0.6, -1.6, 0.9), centre, DVec3::Z, 45.0, 96, 64).unwrap();
+    CacheParams { single_tolerance: tolerance, ..support::params(medium, vec![sun], camera) }
 }
 
 /// The mean relative miss of the cache's trilinear Li_single against Li_single by shadow

@@ -4,6 +4,21 @@ use std::path::{Path, PathBuf};
 
 use crate::Failure;
 
+/// A path flag of [`Input`] or [`Output`]: `-` is the standard stream (`None`), a path is
+/// itself, and no flag is the standard stream unless that is a terminal (`missing` then).
+fn stream_arg(arg: Option<&Path>, terminal: bool, missing: &str) -> Result<Option<PathBuf>, Failure> {
+    match arg {
+        Some(p) if p.as_os_str() == "-" => Ok(None),
+        Some(p) => Ok(Some(p.to_path_buf())),
+        None if !terminal => Ok(None),
+        None => Err(Failure::usage(missing)),
+    }
+}
+
+fn lower_extension(path: &Path) -> Option<String> {
+    path.extension().map(|e| e.to_string_lossy().to_lowercase())
+}
+
 /// Where a tool reads from: a file, or stdin.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Input {
@@ -15,28 +30,25 @@ impl Input {
     /// `None` means "not given": stdin when it is a pipe or file, else a usage error, since
     /// waiting on a terminal for binary data is never what the user meant.
     pub fn from_arg(arg: Option<&Path>) -> Result<Input, Failure> {
-        match arg {
-            Some(p) if p.as_os_str() == "-" => Ok(Input::Stdin),
-            Some(p) => Ok(Input::Path(p.to_path_buf())),
-            None if !io::stdin().is_terminal() => Ok(Input::Stdin),
-            None => Err(Failure::usage("no input: give a file, or pipe one in (see --help)")),
+        let path = stream_arg(arg, io::stdin().is_terminal(), "no input: give a file, or pipe one in (see --help)")?;
+        Ok(path.map_or(Input::Stdin, Input::Path))
+    }
+
+    fn path(&self) -> Option<&Path> {
+        match self {
+            Input::Path(p) => Some(p),
+            Input::Stdin => None,
         }
     }
 
     /// The name used in messages.
     pub fn name(&self) -> String {
-        match self {
-            Input::Path(p) => p.display().to_string(),
-            Input::Stdin => "stdin".into(),
-        }
+        self.path().map_or("stdin".into(), |p| p.display().to_string())
     }
 
     /// The file's extension, lower-cased, when there is one.
     pub fn extension(&self) -> Option<String> {
-        match self {
-            Input::Path(p) => p.extension().map(|e| e.to_string_lossy().to_lowercase()),
-            Input::Stdin => None,
-        }
+        self.path().and_then(lower_extension)
     }
 
     pub fn open(&self) -> Result<Box<dyn Read>, Failure> {
@@ -69,26 +81,23 @@ impl Output {
     /// `None` means "not given": stdout when it is not a terminal, else a usage error, so
     /// binary data never floods a terminal.
     pub fn from_arg(arg: Option<&Path>) -> Result<Output, Failure> {
-        match arg {
-            Some(p) if p.as_os_str() == "-" => Ok(Output::Stdout),
-            Some(p) => Ok(Output::Path(p.to_path_buf())),
-            None if !io::stdout().is_terminal() => Ok(Output::Stdout),
-            None => Err(Failure::usage("no output: give -o FILE, or pipe into the next tool (see --help)")),
+        let path = stream_arg(arg, io::stdout().is_terminal(), "no output: give -o FILE, or pipe into the next tool (see --help)")?;
+        Ok(path.map_or(Output::Stdout, Output::Path))
+    }
+
+    fn path(&self) -> Option<&Path> {
+        match self {
+            Output::Path(p) => Some(p),
+            Output::Stdout => None,
         }
     }
 
     pub fn name(&self) -> String {
-        match self {
-            Output::Path(p) => p.display().to_string(),
-            Output::Stdout => "stdout".into(),
-        }
+        self.path().map_or("stdout".into(), |p| p.display().to_string())
     }
 
     pub fn extension(&self) -> Option<String> {
-        match self {
-            Output::Path(p) => p.extension().map(|e| e.to_string_lossy().to_lowercase()),
-            Output::Stdout => None,
-        }
+        self.path().and_then(lower_extension)
     }
 
     /// Writes the whole file. Nothing is written to a path unless everything succeeded.

@@ -18,7 +18,8 @@
 //! - [`SequenceArgs`] and [`for_each_frame`] ([`frames`]): frame patterns (`####`, `%04d`,
 //!   `$F4`), `--frames` sets, and the per-frame loop every tool runs over a sequence.
 //! - [`Tool`], [`main`] and [`Stage`]: the runner: a tool's `main`, its frames, and a stage's
-//!   read of the chain's VDB and write of what it added with its record.
+//!   read of the chain's VDB, its scene ([`SceneArgs`] over what the chain recorded) and
+//!   write of what it added with its record.
 
 mod args;
 mod environment;
@@ -41,5 +42,5 @@ pub use io::{write_atomic, Input, Output};
 pub use log::{Log, Progress, StageTimes, Verbosity};
 pub use meta::{MetaWriter, PipelineMeta};
 pub use motion::{MotionArgs, Velocity, VELOCITY_GRIDS};
-pub use runner::{main, Stage, Tool};
+pub use runner::{main, SceneArgs, Stage, Tool};
 pub use vdbio::{describe_density, read_density, UPSTREAM_FAILED, read_vdb, read_vec3_grid, write_vdb};

@@ -73,6 +73,18 @@ macro_rules! tool {
     };
 }
 
+/// The scene's flags, as the stages that light the volume take them (vdbphoton, vdbcache):
+/// the medium, the lights, the sky or environment map.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct SceneArgs {
+    #[command(flatten)]
+    pub medium: MediumArgs,
+    #[command(flatten)]
+    pub lights: LightArgs,
+    #[command(flatten)]
+    pub environment: EnvironmentArgs,
+}
+
 /// What a stage between VDBs reads first: the input file, its density grid and what the
 /// tools before it recorded.
 pub struct Stage {
@@ -103,16 +115,10 @@ impl Stage {
     /// The scene flags over what the file records: `consistency` names what earlier work used
     /// the recorded scene for, so that a differing flag draws a warning. The environment comes
     /// first: where it lights the scene, no default sun is added.
-    pub fn scene(
-        &self,
-        medium: &MediumArgs,
-        lights: &LightArgs,
-        environment: &EnvironmentArgs,
-        consistency: Option<&str>,
-    ) -> Result<(Medium, Vec<Light>, Option<Environment>), Failure> {
-        let environment = environment.resolve(&self.meta, &self.log, consistency)?;
-        let medium = medium.resolve(&self.meta, &self.log, consistency)?;
-        let lights = lights.resolve(&self.meta, &self.log, consistency, environment.is_some())?;
+    pub fn scene(&self, scene: &SceneArgs, consistency: Option<&str>) -> Result<(Medium, Vec<Light>, Option<Environment>), Failure> {
+        let environment = scene.environment.resolve(&self.meta, &self.log, consistency)?;
+        let medium = scene.medium.resolve(&self.meta, &self.log, consistency)?;
+        let lights = scene.lights.resolve(&self.meta, &self.log, consistency, environment.is_some())?;
         Ok((medium, lights, environment))
     }
 

@@ -148,6 +148,8 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     // ici's ladder pass writes every rung's two sums per voxel into the rho buffer.
     let rho_floats = if method == Method::Ici { 2 * crate::kernel::ICI_MAX_RUNGS as u64 } else { 1 };
     let chunk_bricks = MAX_CHUNK_BRICKS.min((binding_limit / (4 * rho_floats * BRICK_VOXELS as u64)).max(1) as usize);
+    // Progress counts bricks, a chunk's at its read-back; heard, in smaller chunks.
+    let chunk_bricks = nimbus_progress::step_size(prep.bricks.len() as u64, chunk_bricks as u64, 1) as usize;
     let chunk_voxels = (chunk_bricks.min(prep.bricks.len()) * BRICK_VOXELS) as u64;
 
     let uniforms = density_uniforms(prep, pp, method);
@@ -223,6 +225,9 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         let mut n0_all = Vec::new();
         let mut ladders = Vec::new();
         let (all, rungs) = crate::kernel::ici_ladder(pp.h_min, pp.h0);
+        // usl's lengths are h0: nothing to compute, nothing to show.
+        let task = (method != Method::Usl).then(|| nimbus_progress::task("smoothing lengths", prep.bricks.len() as u64));
+        let advance = |bricks: usize| task.iter().for_each(|t| t.advance(bricks as u64));
         for (chunk, origins) in chunks.iter().enumerate() {
             let voxels = origins.len() * BRICK_VOXELS;
             if method == Method::Usl {
@@ -242,13 +247,16 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
                     ladders.push(reached.iter().any(|&r| r).then(|| crate::ici::RungSums::from_sums(&all[..rungs], &sums, &squares, reached)));
                 }
                 n0_all.extend_from_slice(&n0_chunk[..voxels]);
+                advance(origins.len());
                 continue;
             }
             let h_chunk: Vec<f32> = ctx.read_buffer(&h)?;
             let n0_chunk: Vec<u32> = ctx.read_buffer(&n0)?;
             lengths.extend(h_chunk[..voxels].iter().zip(&n0_chunk[..voxels]).map(|(&h, &n)| if n > 0 { h } else { 0.0 }));
             n0_all.extend_from_slice(&n0_chunk[..voxels]);
+            advance(origins.len());
         }
+        drop(task);
         if method == Method::Ici {
             let kept = crate::ici::choose_lengths(prep, &all[..rungs], &ladders, pp.confidence);
             lengths = kept.into_iter().flat_map(|b| b.map_or([0.0; BRICK_VOXELS], |b| *b)).collect();
@@ -261,20 +269,24 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         }
         // The density pass reads each voxel's h and n0 (reached) from the chunk's buffers.
         if method != Method::Usl {
+            let task = nimbus_progress::task("density", prep.bricks.len() as u64);
             for (chunk, origins) in chunks.iter().enumerate() {
                 let span = chunk * chunk_bricks * BRICK_VOXELS..(chunk * chunk_bricks + origins.len()) * BRICK_VOXELS;
                 ctx.queue.write_buffer(&h, 0, bytemuck::cast_slice(&lengths[span.clone()]));
                 ctx.queue.write_buffer(&n0, 0, bytemuck::cast_slice(&n0_all[span]));
                 run(chunk, origins.len(), density_pass)?;
                 collect(chunk, origins, &mut results)?;
+                task.advance(origins.len() as u64);
             }
             return Ok(results);
         }
     }
 
+    let task = nimbus_progress::task("density", prep.bricks.len() as u64);
     for (chunk, origins) in chunks.iter().enumerate() {
         run(chunk, origins.len(), if conserve_mass { density_pass } else { &pipelines })?;
         collect(chunk, origins, &mut results)?;
+        task.advance(origins.len() as u64);
     }
     Ok(results)
 }

@@ -8,20 +8,10 @@ use nimbus_density::analytic::Rng;
 use nimbus_density::kernel::{m4_shape, KAPPA};
 use nimbus_density::*;
 
+mod common;
+
 fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
-    let mut rng = Rng::new(seed, 0);
-    let positions = (0..n)
-        .map(|i| {
-            let g = DVec3::new(rng.normal(), rng.normal(), rng.normal());
-            match i % 4 {
-                0 | 1 => DVec3::new(3.0, 3.0, 3.0) + 0.6 * g,
-                2 => DVec3::new(6.0, 4.5, 4.0) + 1.4 * g,
-                _ => DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 9.0,
-            }
-        })
-        .collect();
-    let masses = Some((0..n).map(|i| 0.5 + (i % 7) as f32 * 0.25).collect());
-    ParticleSet { positions, masses, ..Default::default() }
+    common::clumpy(n, seed, 4, (DVec3::new(6.0, 4.5, 4.0), 1.4), 9.0)
 }
 
 /// A jittered lattice filling the box [0, 10]^3 (spacing 0.5): a medium with a flat interior.

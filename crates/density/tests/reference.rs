@@ -7,6 +7,8 @@ use nimbus_density::analytic::Rng;
 use nimbus_density::kernel::{clamp_h, correct_h, m4_shape, predict_h1, KAPPA};
 use nimbus_density::*;
 
+mod common;
+
 /// Every particle's squared distance (index units) from grid point ijk, with its index.
 fn squared_distances(particles: &ParticleSet, grid: &Grid, ijk: IVec3) -> Vec<(f32, usize)> {
     let x = ijk.as_vec3();
@@ -126,21 +128,7 @@ fn own_masses(particles: &ParticleSet, params: &DensityParams) -> Vec<f32> {
 }
 
 fn random_clumpy(n: usize, seed: u64) -> ParticleSet {
-    // Two clumps of very different density plus a sparse background: every case of the
-    // corrector (too few, too many, empty shell) occurs somewhere.
-    let mut rng = Rng::new(seed, 0);
-    let positions = (0..n)
-        .map(|i| {
-            let g = DVec3::new(rng.normal(), rng.normal(), rng.normal());
-            match i % 5 {
-                0..=2 => DVec3::new(3.0, 3.0, 3.0) + 0.6 * g,
-                3 => DVec3::new(7.0, 5.0, 4.0) + 1.5 * g,
-                _ => DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 12.0,
-            }
-        })
-        .collect();
-    let masses = Some((0..n).map(|i| 0.5 + (i % 7) as f32 * 0.25).collect());
-    ParticleSet { positions, masses, ..Default::default() }
+    common::clumpy(n, seed, 5, (DVec3::new(7.0, 5.0, 4.0), 1.5), 12.0)
 }
 
 #[derive(Clone, Copy, PartialEq)]

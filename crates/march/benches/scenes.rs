@@ -58,24 +58,9 @@ fn load(name: &'static str, path: &Path) -> Scene {
     let meta = PipelineMeta::of(&file);
     let camera = meta.camera().ok().flatten().expect("the cache records its camera");
     let voxel = density.transform().voxel_size();
-    let base = MarchParams {
-        environment: None,
-        environment_visible: false,
-        medium: meta.medium().ok().flatten().expect("the cache records its medium"),
-        camera,
-        // vdbmarch's defaults.
-        step: voxel.length() / 3.0,
-        max_step_factor: MarchParams::DEFAULT_MAX_STEP_FACTOR,
-        spp: 1,
-        background: Vec3::ZERO,
-        offset_noise: 0.0,
-        noise_scale: 4.0 * voxel.max_element(),
-        noise_octaves: 3,
-        noise_eval: Default::default(),
-        min_transmittance: 1e-4,
-        seed: meta.seed().unwrap_or(0),
-        aovs: false,
-    };
+    let medium = meta.medium().ok().flatten().expect("the cache records its medium");
+    // vdbmarch's defaults.
+    let base = MarchParams { step: voxel.length() / 3.0, seed: meta.seed().unwrap_or(0), ..MarchParams::new(medium, camera, density.transform()) };
     Scene { name, density, cache, base }
 }
 

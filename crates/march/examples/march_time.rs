@@ -20,7 +20,6 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use glam::Vec3;
 use nimbus_cache::IlluminationCache;
 use nimbus_cli::{read_density, read_vdb, read_vec3_grid, Input, PipelineMeta};
 use nimbus_march::{render_cpu, MarchParams};
@@ -47,23 +46,13 @@ fn main() {
 
     let meta = PipelineMeta::of(&file);
     let camera = meta.camera().ok().flatten().expect("the cache records its camera");
-    let voxel = density.transform().voxel_size();
+    let medium = meta.medium().ok().flatten().expect("the cache records its medium");
     let base = MarchParams {
-        environment: None,
-        environment_visible: false,
-        medium: meta.medium().ok().flatten().expect("the cache records its medium"),
-        camera: camera.clone(),
         step: nimbus_march::default_step(density.transform()) * env("STEP_SCALE", 1.0),
         max_step_factor: env("MAX_STEP_FACTOR", MarchParams::DEFAULT_MAX_STEP_FACTOR as f64) as u32,
-        spp: 1,
-        background: Vec3::ZERO,
-        offset_noise: 0.0,
-        noise_scale: 4.0 * voxel.max_element(),
-        noise_octaves: 3,
-        noise_eval: Default::default(),
-        min_transmittance: 1e-4,
         seed: meta.seed().unwrap_or(0),
         aovs,
+        ..MarchParams::new(medium, camera.clone(), density.transform())
     };
     for (w, h) in [(1, 1), (width, height)] {
         let camera = Camera::new(camera.eye(), camera.look_at(), camera.up(), camera.fov_deg(), w, h).unwrap();

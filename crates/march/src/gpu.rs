@@ -271,8 +271,11 @@ fn march_pixels(
     // A map behind the volume (a uniform one is the constant background, added on the host).
     let behind = ctx.storage_buffer("march environment", &Environment::gpu_words(crate::visible_map(params.visible_environment())))?;
     let volume_group = density_gpu.bind_group(ctx, &volume_layout)?;
-    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &motion_group], pixel_count, max_tile_pixels: options.max_tile_pixels };
-    tiles.run(ctx, 1, &|_| {}, |first, count, _, out| {
+    // Progress in pixels, a tile's at its read-back; heard, in smaller tiles.
+    let task = nimbus_progress::task("march", pixel_count);
+    let max_tile_pixels = nimbus_progress::step_size(pixel_count, options.max_tile_pixels, u64::from(WORKGROUP_SIZE));
+    let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &motion_group], pixel_count, max_tile_pixels };
+    tiles.run(ctx, 1, &|n| task.advance(n), |first, count, _, out| {
         let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
         let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
         let mut group_entries = single.bind_group_entries(0).to_vec();

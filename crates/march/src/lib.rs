@@ -200,6 +200,31 @@ impl Default for NoiseEval {
 pub const STEP_OPTICAL_DEPTH: f64 = 0.25;
 
 impl MarchParams {
+    /// vdbmarch's defaults for `camera` over a density on `transform`: one sample a pixel at
+    /// the default step ([`default_step`]), a fixed step
+    /// ([`Self::DEFAULT_MAX_STEP_FACTOR`]), no offset noise (its features four voxels, three
+    /// octaves), a black background and no environment, rays cut at transmittance 1e-4,
+    /// seed 0, no AOVs.
+    pub fn new(medium: Medium, camera: Camera, transform: &nimbus_volume::Transform) -> MarchParams {
+        MarchParams {
+            medium,
+            camera,
+            step: default_step(transform),
+            max_step_factor: Self::DEFAULT_MAX_STEP_FACTOR,
+            spp: 1,
+            background: Vec3::ZERO,
+            environment: None,
+            environment_visible: false,
+            offset_noise: 0.0,
+            noise_scale: 4.0 * transform.voxel_size().max_element(),
+            noise_octaves: 3,
+            noise_eval: NoiseEval::DEFAULT,
+            min_transmittance: 1e-4,
+            seed: 0,
+            aovs: false,
+        }
+    }
+
     /// The environment escaping camera rays see, if any.
     pub fn visible_environment(&self) -> Option<&Environment> {
         self.environment.as_ref().filter(|_| self.environment_visible)

@@ -9,16 +9,23 @@ use common::{camera, cloud, params};
 use glam::{DVec3, Vec3};
 use nimbus_cache::{CachePlan, CameraImportance, IlluminationCache};
 use nimbus_march::{march_ray, MarchParams};
-use nimbus_optics::Medium;
-use nimbus_volume::MajorantGrid;
+use nimbus_optics::{Camera, Medium};
+use nimbus_volume::{MajorantGrid, Volume};
+
+/// The cloud, a `w` x `h` camera on it, its majorant and the plan of cache voxels `scale`
+/// density voxels wide.
+fn scene(w: u32, h: u32, scale: f64) -> (Volume<f32>, Camera, MajorantGrid, CachePlan) {
+    let density = cloud(24, 25.0, DVec3::ZERO);
+    let cam = camera(DVec3::ZERO, w, h);
+    let majorant = MajorantGrid::build(&density);
+    let plan = CachePlan::new(&density, &majorant, &cam, DVec3::splat(scale));
+    (density, cam, majorant, plan)
+}
 
 #[test]
 fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
-    let density = cloud(24, 25.0, DVec3::ZERO);
     let (w, h) = (12, 8);
-    let cam = camera(DVec3::ZERO, w, h);
-    let majorant = MajorantGrid::build(&density);
-    let plan = CachePlan::new(&density, &majorant, &cam, DVec3::splat(2.0));
+    let (density, cam, majorant, plan) = scene(w, h, 2.0);
     let medium = Medium { extinction: 1.5, albedo: Vec3::splat(0.8), g: 0.0 };
     let importance = CameraImportance::new(&plan, &density, &majorant, medium.extinction, &cam, 0.0);
     let g = &importance.g;
@@ -69,13 +76,10 @@ fn importance_is_the_sum_of_squared_pixel_derivatives_of_the_march() {
 #[test]
 fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
     use nimbus_cache::{CacheParams, Gather, LightLattice, MultipleEstimator, ShadowMode};
-    let density = cloud(24, 25.0, DVec3::ZERO);
     let (w, h) = (24, 16);
-    let cam = camera(DVec3::ZERO, w, h);
-    let majorant = MajorantGrid::build(&density);
-    let medium = Medium { extinction: 1.5, albedo: Vec3::ONE, g: 0.0 };
     // Four density voxels a cache voxel: far coarser than the field's fall-off.
-    let plan = CachePlan::new(&density, &majorant, &cam, DVec3::splat(4.0));
+    let (density, cam, majorant, plan) = scene(w, h, 4.0);
+    let medium = Medium { extinction: 1.5, albedo: Vec3::ONE, g: 0.0 };
     let cache_params = CacheParams {
         environment: None,
         medium,

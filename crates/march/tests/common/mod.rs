@@ -148,23 +148,7 @@ pub fn single_scattering_chain(density: &Volume<f32>, medium: Medium, sun: Light
         shadows: ShadowMode::Table(LightLattice::default()),
     };
     let (cache, _) = bake_cpu(density, &nimbus_photon::PhotonMap::default(), &cache_params).unwrap();
-    let march = MarchParams {
-        environment: None,
-        environment_visible: false,
-        medium,
-        camera: camera.clone(),
-        step,
-        max_step_factor: 1,
-        spp: 1,
-        background: Vec3::ZERO,
-        offset_noise: 0.0,
-        noise_scale: 1.0,
-        noise_octaves: 1,
-        noise_eval: Default::default(),
-        min_transmittance: 0.0,
-        seed: 3,
-        aovs: false,
-    };
+    let march = MarchParams { step, max_step_factor: 1, noise_scale: 1.0, noise_octaves: 1, min_transmittance: 0.0, seed: 3, ..MarchParams::new(medium, camera.clone(), density.transform()) };
     (cache, march)
 }
 
