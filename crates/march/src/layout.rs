@@ -34,7 +34,7 @@ use rayon::prelude::*;
 
 use crate::simd::{Arith, EDGE};
 
-const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
+pub(crate) const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
 const EMPTY: u32 = u32::MAX;
 /// Offsets of a cell's +x, +y neighbours in a brick's points (z fastest).
 const X: usize = EDGE * EDGE;
@@ -92,7 +92,7 @@ pub(crate) struct Visit {
 impl Visit {
     /// The bound of a brick's points, as [`nimbus_volume::MajorantGrid`] rounds it: 8 ulps
     /// above the largest (a lerp can round a few ulps above its larger end).
-    fn of(points: &[f32]) -> Visit {
+    pub(crate) fn of(points: &[f32]) -> Visit {
         let max = points.iter().copied().fold(f32::MIN, f32::max);
         let majorant = if max > 0.0 { max + max * (8.0 * f32::EPSILON) } else { max };
         Visit { cells: CellBox::of(points, |v| v > 0.0), majorant }
@@ -179,6 +179,20 @@ impl<T: Point> Lattice<T> {
     /// Every stored brick's points, brick after brick in slot order ([`Lattice::brick`]).
     pub fn values(&self) -> &[T] {
         &self.values
+    }
+
+    /// The value everywhere outside the stored bricks.
+    pub fn background(&self) -> T {
+        self.background
+    }
+
+    /// Every stored brick's voxel origin and what a march needs to know of it.
+    pub fn bricks(&self) -> impl Iterator<Item = (IVec3, Visit)> + '_ {
+        self.table.iter().enumerate().filter(|(_, &slot)| slot != EMPTY).map(|(i, &slot)| {
+            let (yz, z) = (i / self.dims.z as usize, i % self.dims.z as usize);
+            let b = self.lo + IVec3::new((yz / self.dims.y as usize) as i32, (yz % self.dims.y as usize) as i32, z as i32);
+            (b << BRICK_LOG2, self.visits[slot as usize])
+        })
     }
 
     /// The brick table (slots, [`EMPTY`] where no brick is stored; x-major, z fastest) and

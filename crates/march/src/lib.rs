@@ -180,13 +180,30 @@ pub enum NoiseEval {
     /// density's voxel (a noise scale under two voxels at 4 nodes), more nodes than samples,
     /// the fBm is evaluated at each sample instead, on both backends.
     Baked { nodes: u32 },
+    /// The default: the offset field baked as for [`NoiseEval::Baked`], then the displaced
+    /// medium itself baked from it at the density's lattice points (the density and the
+    /// cache read at `x + o(x)`, one lookup of each per point), so that the CPU marches it
+    /// as it marches a medium without noise (`offsets.rs`, [`render_cpu`]); the image is
+    /// the exact noise's within the figures of docs/benchmarks.md ("Offset noise"). The
+    /// GPU, and the CPU's emission and motion-blur march, read the offset field at each
+    /// sample instead, as for [`NoiseEval::Baked`]. Where the offset lattice falls back to
+    /// the exact fBm, so does this.
+    Displaced { nodes: u32 },
     /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
     /// that measure the baked field against it (tens of times the march's cost).
     Exact,
 }
 
 impl NoiseEval {
-    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 4 };
+    pub const DEFAULT: NoiseEval = NoiseEval::Displaced { nodes: 4 };
+
+    /// The offset lattice's nodes per noise scale, where the offsets are baked.
+    pub fn nodes(self) -> Option<u32> {
+        match self {
+            NoiseEval::Baked { nodes } | NoiseEval::Displaced { nodes } => Some(nodes),
+            NoiseEval::Exact => None,
+        }
+    }
 }
 
 impl Default for NoiseEval {
@@ -319,7 +336,7 @@ impl MarchParams {
         if self.offset_noise > 0.0 && !(self.noise_scale > 0.0 && self.noise_scale.is_finite()) {
             return Err(MarchError::Param(format!("--noise-scale must be positive, got {}", self.noise_scale)));
         }
-        if self.noise_eval == (NoiseEval::Baked { nodes: 0 }) {
+        if self.noise_eval.nodes() == Some(0) {
             return Err(MarchError::Param("the baked offset noise needs at least one node per noise scale".into()));
         }
         if !self.background.is_finite() {
