@@ -246,16 +246,13 @@ pub(crate) fn pixel_jitter(s: u32, spp: u32, u: f64, v: f64) -> (f64, f64) {
 /// read the same bricks, run back to back on one core.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
     params.validate()?;
-    let noise = match params.offset_noise > 0.0 {
-        false => Noise::None,
-        true => match params.noise_eval {
-            // The displaced medium is baked from the offset field, where that is baked.
-            NoiseEval::Displaced { .. } => match baked_offsets(density, &moved_majorant(density, params, None), params) {
-                Some(offsets) => Noise::Displaced(offsets),
-                None => Noise::PerSample(march_grids(density, params, None)),
-            },
-            _ => Noise::PerSample(march_grids(density, params, None)),
-        },
+    let voxel = density.transform().voxel_size().max_element();
+    let noise = if !(params.offset_noise > 0.0) {
+        Noise::None
+    } else if params.noise_eval == NoiseEval::Displaced && params.noise_scale >= NoiseEval::DISPLACED_POINTS_PER_SCALE * voxel {
+        Noise::Displaced
+    } else {
+        Noise::PerSample(march_grids(density, params, None))
     };
     let pixels = match params.aovs {
         true => render_layout::<[Vec4; 2]>(density, cache, params, noise),
@@ -267,8 +264,8 @@ pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &Mar
 /// What [`render_cpu`] does about the offset noise.
 enum Noise {
     None,
-    /// The displaced medium baked from these offsets ([`NoiseEval::Displaced`]).
-    Displaced(Offsets),
+    /// The displaced medium baked ([`NoiseEval::Displaced`]).
+    Displaced,
     /// The offsets read at each sample, over the dilated majorant grid ([`march_grids`]).
     PerSample((MajorantGrid, Option<Offsets>)),
 }
@@ -277,18 +274,19 @@ enum Noise {
 /// apply, [`march_ray`] itself (with the offsets read at each sample).
 fn render_layout<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, noise: Noise) -> Vec<RayResult> {
     let Some(volume) = MarchVolume::<T>::new(density, cache, params.medium.albedo) else {
-        return match noise {
-            Noise::None => render_plain(density, cache, params, None, None),
-            Noise::Displaced(offsets) => render_plain(density, cache, params, None, Some(&offsets)),
-            Noise::PerSample((majorant, offsets)) => render_plain(density, cache, params, Some(majorant), offsets.as_ref()),
+        let (majorant, offsets) = match noise {
+            Noise::None => (None, None),
+            Noise::Displaced => {
+                let (majorant, offsets) = march_grids(density, params, None);
+                (Some(majorant), offsets)
+            }
+            Noise::PerSample((majorant, offsets)) => (Some(majorant), offsets),
         };
+        return render_plain(density, cache, params, majorant, offsets.as_ref());
     };
     match noise {
         Noise::None => render_tiles(params, &Fast { volume: &volume, majorant: None, offsets: None, params }),
-        Noise::Displaced(offsets) => {
-            let displaced = volume.displaced(&offsets);
-            render_tiles(params, &Fast { volume: &displaced, majorant: None, offsets: None, params })
-        }
+        Noise::Displaced => render_tiles(params, &Fast { volume: &volume.displaced(params), majorant: None, offsets: None, params }),
         Noise::PerSample((majorant, offsets)) => render_tiles(params, &Fast { volume: &volume, majorant: Some(&majorant), offsets: offsets.as_ref(), params }),
     }
 }

@@ -180,27 +180,38 @@ pub enum NoiseEval {
     /// density's voxel (a noise scale under two voxels at 4 nodes), more nodes than samples,
     /// the fBm is evaluated at each sample instead, on both backends.
     Baked { nodes: u32 },
-    /// The default: the offset field baked as for [`NoiseEval::Baked`], then the displaced
-    /// medium itself baked from it at the density's lattice points (the density and the
-    /// cache read at `x + o(x)`, one lookup of each per point), so that the CPU marches it
-    /// as it marches a medium without noise (`offsets.rs`, [`render_cpu`]); the image is
-    /// the exact noise's within the figures of docs/benchmarks.md ("Offset noise"). The
-    /// GPU, and the CPU's emission and motion-blur march, read the offset field at each
-    /// sample instead, as for [`NoiseEval::Baked`]. Where the offset lattice falls back to
-    /// the exact fBm, so does this.
-    Displaced { nodes: u32 },
+    /// The default: the displaced medium baked, the density and the cache read at
+    /// `x + o(x)` at each point `x` of the density's lattice, `o` the exact fBm there, so
+    /// that the CPU marches it as it marches a medium without noise (`offsets.rs`,
+    /// [`render_cpu`]); the image is the exact noise's within the figures of
+    /// docs/benchmarks.md ("Offset noise"). Where the density's lattice has fewer than
+    /// [`NoiseEval::DISPLACED_POINTS_PER_SCALE`] points per noise scale along an axis, on
+    /// the GPU, and in the CPU's emission and motion-blur march, the offsets are read at
+    /// each sample instead, as [`NoiseEval::Baked`] with [`NoiseEval::BAKED_NODES`].
+    Displaced,
     /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
     /// that measure the baked field against it (tens of times the march's cost).
     Exact,
 }
 
 impl NoiseEval {
-    pub const DEFAULT: NoiseEval = NoiseEval::Displaced { nodes: 4 };
+    pub const DEFAULT: NoiseEval = NoiseEval::Displaced;
 
-    /// The offset lattice's nodes per noise scale, where the offsets are baked.
+    /// Nodes per noise scale of the offset lattice read per sample where
+    /// [`NoiseEval::Displaced`] does not apply.
+    pub const BAKED_NODES: u32 = 4;
+
+    /// The fewest density lattice points per noise scale along each axis with which
+    /// [`NoiseEval::Displaced`] bakes the displaced medium: as many as
+    /// [`NoiseEval::BAKED_NODES`], so that it resolves the noise as finely.
+    pub const DISPLACED_POINTS_PER_SCALE: f64 = 4.0;
+
+    /// The offset lattice's nodes per noise scale where the offsets are baked and read per
+    /// sample (as [`NoiseEval::Displaced`] is where it does not apply).
     pub fn nodes(self) -> Option<u32> {
         match self {
-            NoiseEval::Baked { nodes } | NoiseEval::Displaced { nodes } => Some(nodes),
+            NoiseEval::Baked { nodes } => Some(nodes),
+            NoiseEval::Displaced => Some(Self::BAKED_NODES),
             NoiseEval::Exact => None,
         }
     }

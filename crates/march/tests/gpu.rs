@@ -133,12 +133,10 @@ fn images_agree_with_offset_noise_and_jittered_samples() {
     report("baked against exact", &apart);
     assert!(moved.rgb > 1e-2);
     assert!(apart.rgb < 0.25 * moved.rgb, "baked {} vs exact, noise moved {}", apart.rgb, moved.rgb);
-    // The CPU's default, the displaced medium baked, which the GPU marches as the above.
-    let displaced = render_cpu(&v, &cache, &MarchParams { noise_eval: NoiseEval::DEFAULT, ..p.clone() }).unwrap();
+    // The default, NoiseEval::Displaced, which the GPU marches as the above (the CPU's
+    // displaced medium is held to the exact noise in the crate's offsets.rs).
     let gpu = render_gpu_with(ctx, &v, &cache, &MarchParams { noise_eval: NoiseEval::DEFAULT, ..p.clone() }, MediumFields::default(), &EXACT).unwrap();
-    let (cpu_apart, gpu_apart) = (diff(&displaced, &exact), diff(&gpu, &exact));
-    report("displaced (CPU) against exact", &cpu_apart);
-    assert!(cpu_apart.rgb < 0.25 * moved.rgb && gpu_apart.rgb < 0.25 * moved.rgb, "CPU {} GPU {} vs exact, noise moved {}", cpu_apart.rgb, gpu_apart.rgb, moved.rgb);
+    assert_close("offset noise, the default on the GPU", &diff(&baked, &gpu), 64 * 48);
 }
 
 #[test]
