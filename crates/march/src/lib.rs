@@ -20,16 +20,24 @@
 //!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
-//!   coarse volumes. Like the paper's 3D texture of offsets, the field is baked once per
-//!   render ([`NoiseEval::Baked`], `offsets.rs`): the exact fBm at the nodes of a lattice
-//!   anchored in world space, 4 nodes per `noise_scale` per axis (one per cell of the
-//!   finest of vdbmarch's 3 octaves: every octave is kept, the finest one interpolated
-//!   coarsely), over the bricks of nodes within the noise's reach of the medium,
-//!   interpolated trilinearly at each sample (per-sample fBm is far slower); see
-//!   docs/benchmarks.md ("Offset noise")
-//!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
-//!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
-//!   dilated by the noise's reach. Amplitude 0 costs nothing: no bake, no dilation.
+//!   coarse volumes: the medium is read at `x + o(x)`. Per-sample fBm is far slower than the
+//!   march, so it is baked once per render ([`NoiseEval`]). By default
+//!   ([`NoiseEval::Displaced`], the CPU) the displaced medium itself is baked: at each
+//!   point of the density's lattice the density and the cache at `x + o(x)`, `o` the exact
+//!   fBm there, each brick when a march first reads it (`offsets.rs`), and the march is
+//!   the march without noise over it; the price is a resampling of the density (the image
+//!   0.3-0.5% from the exact noise's, about 40% of what the noise itself changes). Where the
+//!   density's lattice has fewer than 4 points per `noise_scale`, on the GPU, and with
+//!   emission or motion blur, the offsets are baked instead ([`NoiseEval::Baked`]; like the
+//!   paper's 3D texture of offsets): the exact fBm at the nodes of a lattice anchored in
+//!   world space, 4 nodes per `noise_scale` per axis (one per cell of the finest of
+//!   vdbmarch's 3 octaves: every octave is kept, the finest one interpolated coarsely),
+//!   over the bricks of nodes within the noise's reach of the medium, interpolated
+//!   trilinearly at each sample, over a majorant grid of two-voxel cells dilated by the
+//!   noise's reach (0.1% from the exact noise's image, at about 3.5x the plain march). See
+//!   docs/benchmarks.md ("Offset noise") for the costs and errors against the exact fBm
+//!   ([`NoiseEval::Exact`], kept for the tests and that bench). Amplitude 0 costs nothing:
+//!   no bake, no dilation.
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
