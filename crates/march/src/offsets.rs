@@ -10,6 +10,8 @@
 //! every such cell reads no offset, and needs none: displaced by at most the reach, it would
 //! land outside them too, where the density is zero.
 
+use std::collections::HashMap;
+
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3, Vec4};
 use nimbus_optics::noise::{fbm3_vec, fbm3_vec_block, fbm3_vec_grid};
 use nimbus_volume::{MajorantGrid, Volume, BRICK_LOG2};
@@ -126,52 +128,68 @@ impl<T: DensityPoint> MarchVolume<T> {
         let amplitude = params.offset_noise;
         let reach = index_reach(&to_index, NOISE_REACH * amplitude).ceil().as_ivec3();
         let edge = IVec3::splat(1 << BRICK_LOG2);
-        let mut bricks = Vec::new();
+        // Per brick, the box of its points (index, inclusive) that can read positive density,
+        // and one point more: a cell with a corner that can interpolates the cache from all
+        // eight. Its other points hold the background, with no fBm taken for them.
+        let mut boxes: HashMap<IVec3, (IVec3, IVec3)> = HashMap::new();
         for (origin, visit) in self.density.bricks() {
             let CellBox { lo, hi } = visit.cells;
             if (0..3).any(|a| lo[a] >= hi[a]) {
                 continue;
             }
-            // The points that can read positive density, and the bricks whose 9^3 points
-            // (b * 8 to b * 8 + 8 per axis) meet them.
-            let (a, b) = (origin + IVec3::from(lo.map(i32::from)) - reach, origin + IVec3::from(hi.map(i32::from)) + reach);
+            // Bricks b hold the points b * 8 to b * 8 + 8 per axis.
+            let (a, b) = (origin + IVec3::from(lo.map(i32::from)) - reach - 1, origin + IVec3::from(hi.map(i32::from)) + reach + 1);
             let (first, last) = ((a - 1).div_euclid(edge), b.div_euclid(edge));
             for x in first.x..=last.x {
                 for y in first.y..=last.y {
                     for z in first.z..=last.z {
-                        bricks.push(IVec3::new(x, y, z));
+                        let c = IVec3::new(x, y, z);
+                        let (l, h) = (a.max(c * edge), b.min(c * edge + edge));
+                        boxes.entry(c).and_modify(|(bl, bh)| (*bl, *bh) = (bl.min(l), bh.max(h))).or_insert((l, h));
                     }
                 }
             }
         }
+        let bricks: Vec<IVec3> = boxes.keys().copied().collect();
         let (scale, octaves, seed) = (params.noise_scale, params.noise_octaves, params.seed as u32);
-        // On an axis-aligned lattice the fBm is taken a brick at a time, its hashes shared.
+        // On an axis-aligned lattice the fBm is taken a box at a time, its hashes shared.
         let m = to_world.matrix3;
         let diagonal = DVec3::new(m.x_axis.x, m.y_axis.y, m.z_axis.z);
         let aligned = m == DMat3::from_diagonal(diagonal) && diagonal.cmpgt(DVec3::ZERO).all();
-        let point = |origin: IVec3, i: usize| (origin + IVec3::new((i / (EDGE * EDGE)) as i32, (i / EDGE % EDGE) as i32, (i % EDGE) as i32)).as_dvec3();
         let background = self.density.background();
         let fill = move |origin: IVec3, out: &mut [T]| {
+            // The brick's box, relative to it, and the fBm at its points (x-major, z fastest).
+            let (lo, hi) = boxes[&(origin >> BRICK_LOG2)];
+            let (lo, n) = (lo - origin, (hi - lo + 1).to_array().map(|k| k as usize));
             let mut fbm = [Vec3::ZERO; BRICK_VALUES];
+            let fbm = &mut fbm[..n[0] * n[1] * n[2]];
             if aligned {
                 // Point p lies at world diagonal p + t = (p + t / diagonal) diagonal.
-                let start = origin.as_dvec3() + to_world.translation / diagonal;
-                fbm3_vec_grid(start.to_array(), (diagonal / scale).to_array(), EDGE, octaves, seed, &mut fbm);
+                let start = (origin + lo).as_dvec3() + to_world.translation / diagonal;
+                fbm3_vec_grid(start.to_array(), (diagonal / scale).to_array(), n, octaves, seed, fbm);
             } else {
-                for (i, f) in fbm.iter_mut().enumerate() {
-                    *f = fbm3_vec(to_world.transform_point3(point(origin, i)) / scale, octaves, seed);
+                for (k, f) in fbm.iter_mut().enumerate() {
+                    let j = IVec3::new((k / (n[1] * n[2])) as i32, (k / n[2] % n[1]) as i32, (k % n[2]) as i32);
+                    *f = fbm3_vec(to_world.transform_point3((origin + lo + j).as_dvec3()) / scale, octaves, seed);
                 }
             }
             let mut d = [0.0f32; BRICK_VALUES];
             for (i, (o, d)) in out.iter_mut().zip(&mut d).enumerate() {
-                let p = point(origin, i);
-                let shift = fbm[i].as_dvec3() * amplitude;
-                let mut v = self.density.sample(Unfused, p + to_index.transform_vector3(shift));
-                // Every point, lit or not: a sample between points interpolates the cache too.
-                for (lattice, layer) in &self.others {
-                    let li = lattice.sample(Unfused, lattice.world_to_index().transform_point3(to_world.transform_point3(p) + shift));
-                    v.add_li(li.truncate(), *layer == Layer::Multiple);
-                }
+                let l = IVec3::new((i / (EDGE * EDGE)) as i32, (i / EDGE % EDGE) as i32, (i % EDGE) as i32);
+                let j = l - lo;
+                let v = if j.cmpge(IVec3::ZERO).all() && j.cmplt(IVec3::from(n.map(|k| k as i32))).all() {
+                    let p = (origin + l).as_dvec3();
+                    let shift = fbm[(j.x as usize * n[1] + j.y as usize) * n[2] + j.z as usize].as_dvec3() * amplitude;
+                    let mut v = self.density.sample(Unfused, p + to_index.transform_vector3(shift));
+                    // Every point, lit or not: a sample between points interpolates the cache too.
+                    for (lattice, layer) in &self.others {
+                        let li = lattice.sample(Unfused, lattice.world_to_index().transform_point3(to_world.transform_point3(p) + shift));
+                        v.add_li(li.truncate(), *layer == Layer::Multiple);
+                    }
+                    v
+                } else {
+                    background
+                };
                 (*o, *d) = (v, v.density());
             }
             Visit::of(&d)

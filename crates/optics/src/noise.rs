@@ -52,16 +52,26 @@ fn grad(hash: u32, d: Vec3) -> f32 {
 /// mispredicted about half the time.
 #[inline]
 fn gradient(hash: u32) -> Vec3 {
-    let h = hash & 15;
-    let sign = |bit: u32| if h & bit == 0 { 1.0 } else { -1.0 };
-    let (u, v) = (sign(1), sign(2));
-    match h {
-        0..=3 => Vec3::new(u, v, 0.0),
-        4..=7 => Vec3::new(u, 0.0, v),
-        12 | 14 => Vec3::new(v, u, 0.0),
-        _ => Vec3::new(0.0, u, v),
-    }
+    GRADIENTS[(hash & 15) as usize]
 }
+
+/// [`gradient`] of each 4-bit hash: a table, as the hashes are random.
+const GRADIENTS: [Vec3; 16] = {
+    let mut t = [Vec3::ZERO; 16];
+    let mut h = 0;
+    while h < 16 {
+        let u = if h & 1 == 0 { 1.0 } else { -1.0 };
+        let v = if h & 2 == 0 { 1.0 } else { -1.0 };
+        t[h] = match h {
+            0..=3 => Vec3::new(u, v, 0.0),
+            4..=7 => Vec3::new(u, 0.0, v),
+            12 | 14 => Vec3::new(v, u, 0.0),
+            _ => Vec3::new(0.0, u, v),
+        };
+        h += 1;
+    }
+    t
+};
 
 /// Quintic fade 6t^5 - 15t^4 + 10t^3: C2 continuity across lattice cells.
 #[inline]
@@ -171,20 +181,24 @@ pub fn fbm3_vec(p: DVec3, octaves: u32, seed: u32) -> Vec3 {
 /// per noise lattice point the block spans, instead of fifteen hashes per point and octave.
 /// What baking the field on a lattice costs (vdbmarch's offset noise).
 pub fn fbm3_vec_block(origin: [i64; 3], n: usize, spacing: f64, octaves: u32, seed: u32, out: &mut [Vec3]) {
-    fbm3_vec_grid(origin.map(|o| o as f64), [spacing; 3], n, octaves, seed, out)
+    fbm3_vec_grid(origin.map(|o| o as f64), [spacing; 3], [n; 3], octaves, seed, out)
 }
 
-/// [`fbm3_vec_block`] at the points `(origin + j) * spacing` per axis, j in [0, n)^3: any
-/// axis-aligned lattice (a volume's lattice points in noise units, say), `spacing`
-/// positive. For a whole `origin` below 2^53 it is the block, bit for bit.
-pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: usize, octaves: u32, seed: u32, out: &mut [Vec3]) {
-    assert_eq!(out.len(), n * n * n, "one output per point");
+/// [`fbm3_vec_block`] at the points `(origin + j) * spacing` per axis, j in [0, n) per
+/// axis: a box of any axis-aligned lattice (a volume's lattice points in noise units, say),
+/// `spacing` positive. For a whole `origin` below 2^53 it is the block, bit for bit.
+pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: [usize; 3], octaves: u32, seed: u32, out: &mut [Vec3]) {
+    assert_eq!(out.len(), n[0] * n[1] * n[2], "one output per point");
+    if out.is_empty() {
+        return;
+    }
     assert!(spacing.iter().all(|&s| s > 0.0), "positive spacing: {spacing:?}");
     // Fbm::eval's constants (lacunarity 2, gain 1/2, the octave shift).
     #[allow(clippy::approx_constant)]
     const SHIFT: [f64; 3] = [0.318_309_886, 0.577_215_665, 0.693_147_181];
-    let mut sum = vec![0.0f32; n * n * n];
-    let (mut cell, mut frac, mut faded) = (vec![[0usize; 3]; n], vec![[0.0f32; 3]; n], vec![[0.0f32; 3]; n]);
+    let mut sum = vec![0.0f32; out.len()];
+    let most = n[0].max(n[1]).max(n[2]);
+    let (mut cell, mut frac, mut faded) = (vec![[0usize; 3]; most], vec![[0.0f32; 3]; most], vec![[0.0f32; 3]; most]);
     let mut gradients = Vec::new();
     for channel in 0..3u32 {
         let seed = seed.wrapping_add(101 * channel);
@@ -199,13 +213,13 @@ pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: usize, octaves: u32
                 let q = |j: usize| ((origin[a] + j as f64) * spacing[a]) * freq + SHIFT[a] * octave as f64;
                 let c0 = floor(q(0));
                 first[a] = c0 as i64 as u32;
-                for j in 0..n {
+                for j in 0..n[a] {
                     let c = floor(q(j));
                     cell[j][a] = (c - c0) as usize;
                     frac[j][a] = (q(j) - c) as f32;
                     faded[j][a] = fade(frac[j][a]);
                 }
-                span[a] = cell[n - 1][a] + 2;
+                span[a] = cell[n[a] - 1][a] + 2;
             }
             // The gradient of every noise lattice point the block's cells touch, from its
             // hash (perlin3's nesting).
@@ -221,9 +235,9 @@ pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: usize, octaves: u32
                 }
             }
             let g = |x: usize, y: usize, z: usize| gradients[(x * span[1] + y) * span[2] + z];
-            for jx in 0..n {
-                for jy in 0..n {
-                    for jz in 0..n {
+            for jx in 0..n[0] {
+                for jy in 0..n[1] {
+                    for jz in 0..n[2] {
                         let (cx, cy, cz) = (cell[jx][0], cell[jy][1], cell[jz][2]);
                         let f = Vec3::new(frac[jx][0], frac[jy][1], frac[jz][2]);
                         let corner = |dx: usize, dy: usize, dz: usize| {
@@ -236,7 +250,7 @@ pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: usize, octaves: u32
                             lerp(lerp(corner(1, 0, 0), corner(1, 0, 1), w), lerp(corner(1, 1, 0), corner(1, 1, 1), w), v),
                             u,
                         );
-                        sum[(jx * n + jy) * n + jz] += amp * value;
+                        sum[(jx * n[1] + jy) * n[2] + jz] += amp * value;
                     }
                 }
             }
@@ -320,11 +334,11 @@ mod tests {
 
     #[test]
     fn a_grid_is_fbm3_vec_at_each_point() {
-        let (origin, spacing, n) = ([1.0e6 + 0.3, -2.25, 17.0], [0.25, 0.5, 0.2], 9);
-        let mut out = vec![Vec3::ZERO; n * n * n];
+        let (origin, spacing, n) = ([1.0e6 + 0.3, -2.25, 17.0], [0.25, 0.5, 0.2], [9, 4, 6]);
+        let mut out = vec![Vec3::ZERO; n[0] * n[1] * n[2]];
         fbm3_vec_grid(origin, spacing, n, 3, 5, &mut out);
         for (i, got) in out.iter().enumerate() {
-            let j = [(i / (n * n)) as f64, (i / n % n) as f64, (i % n) as f64];
+            let j = [(i / (n[1] * n[2])) as f64, (i / n[2] % n[1]) as f64, (i % n[2]) as f64];
             let p = DVec3::new((origin[0] + j[0]) * spacing[0], (origin[1] + j[1]) * spacing[1], (origin[2] + j[2]) * spacing[2]);
             assert_eq!(*got, fbm3_vec(p, 3, 5), "{j:?}");
         }
