@@ -309,6 +309,60 @@ mod tests {
     }
 
     #[test]
+    fn the_displaced_medium_holds_the_medium_at_the_displaced_points() {
+        use crate::cpu::scenes::cache_for;
+        use crate::layout::DensityPoint;
+        use nimbus_volume::Transform;
+        let straight = cloud(24, 3.0, DVec3::new(1.0e6, -3.0e5, 2.0e6));
+        // The same voxels on a rotated lattice: the fBm taken point by point, not by boxes.
+        let rotation = DAffine3::from_rotation_z(0.3) * DAffine3::from_rotation_x(-0.2);
+        let mut turned = Volume::new(Transform::new(straight.transform().index_to_world() * rotation).unwrap(), 0.0f32);
+        for brick in straight.bricks() {
+            for (i, &v) in brick.values.iter().enumerate() {
+                turned.set(brick.origin + nimbus_volume::brick_local(i), v);
+            }
+        }
+        for density in [&straight, &turned] {
+            // Six voxels of amplitude: the displacement reaches well past the point the
+            // cache adds around the medium.
+            let p = MarchParams { offset_noise: 0.6, noise_scale: 2.4, ..params(camera(DVec3::ZERO, 8, 8)) };
+            // Li on lattices of its own, folded into the displaced points.
+            let cache = cache_for(density);
+            let source = MarchVolume::<[Vec4; 2]>::new(density, &cache, p.medium.albedo).unwrap();
+            let displaced = MarchVolume::<[Vec4; 2]>::new(density, &cache, p.medium.albedo).unwrap().displaced(&p);
+            assert!(displaced.others.is_empty() && !source.others.is_empty());
+            let (to_index, to_world) = (*source.density.world_to_index(), source.density.world_to_index().inverse());
+            let (mut positive, mut points) = (0, 0);
+            // Every point of the bricks baked and of a brick around them, where the layout
+            // reads the background.
+            let (lo, hi) = displaced.density.bricks().fold((IVec3::MAX, IVec3::MIN), |(l, h), (o, _)| (l.min(o - 8), h.max(o + 16)));
+            for x in lo.x..=hi.x {
+                for y in lo.y..=hi.y {
+                    for z in lo.z..=hi.z {
+                    let q = IVec3::new(x, y, z).as_dvec3();
+                    let shift = offset(&p, to_world.transform_point3(q));
+                    let mut want = source.density.sample(Unfused, q + to_index.transform_vector3(shift));
+                    for (lattice, layer) in &source.others {
+                        let li = lattice.sample(Unfused, lattice.world_to_index().transform_point3(to_world.transform_point3(q) + shift));
+                        want.add_li(li.truncate(), *layer == Layer::Multiple);
+                    }
+                    let got = displaced.density.sample(Unfused, q);
+                    assert!((got.density().max(0.0) - want.density().max(0.0)).abs() <= 1e-4 * want.density().abs().max(1.0), "{q}: {} vs {}", got.density(), want.density());
+                    if want.density() > 0.0 {
+                        let near = |a: Vec4, b: Vec4| (a - b).abs().max_element() <= 1e-4 * b.abs().max_element().max(1e-3);
+                        assert!(near(got.single(), want.single()) && near(got.multiple(), want.multiple()), "{q}: {got:?} vs {want:?}");
+                        positive += 1;
+                    }
+                    points += 1;
+                    }
+                }
+            }
+            eprintln!("{} displaced points, {positive} with density", points);
+            assert!(positive > 1000, "{positive} points with density");
+        }
+    }
+
+    #[test]
     fn the_same_world_point_gets_the_same_offset_whatever_the_bounds() {
         // Two volumes of different extent (so different bricks and anchors) over one region.
         let small = cloud(12, 3.0, DVec3::ZERO);
