@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The offset noise's cost and error (issue #30): the demo's cloud and plume caches made
 # with scripts/demo.sh's flags (scripts/demo_scenes.sh) into out/bench/noise/, then the
-# march bench over them (crates/march/benches/noise.rs: no noise, baked, exact).
+# march bench over them (crates/march/benches/noise.rs: no noise, the displaced medium
+# baked (the default), the offsets baked and read per sample, exact).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-${CARGO_TARGET_DIR:-target}/release}

@@ -5,10 +5,12 @@
 //! caches `scripts/bench_noise.sh` makes with `scripts/demo.sh`'s flags:
 //!
 //!     scripts/bench_noise.sh        (makes out/bench/noise/{cloud,plume}.vdb, then runs this)
-//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8 runs=5 only=cloud size=960x540 exact=0]
+//!     cargo bench --locked -p nimbus-march --bench noise [-- nodes=4,8 runs=5 only=cloud size=960x540 exact=0 evals=displaced,offsets]
 //!
 //! Rows: the march without noise, with the baked noise at each lattice (nodes per noise
-//! scale; a lattice finer than half a voxel is not baked but evaluated per sample, so at
+//! scale) read at each sample (`NoiseEval::Baked`), with the displaced medium baked on the
+//! density's lattice (`NoiseEval::Displaced`, the default) (a lattice of offsets finer than half a voxel is
+//! not baked but evaluated per sample, so at the default scale nodes=16 is the exact march; a lattice finer than half a voxel is not baked but evaluated per sample, so at
 //! the default scale nodes=16 is the exact march) and with the exact per-sample fBm;
 //! medians of `runs` alternating runs (the exact march once: it takes tens of times as
 //! long), and the ratio to the march without noise. Error: the relative RMSE of each image
@@ -47,6 +49,8 @@ fn main() {
     let nodes: Vec<u32> = arg("nodes").map_or(vec![4, 8], |s| s.split(',').map(|n| n.parse().expect("nodes=N,N,...")).collect());
     let runs: usize = arg("runs").map_or(5, |s| s.parse().expect("runs=N"));
     let only = arg("only");
+    // Which noisy marches: the displaced medium baked (the default), the offsets read per sample.
+    let evals: Vec<String> = arg("evals").map_or(vec!["displaced".into(), "offsets".into()], |s| s.split(',').map(str::to_owned).collect());
     let (width, height): (u32, u32) = arg("size").map_or((960, 540), |s| {
         let (w, h) = s.split_once('x').expect("size=WxH");
         (w.parse().expect("size=WxH"), h.parse().expect("size=WxH"))
@@ -98,9 +102,13 @@ fn main() {
         });
         // Alternating, so a busy machine slows every variant alike.
         let mut variants: Vec<(String, MarchParams)> = vec![("no noise".into(), plain.clone())];
-        for &n in &nodes {
-            let default = if (NoiseEval::Baked { nodes: n }) == NoiseEval::DEFAULT { " (default)" } else { "" };
-            variants.push((format!("baked, {n} nodes per scale{default}"), noisy(NoiseEval::Baked { nodes: n })));
+        if evals.iter().any(|e| e == "displaced") {
+            variants.push(("displaced medium baked (default)".into(), noisy(NoiseEval::Displaced)));
+        }
+        if evals.iter().any(|e| e == "offsets") {
+            for &n in &nodes {
+                variants.push((format!("offsets baked, {n} nodes per scale, read per sample"), noisy(NoiseEval::Baked { nodes: n })));
+            }
         }
         let mut times: Vec<Vec<Duration>> = vec![vec![]; variants.len()];
         let mut images: Vec<Option<Image>> = vec![None; variants.len()];

@@ -173,14 +173,18 @@ pub(crate) fn march_majorant(density: &Volume<f32>, params: &MarchParams, motion
 /// noise's frequency: there the fBm is evaluated at each sample instead.
 pub(crate) fn march_grids(density: &Volume<f32>, params: &MarchParams, motion: Option<&MotionBlur>) -> (MajorantGrid, Option<Offsets>) {
     let moved = moved_majorant(density, params, motion);
-    let voxel = density.transform().voxel_size().min_element();
-    let offsets = match params.noise_eval {
-        NoiseEval::Baked { nodes } if params.offset_noise > 0.0 && params.noise_scale / nodes as f64 >= FINEST_OFFSET_NODES * voxel => {
-            Some(Offsets::bake(density, &moved, params, nodes))
-        }
-        _ => None,
-    };
+    let offsets = baked_offsets(density, &moved, params);
     (noise_dilated(density, moved, params), offsets)
+}
+
+/// The baked offset noise over `moved` (the medium's majorant grid, not dilated for the
+/// noise), where [`march_grids`] bakes it.
+fn baked_offsets(density: &Volume<f32>, moved: &MajorantGrid, params: &MarchParams) -> Option<Offsets> {
+    let voxel = density.transform().voxel_size().min_element();
+    match params.noise_eval.nodes() {
+        Some(nodes) if params.offset_noise > 0.0 && params.noise_scale / nodes as f64 >= FINEST_OFFSET_NODES * voxel => Some(Offsets::bake(density, moved, params, nodes)),
+        _ => None,
+    }
 }
 
 /// The finest spacing of the baked offset noise's nodes, in voxels ([`march_grids`]).
@@ -210,10 +214,16 @@ fn noise_dilated(density: &Volume<f32>, grid: MajorantGrid, params: &MarchParams
     if !(params.offset_noise > 0.0) {
         return grid;
     }
-    let m = density.transform().world_to_index().matrix3;
+    grid.dilated(index_reach(&density.transform().world_to_index(), NOISE_REACH * params.offset_noise))
+}
+
+/// How far, per index axis of `world_to_index`, a world displacement whose components stay
+/// within `reach` can move a point.
+pub(crate) fn index_reach(world_to_index: &glam::DAffine3, reach: f64) -> DVec3 {
+    let m = world_to_index.matrix3;
     // Index axis j moves by at most sum_i |m[i][j]| times a world displacement's largest component.
-    let rows = glam::DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
-    grid.dilated(rows * (NOISE_REACH * params.offset_noise))
+    let rows = DVec3::new(m.row(0).abs().element_sum(), m.row(1).abs().element_sum(), m.row(2).abs().element_sum());
+    rows * reach
 }
 
 /// Where in the pixel sample `s` of `spp` looks, from two uniform numbers: jittered within
@@ -236,29 +246,49 @@ pub(crate) fn pixel_jitter(s: u32, spp: u32, u: f64, v: f64) -> (f64, f64) {
 /// read the same bricks, run back to back on one core.
 pub fn render_cpu(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams) -> Result<Image, MarchError> {
     params.validate()?;
-    // The layout's own brick table skips empty space unless offset noise moves samples
-    // off the ray, which needs the dilated majorant grid.
-    let (majorant, offsets) = match params.offset_noise > 0.0 {
-        true => {
-            let (majorant, offsets) = march_grids(density, params, None);
-            (Some(majorant), offsets)
-        }
-        false => (None, None),
-    };
-    let offsets = offsets.as_ref();
-    let albedo = params.medium.albedo;
-    let pixels = if params.aovs {
-        match MarchVolume::<[Vec4; 2]>::new(density, cache, albedo) {
-            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), offsets, params }),
-            None => render_plain(density, cache, params, majorant, offsets),
-        }
+    let voxel = density.transform().voxel_size().max_element();
+    let noise = if !(params.offset_noise > 0.0) {
+        Noise::None
+    } else if params.noise_eval == NoiseEval::Displaced && params.noise_scale >= NoiseEval::DISPLACED_POINTS_PER_SCALE * voxel {
+        Noise::Displaced
     } else {
-        match MarchVolume::<Vec4>::new(density, cache, albedo) {
-            Some(volume) => render_tiles(params, &Fast { volume: &volume, majorant: majorant.as_ref(), offsets, params }),
-            None => render_plain(density, cache, params, majorant, offsets),
-        }
+        Noise::PerSample(march_grids(density, params, None))
+    };
+    let pixels = match params.aovs {
+        true => render_layout::<[Vec4; 2]>(density, cache, params, noise),
+        false => render_layout::<Vec4>(density, cache, params, noise),
     };
     Ok(assemble(params, &pixels))
+}
+
+/// What [`render_cpu`] does about the offset noise.
+enum Noise {
+    None,
+    /// The displaced medium baked ([`NoiseEval::Displaced`]).
+    Displaced,
+    /// The offsets read at each sample, over the dilated majorant grid ([`march_grids`]).
+    PerSample((MajorantGrid, Option<Offsets>)),
+}
+
+/// [`render_cpu`] over the layout with density points `T` or, where the layout does not
+/// apply, [`march_ray`] itself (with the offsets read at each sample).
+fn render_layout<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, noise: Noise) -> Vec<RayResult> {
+    let Some(volume) = MarchVolume::<T>::new(density, cache, params.medium.albedo) else {
+        let (majorant, offsets) = match noise {
+            Noise::None => (None, None),
+            Noise::Displaced => {
+                let (majorant, offsets) = march_grids(density, params, None);
+                (Some(majorant), offsets)
+            }
+            Noise::PerSample((majorant, offsets)) => (Some(majorant), offsets),
+        };
+        return render_plain(density, cache, params, majorant, offsets.as_ref());
+    };
+    match noise {
+        Noise::None => render_tiles(params, &Fast { volume: &volume, majorant: None, offsets: None, params }),
+        Noise::Displaced => render_tiles(params, &Fast { volume: &volume.displaced(params), majorant: None, offsets: None, params }),
+        Noise::PerSample((majorant, offsets)) => render_tiles(params, &Fast { volume: &volume, majorant: Some(&majorant), offsets: offsets.as_ref(), params }),
+    }
 }
 
 /// [`render_cpu`] with what the medium holds beyond its density ([`MediumFields`]): with
@@ -699,7 +729,9 @@ pub(crate) mod tests {
                 let cases = [
                     ("1 spp", MarchParams { aovs, ..base.clone() }),
                     ("4 spp", MarchParams { aovs, spp: 4, ..base.clone() }),
-                    ("offset noise", MarchParams { aovs, offset_noise: 0.05, noise_scale: 0.2, ..base.clone() }),
+                    // The offsets read at each sample (the displaced medium is baked, and held to
+                    // the exact noise in offsets.rs).
+                    ("offset noise", MarchParams { aovs, offset_noise: 0.05, noise_scale: 0.2, noise_eval: NoiseEval::Baked { nodes: 4 }, ..base.clone() }),
                     ("early termination", MarchParams { aovs, min_transmittance: 1e-3, medium: Medium { extinction: 6.0, ..base.medium }, ..base.clone() }),
                 ];
                 for (case, p) in cases {

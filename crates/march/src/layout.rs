@@ -31,10 +31,11 @@ use glam::{DAffine3, DVec3, IVec3, Vec3, Vec3A, Vec4};
 use nimbus_cache::IlluminationCache;
 use nimbus_volume::{Voxel, Volume, BRICK_DIM, BRICK_LOG2};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 use crate::simd::{Arith, EDGE};
 
-const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
+pub(crate) const BRICK_VALUES: usize = EDGE * EDGE * EDGE;
 const EMPTY: u32 = u32::MAX;
 /// Offsets of a cell's +x, +y neighbours in a brick's points (z fastest).
 const X: usize = EDGE * EDGE;
@@ -70,11 +71,24 @@ pub(crate) struct Lattice<T: Point> {
     cell_lo: DVec3,
     cell_hi: DVec3,
     table: Vec<u32>,
-    values: Vec<T>,
-    /// Per slot, what a march needs to know of the brick before sampling it.
-    visits: Vec<Visit>,
+    store: Store<T>,
     background: T,
 }
+
+/// A lattice's bricks: filled when it is built, or each when a march first reads it.
+enum Store<T> {
+    Filled {
+        values: Vec<T>,
+        /// Per slot, what a march needs to know of the brick before sampling it.
+        visits: Vec<Visit>,
+    },
+    /// Per slot, the brick once filled (by the first thread to read it; the others wait),
+    /// its voxel origin, and what fills it ([`Lattice::build_lazy`]).
+    Lazy { bricks: Vec<OnceLock<(Visit, Box<[T]>)>>, origins: Vec<IVec3>, fill: Box<Fill<T>> },
+}
+
+/// What fills a brick: from its voxel origin, its 9^3 points, and what a march needs to know of it.
+pub(crate) type Fill<T> = dyn Fn(IVec3, &mut [T]) -> Visit + Send + Sync;
 
 /// What a march needs to know of a brick before sampling it.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -92,7 +106,7 @@ pub(crate) struct Visit {
 impl Visit {
     /// The bound of a brick's points, as [`nimbus_volume::MajorantGrid`] rounds it: 8 ulps
     /// above the largest (a lerp can round a few ulps above its larger end).
-    fn of(points: &[f32]) -> Visit {
+    pub(crate) fn of(points: &[f32]) -> Visit {
         let max = points.iter().copied().fold(f32::MIN, f32::max);
         let majorant = if max > 0.0 { max + max * (8.0 * f32::EPSILON) } else { max };
         Visit { cells: CellBox::of(points, |v| v > 0.0), majorant }
@@ -147,6 +161,25 @@ impl<T: Point> Lattice<T> {
     /// A lattice of the bricks at brick coordinates `bricks` (repeats allowed), each filled
     /// by `fill(voxel origin, its 9^3 points)`, in parallel; `background` everywhere else.
     pub(crate) fn build(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: impl Fn(IVec3, &mut [T]) -> Visit + Sync) -> Self {
+        Self::with_table(world_to_index, bricks, background, |origins| {
+            // Zeroed by the allocator (fresh pages come zeroed; the fill then touches them in
+            // parallel): writing T::ZERO first cost a single-threaded pass over all of it.
+            let mut values: Vec<T> = bytemuck::zeroed_vec(origins.len() * BRICK_VALUES);
+            let visits = values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).map(|(v, &o)| fill(o, v)).collect();
+            Store::Filled { values, visits }
+        })
+    }
+
+    /// [`Lattice::build`] with each brick filled when a march first reads it: what only
+    /// the bricks rays reach cost (a thick medium stops them within a few voxels).
+    /// [`Lattice::values`] does not apply.
+    pub(crate) fn build_lazy(world_to_index: DAffine3, bricks: &[IVec3], background: T, fill: Box<Fill<T>>) -> Self {
+        Self::with_table(world_to_index, bricks, background, |origins| Store::Lazy { bricks: origins.iter().map(|_| OnceLock::new()).collect(), origins, fill })
+    }
+
+    /// The table of the bricks at brick coordinates `bricks` (repeats allowed), their
+    /// slots in table order, and `store` of their voxel origins in slot order.
+    fn with_table(world_to_index: DAffine3, bricks: &[IVec3], background: T, store: impl FnOnce(Vec<IVec3>) -> Store<T>) -> Self {
         let (lo, hi) = bricks.iter().fold((IVec3::MAX, IVec3::MIN), |(l, h), &b| (l.min(b), h.max(b)));
         let dims = if bricks.is_empty() { IVec3::ZERO } else { hi - lo + 1 };
         let index = |b: IVec3| (((b.x - lo.x) * dims.y + (b.y - lo.y)) * dims.z + (b.z - lo.z)) as usize;
@@ -164,12 +197,25 @@ impl<T: Point> Lattice<T> {
                 origins.push(b << BRICK_LOG2);
             }
         }
-        // Zeroed by the allocator (fresh pages come zeroed; the fill then touches them in
-        // parallel): writing T::ZERO first cost a single-threaded pass over all of it.
-        let mut values: Vec<T> = bytemuck::zeroed_vec(origins.len() * BRICK_VALUES);
-        let visits = values.par_chunks_mut(BRICK_VALUES).zip(origins.par_iter()).map(|(v, &o)| fill(o, v)).collect();
         let cell_lo = (lo << BRICK_LOG2).as_dvec3();
-        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, values, visits, background }
+        Lattice { world_to_index, lo, dims, cell_lo, cell_hi: cell_lo + (dims << BRICK_LOG2).as_dvec3(), table, store: store(origins), background }
+    }
+
+    /// What a march needs to know of the brick in `slot`, and its points (filled now if
+    /// the lattice is lazy and nothing read them before).
+    #[inline(always)]
+    fn slot(&self, slot: u32) -> (Visit, &[T]) {
+        let slot = slot as usize;
+        match &self.store {
+            Store::Filled { values, visits } => (visits[slot], &values[slot * BRICK_VALUES..(slot + 1) * BRICK_VALUES]),
+            Store::Lazy { bricks, origins, fill } => {
+                let (visit, points) = bricks[slot].get_or_init(|| {
+                    let mut points: Box<[T]> = bytemuck::zeroed_slice_box(BRICK_VALUES);
+                    (fill(origins[slot], &mut points), points)
+                });
+                (*visit, points)
+            }
+        }
     }
 
     pub fn world_to_index(&self) -> &DAffine3 {
@@ -178,7 +224,24 @@ impl<T: Point> Lattice<T> {
 
     /// Every stored brick's points, brick after brick in slot order ([`Lattice::brick`]).
     pub fn values(&self) -> &[T] {
-        &self.values
+        match &self.store {
+            Store::Filled { values, .. } => values,
+            Store::Lazy { .. } => panic!("a lazy lattice's values are filled as the march reads them"),
+        }
+    }
+
+    /// The value everywhere outside the stored bricks.
+    pub fn background(&self) -> T {
+        self.background
+    }
+
+    /// Every stored brick's voxel origin and what a march needs to know of it.
+    pub fn bricks(&self) -> impl Iterator<Item = (IVec3, Visit)> + '_ {
+        self.table.iter().enumerate().filter(|(_, &slot)| slot != EMPTY).map(|(i, &slot)| {
+            let (yz, z) = (i / self.dims.z as usize, i % self.dims.z as usize);
+            let b = self.lo + IVec3::new((yz / self.dims.y as usize) as i32, (yz % self.dims.y as usize) as i32, z as i32);
+            (b << BRICK_LOG2, self.slot(slot).0)
+        })
     }
 
     /// The brick table (slots, [`EMPTY`] where no brick is stored; x-major, z fastest) and
@@ -209,7 +272,7 @@ impl<T: Point> Lattice<T> {
     /// The points of the brick in `slot`.
     #[inline(always)]
     pub fn brick(&self, slot: u32) -> &[T] {
-        &self.values[slot as usize * BRICK_VALUES..(slot as usize + 1) * BRICK_VALUES]
+        self.slot(slot).1
     }
 
     /// Trilinear interpolation in cell `l` (0..8 per axis) of `brick` at fraction `w`.
@@ -346,9 +409,12 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
             if slot == EMPTY {
                 continue;
             }
+            if !(exit > start) {
+                continue;
+            }
             // The part of the ray in the brick's box of cells to visit.
             let (mut visit_start, mut visit_end) = (start, exit);
-            let visit = l.visits[slot as usize];
+            let (visit, points) = l.slot(slot);
             let b = visit.cells;
             if b != CellBox::ALL {
                 for a in 0..3 {
@@ -361,10 +427,8 @@ impl<'a, T: Point> Iterator for BrickWalk<'a, T> {
                     visit_end = visit_end.min(t0.max(t1));
                 }
             }
-            if exit > start {
-                let origin = ((IVec3::from(c) + l.lo) << BRICK_LOG2 as i32).as_dvec3();
-                return Some(BrickSpan { start, end: exit, visit_start, visit_end, points: l.brick(slot), origin, majorant: visit.majorant });
-            }
+            let origin = ((IVec3::from(c) + l.lo) << BRICK_LOG2 as i32).as_dvec3();
+            return Some(BrickSpan { start, end: exit, visit_start, visit_end, points, origin, majorant: visit.majorant });
         }
         None
     }
@@ -727,7 +791,7 @@ mod tests {
                 let (yz, z) = (i / l.dims.z as usize, i % l.dims.z as usize);
                 let b = l.lo + IVec3::new((yz / l.dims.y as usize) as i32, (yz % l.dims.y as usize) as i32, z as i32);
                 let centre = (b * BRICK_DIM).as_dvec3() + 0.5 * BRICK_DIM as f64;
-                assert_eq!(l.visits[slot as usize].majorant, grid.at(centre), "brick {b}");
+                assert_eq!(l.slot(slot).0.majorant, grid.at(centre), "brick {b}");
                 seen += 1;
             }
         }

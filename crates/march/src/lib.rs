@@ -20,16 +20,24 @@
 //!   largest square grid of cells (`cpu::pixel_jitter`), each with its own xi.
 //! - Offset noise (the paper's Perlin jitter) moves each sample position by a smooth vector
 //!   fBm field of amplitude `offset_noise` (world units), breaking up the grid look of
-//!   coarse volumes. Like the paper's 3D texture of offsets, the field is baked once per
-//!   render ([`NoiseEval::Baked`], `offsets.rs`): the exact fBm at the nodes of a lattice
-//!   anchored in world space, 4 nodes per `noise_scale` per axis (one per cell of the
-//!   finest of vdbmarch's 3 octaves: every octave is kept, the finest one interpolated
-//!   coarsely), over the bricks of nodes within the noise's reach of the medium,
-//!   interpolated trilinearly at each sample (per-sample fBm is far slower); see
-//!   docs/benchmarks.md ("Offset noise")
-//!   for the baked field's cost and its error against the exact fBm ([`NoiseEval::Exact`],
-//!   kept for the tests and that bench). With noise the majorant grid has two-voxel cells,
-//!   dilated by the noise's reach. Amplitude 0 costs nothing: no bake, no dilation.
+//!   coarse volumes: the medium is read at `x + o(x)`. Per-sample fBm is far slower than the
+//!   march, so it is baked once per render ([`NoiseEval`]). By default
+//!   ([`NoiseEval::Displaced`], the CPU) the displaced medium itself is baked: at each
+//!   point of the density's lattice the density and the cache at `x + o(x)`, `o` the exact
+//!   fBm there, each brick when a march first reads it (`offsets.rs`), and the march is
+//!   the march without noise over it; the price is a resampling of the density (the image
+//!   0.3-0.5% from the exact noise's, about 40% of what the noise itself changes). Where the
+//!   density's lattice has fewer than 4 points per `noise_scale`, on the GPU, and with
+//!   emission or motion blur, the offsets are baked instead ([`NoiseEval::Baked`]; like the
+//!   paper's 3D texture of offsets): the exact fBm at the nodes of a lattice anchored in
+//!   world space, 4 nodes per `noise_scale` per axis (one per cell of the finest of
+//!   vdbmarch's 3 octaves: every octave is kept, the finest one interpolated coarsely),
+//!   over the bricks of nodes within the noise's reach of the medium, interpolated
+//!   trilinearly at each sample, over a majorant grid of two-voxel cells dilated by the
+//!   noise's reach (0.1% from the exact noise's image, at about 3.5x the plain march). See
+//!   docs/benchmarks.md ("Offset noise") for the costs and errors against the exact fBm
+//!   ([`NoiseEval::Exact`], kept for the tests and that bench). Amplitude 0 costs nothing:
+//!   no bake, no dilation.
 //! - Rays stop once T < `min_transmittance`; rays that miss every non-empty majorant cell
 //!   cost one DDA walk.
 //!
@@ -180,13 +188,41 @@ pub enum NoiseEval {
     /// density's voxel (a noise scale under two voxels at 4 nodes), more nodes than samples,
     /// the fBm is evaluated at each sample instead, on both backends.
     Baked { nodes: u32 },
+    /// The default: the displaced medium baked, the density and the cache read at
+    /// `x + o(x)` at each point `x` of the density's lattice, `o` the exact fBm there, so
+    /// that the CPU marches it as it marches a medium without noise (`offsets.rs`,
+    /// [`render_cpu`]); the image is the exact noise's within the figures of
+    /// docs/benchmarks.md ("Offset noise"). Where the density's lattice has fewer than
+    /// [`NoiseEval::DISPLACED_POINTS_PER_SCALE`] points per noise scale along an axis, on
+    /// the GPU, and in the CPU's emission and motion-blur march, the offsets are read at
+    /// each sample instead, as [`NoiseEval::Baked`] with [`NoiseEval::BAKED_NODES`].
+    Displaced,
     /// The fBm evaluated at every sample: the definition, kept for the tests and the bench
     /// that measure the baked field against it (tens of times the march's cost).
     Exact,
 }
 
 impl NoiseEval {
-    pub const DEFAULT: NoiseEval = NoiseEval::Baked { nodes: 4 };
+    pub const DEFAULT: NoiseEval = NoiseEval::Displaced;
+
+    /// Nodes per noise scale of the offset lattice read per sample where
+    /// [`NoiseEval::Displaced`] does not apply.
+    pub const BAKED_NODES: u32 = 4;
+
+    /// The fewest density lattice points per noise scale along each axis with which
+    /// [`NoiseEval::Displaced`] bakes the displaced medium: as many as
+    /// [`NoiseEval::BAKED_NODES`], so that it resolves the noise as finely.
+    pub const DISPLACED_POINTS_PER_SCALE: f64 = 4.0;
+
+    /// The offset lattice's nodes per noise scale where the offsets are baked and read per
+    /// sample (as [`NoiseEval::Displaced`] is where it does not apply).
+    pub fn nodes(self) -> Option<u32> {
+        match self {
+            NoiseEval::Baked { nodes } => Some(nodes),
+            NoiseEval::Displaced => Some(Self::BAKED_NODES),
+            NoiseEval::Exact => None,
+        }
+    }
 }
 
 impl Default for NoiseEval {
@@ -344,7 +380,7 @@ impl MarchParams {
         if self.offset_noise > 0.0 && !(self.noise_scale > 0.0 && self.noise_scale.is_finite()) {
             return Err(MarchError::Param(format!("--noise-scale must be positive, got {}", self.noise_scale)));
         }
-        if self.noise_eval == (NoiseEval::Baked { nodes: 0 }) {
+        if self.noise_eval.nodes() == Some(0) {
             return Err(MarchError::Param("the baked offset noise needs at least one node per noise scale".into()));
         }
         if !self.background.is_finite() {

@@ -121,7 +121,9 @@ fn images_agree_with_offset_noise_and_jittered_samples() {
     let (v, cache, mut p) = scene(DVec3::ZERO);
     p.offset_noise = 0.15;
     p.spp = 3;
-    // The baked field (the default) and the fBm at every sample, each on both backends.
+    // The baked field read at each sample (what the GPU marches) and the fBm at every
+    // sample, each on both backends.
+    p.noise_eval = NoiseEval::Baked { nodes: 4 };
     let baked = both_agree(ctx, "offset noise baked, 3 spp", &v, &cache, &p);
     let exact = both_agree(ctx, "offset noise exact, 3 spp", &v, &cache, &MarchParams { noise_eval: NoiseEval::Exact, ..p.clone() });
     // The noise really moved the samples, and the baked field moved them nearly as the
@@ -131,6 +133,10 @@ fn images_agree_with_offset_noise_and_jittered_samples() {
     report("baked against exact", &apart);
     assert!(moved.rgb > 1e-2);
     assert!(apart.rgb < 0.25 * moved.rgb, "baked {} vs exact, noise moved {}", apart.rgb, moved.rgb);
+    // The default, NoiseEval::Displaced, which the GPU marches as the above (the CPU's
+    // displaced medium is held to the exact noise in the crate's offsets.rs).
+    let gpu = render_gpu_with(ctx, &v, &cache, &MarchParams { noise_eval: NoiseEval::DEFAULT, ..p.clone() }, MediumFields::default(), &EXACT).unwrap();
+    assert_close("offset noise, the default on the GPU", &diff(&baked, &gpu), 64 * 48);
 }
 
 #[test]
@@ -140,6 +146,8 @@ fn images_agree_far_from_the_origin() {
     let centre = DVec3::new(1.0e4, -2.5e3, 300.0);
     let (v, cache, mut p) = scene(centre);
     p.offset_noise = 0.1;
+    // The offsets read at each sample, which both backends march.
+    p.noise_eval = NoiseEval::Baked { nodes: 4 };
     let cpu = render_cpu(&v, &cache, &p).unwrap();
     let gpu = render_gpu_with(ctx, &v, &cache, &p, MediumFields::default(), &EXACT).unwrap();
     let d = diff(&cpu, &gpu);
