@@ -52,7 +52,8 @@ pub struct BakeArgs {
     /// unbiased, and needs no photons (vdbphoton can be left out of the chain). They start
     /// where the camera's rays read each voxel and go where the image depends most on it
     /// (seen through clear air, in dense medium, by many pixels); voxels no ray reads get
-    /// none. [default: the --quality preset's, else 64]
+    /// none. [default: the --quality preset's, else 64; half that where --g is 0.5 or more in
+    /// magnitude, where each collision also probes toward the lights]
     #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"], help_heading = "Quality")]
     paths: Option<u32>,
     /// Random seed of --paths. [default: what the input records, else 0]
@@ -94,6 +95,11 @@ impl BakeArgs {
         let voxel = density.transform().voxel_size().min_element();
         let preset = Quality::settings_or_default(self.quality);
         let (medium, lights, environment) = stage.scene(&self.scene, traced)?;
+        let estimator = match self.paths {
+            Some(per_voxel) => MultipleEstimator::Paths { per_voxel },
+            None if self.gather_neighbours.is_none() && self.radius.is_none() => MultipleEstimator::default_paths(preset.paths, &medium),
+            None => MultipleEstimator::Photons,
+        };
         let params = CacheParams {
             medium,
             lights,
@@ -116,11 +122,7 @@ impl BakeArgs {
                     max_radius: self.max_radius * voxel,
                 },
             },
-            estimator: match self.paths {
-                Some(per_voxel) => MultipleEstimator::Paths { per_voxel },
-                None if self.gather_neighbours.is_none() && self.radius.is_none() => MultipleEstimator::Paths { per_voxel: preset.paths },
-                None => MultipleEstimator::Photons,
-            },
+            estimator,
             seed: self.seed.or(meta.seed()).unwrap_or(0),
             min_transmittance: self.min_transmittance,
             shadows: match self.shadows.as_str() {
