@@ -28,12 +28,17 @@ if [ -z "${BIN:-}" ]; then
     cargo build --release --locked -p nimbus --bins -p nimbus-bench >&2
 fi
 bin=${BIN:-${CARGO_TARGET_DIR:-target}/release}
-echo "| scene | --cache-scale | vdbcache --no-multiple wall s | vdbmarch against the brute-force march |"
-echo "|---|---|---|---|"
-for scene in anvil forward sheet; do
+# Writes $work/$scene.vdb and sets $medium and $camera, the flags that complete it.
+make_scene() {
+    local flags
     flags=$("$bin/nimbus-scene" "$scene" "$work/$scene.vdb")
     medium=$(echo "$flags" | sed -n 1p)
     camera=$(echo "$flags" | sed -n 2p)
+}
+echo "| scene | --cache-scale | vdbcache --no-multiple wall s | vdbmarch against the brute-force march |"
+echo "|---|---|---|---|"
+for scene in anvil forward sheet; do
+    make_scene
     images=()
     declare -A bake
     for scale in default 1 0.5; do
@@ -59,9 +64,7 @@ echo
 echo "| scene | chain CPU s | against the reference | less the reference's noise | reference's noise | mean ratio |"
 echo "|---|---|---|---|---|---|"
 for scene in anvil forward sheet; do
-    flags=$("$bin/nimbus-scene" "$scene" "$work/$scene.vdb")
-    medium=$(echo "$flags" | sed -n 1p)
-    camera=$(echo "$flags" | sed -n 2p)
+    make_scene
     # shellcheck disable=SC2086
     cpu=$( { /usr/bin/time -f "%U %S" "$bin/vdbcache" "$work/$scene.vdb" $medium $camera --width "$w" --height "$h" \
         -q -o "$work/$scene-chain.vdb"; } 2>&1 | tail -n 1)

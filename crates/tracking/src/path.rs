@@ -117,25 +117,8 @@ pub fn trace_path(
     rng: &mut Rng,
     sources: PathSources,
 ) -> PathLight {
-    trace_path_probing(medium, optics, lights, shadowing, origin, dir, start, max_depth, rng, sources, optics.phase().g.abs() >= PROBE_FROM_G)
-}
-
-/// [`trace_path`], with probes toward the lights at each collision or without.
-#[allow(clippy::too_many_arguments)]
-fn trace_path_probing(
-    medium: DensityMedium,
-    optics: &Medium,
-    lights: &[Light],
-    shadowing: Shadowing,
-    origin: DVec3,
-    dir: DVec3,
-    start: PathStart,
-    max_depth: u32,
-    rng: &mut Rng,
-    sources: PathSources,
-    probes: bool,
-) -> PathLight {
     let phase = optics.phase();
+    let probes = probes_for(phase);
     let environment = sources.environment.filter(|e| !e.is_black());
     let mut light = PathLight::default();
     let (mut x, mut w) = (origin, dir);
@@ -223,6 +206,20 @@ fn trace_path_probing(
 /// broad and the phase function's own flights already find the lights.
 pub const PROBE_FROM_G: f32 = 0.5;
 
+#[cfg(test)]
+thread_local! {
+    /// Tests compare paths with and without probes on one medium.
+    static PROBES: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
+}
+
+fn probes_for(phase: HenyeyGreenstein) -> bool {
+    #[cfg(test)]
+    if let Some(forced) = PROBES.with(|p| p.get()) {
+        return forced;
+    }
+    phase.g.abs() >= PROBE_FROM_G
+}
+
 
 /// The delta lights' next-event estimate at `x` toward `w_out`: each light's
 /// `E p(w_light, w_out) T`, T as `shadowing` finds it (ratio tracking, or the light's tabled
@@ -288,7 +285,8 @@ mod tests {
         for i in 0..n {
             let mut rng = Rng::new(11, i);
             let dir = (DVec3::new(0.1 * (rng.next_f64() - 0.5), 3.0, 0.1 * (rng.next_f64() - 0.5)) - DVec3::ZERO).normalize();
-            let l = trace_path_probing(medium, &optics, &lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, 64, &mut rng, PathSources::default(), probes);
+            PROBES.with(|p| p.set(Some(probes)));
+            let l = trace_path(medium, &optics, &lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, 64, &mut rng, PathSources::default());
             let y = luminance(l.total()) as f64;
             sum += y;
             sum2 += y * y;
