@@ -78,8 +78,13 @@ struct CachePhoton {
 
 struct CacheOut {
     li: vec3<f32>,
-    // Photons the estimate used.
+    // Photons the estimate used; for the paths, the voxel's path count.
     used: u32,
+    // The paths' mean square over the colour channels (budget.rs), else 0.
+    square: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 const GATHER_NEAREST: u32 = 0u;
@@ -373,17 +378,17 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
         g = gather_nearest(x, w_out);
     }
     if (g.used == 0u || g.radius <= 0.0) {
-        return CacheOut(vec3<f32>(0.0), g.used);
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
     }
     let mean_density = mean_density_in_ball(x, g.radius);
     if (mean_density < params.empty_below) {
-        return CacheOut(vec3<f32>(0.0), g.used);
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
     }
     let volume = 4.0 / 3.0 * OPTICS_PI * g.radius * g.radius * g.radius;
     let mean_sigma_s = medium_sigma_s(params.medium, mean_density);
     let estimate = g.sum / volume;
     let li = select(vec3<f32>(0.0), estimate / mean_sigma_s, mean_sigma_s > vec3<f32>(0.0));
-    return CacheOut(li, g.used);
+    return CacheOut(li, g.used, 0.0, 0u, 0u, 0u);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -419,6 +424,7 @@ fn continue_paths(v: u32) {
     var rng = path_rngs[v];
     let offset = path_offset(v);
     var sum = out[v].li;
+    var squares = out[v].square;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
         let x = path_origins[path_first[v] + p % min(n, CACHE_MAX_ORIGINS)].xyz;
@@ -430,20 +436,25 @@ fn continue_paths(v: u32) {
         }
         // The environment scattered at the origin itself: a next-event estimate there (a map's)
         // and the first flight below when it escapes (li_multiple_paths).
+        var estimate = vec3<f32>(0.0);
         if (env_kind() == 2u) {
-            sum = sum + environment_nee(x, -axis, params.medium, params.grid, false, &rng);
+            estimate = environment_nee(x, -axis, params.medium, params.grid, false, &rng);
         }
         // From the phase function about the camera ray's direction (the phase weight cancels),
         // by the voxel's rotated R2 sequence (li_multiple_paths).
         let first = hg_sample(params.medium.g, axis, r2_point(offset, p));
         let dir = normalize(first.w_out);
         let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
-        sum = sum + (path.single + path.multiple + path.emission);
+        estimate = estimate + (path.single + path.multiple + path.emission);
+        sum = sum + estimate;
+        squares = squares + dot(estimate, estimate) / 3.0;
     }
     if (end == n) {
         sum = sum / f32(n);
+        squares = squares / f32(n);
     }
     out[v].li = sum;
+    out[v].square = squares;
     path_rngs[v] = rng;
 }
 
@@ -460,7 +471,7 @@ fn bake_single(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     }
     let v = params.first + i;
     let x = points[v].xyz;
-    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u);
+    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u, 0.0, 0u, 0u, 0u);
     loop_guard_check();
 }
 

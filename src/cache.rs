@@ -2,7 +2,7 @@
 //! input's metadata and the --quality preset; the photons it reads, the grids it writes.
 
 use clap::Args;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{CameraArgs, EmissionArgs, EmissionGrids, Failure, Quality, SceneArgs, Stage};
 use nimbus_gpu::ComputeDevice;
 use nimbus_photon::PhotonMap;
@@ -56,6 +56,13 @@ pub struct BakeArgs {
     /// magnitude, where each collision also probes toward the lights]
     #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"], help_heading = "Quality")]
     paths: Option<u32>,
+    /// The relative noise the paths may leave in the image. After the first pass of paths the
+    /// bake predicts it from their measured spread and, where it is more, traces up to 15
+    /// times as many again (strong forward scattering needs them; a diffuse cloud does not);
+    /// 0 turns it off. [default: 0.02 without --paths, off with it; the draft and preview
+    /// presets do not top up]
+    #[arg(long, value_name = "TOLERANCE", help_heading = "Quality")]
+    path_tolerance: Option<f64>,
     /// Random seed of --paths. [default: what the input records, else 0]
     #[arg(long, help_heading = "Quality")]
     seed: Option<u64>,
@@ -112,6 +119,11 @@ impl BakeArgs {
                 (Some(_), _) => None,
                 (None, Some(t)) => Some(t),
                 (None, None) => preset.refine_single.then_some(SINGLE_LATTICE_TOLERANCE),
+            },
+            path_tolerance: match (self.path_tolerance, self.paths) {
+                (Some(t), _) => (t > 0.0).then_some(t),
+                (None, None) => preset.top_up_paths.then_some(PATH_TOLERANCE),
+                (None, Some(_)) => None,
             },
             single: !self.no_single,
             multiple: !self.no_multiple,
@@ -216,8 +228,10 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
 /// The bake's -v line.
 fn summary(s: &BakeStats) -> String {
     format!(
-        "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced, {} light table nodes{}; {}",
-        s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths, s.light_table_nodes,
+        "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced{}, {} light table nodes{}; {}",
+        s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths,
+        s.path_noise.map_or(String::new(), |(first, last)| format!(" (their noise in the image predicted at {:.2}% after the first pass, {:.2}% after all)", 100.0 * first, 100.0 * last)),
+        s.light_table_nodes,
         s.single_lattice.as_ref().map_or(String::new(), |l| format!(
             "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels)",
             l.scale.x, l.scale.y, l.scale.z, 100.0 * l.estimate.x, 100.0 * l.estimate.y, 100.0 * l.estimate.z, l.samples
@@ -282,6 +296,7 @@ pub fn record(params: &CacheParams, stats: &BakeStats, cache: &IlluminationCache
         ("culled_empty", stats.culled_empty.to_string()),
         ("photons_gathered", stats.photons_gathered.to_string()),
         ("paths", stats.paths.to_string()),
+        ("path_noise", stats.path_noise.map_or("none".to_string(), |(first, last)| format!("{first:.4}:{last:.4}"))),
         ("seed", params.seed.to_string()),
         ("shadows", params.shadows.describe()),
     ]

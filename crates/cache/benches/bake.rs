@@ -94,6 +94,7 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         step: 1.0,
         cache_scale: 1.2,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

@@ -12,7 +12,7 @@ use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField,
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PhotonBins, PATH_MAX_DEPTH};
+use crate::{more_paths, predicted_noise, second_pass_seed, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -210,10 +210,27 @@ pub fn li_multiple_paths(
     eye: DVec3,
     rng: &mut Rng,
 ) -> Vec3 {
+    li_multiple_path_moments(medium, optics, lights, depths, sources, origins, paths, eye, rng).mean
+}
+
+/// [`li_multiple_paths`] with the mean square of the paths' estimates (over the colour
+/// channels), from which the bake predicts the noise they leave in the image (budget.rs).
+#[allow(clippy::too_many_arguments)]
+pub fn li_multiple_path_moments(
+    medium: DensityMedium,
+    optics: &Medium,
+    lights: &[Light],
+    depths: &LightDepths,
+    sources: PathSources,
+    origins: &[DVec3],
+    paths: u32,
+    eye: DVec3,
+    rng: &mut Rng,
+) -> PathMoments {
     let phase = optics.phase();
-    let mut sum = Vec3::ZERO;
+    let (mut sum, mut squares) = (Vec3::ZERO, 0.0f32);
     if origins.is_empty() {
-        return sum;
+        return PathMoments::default();
     }
     let environment = sources.environment.filter(|e| !e.is_black());
     // The first directions of a voxel's paths: the R2 sequence rotated by the stream's first
@@ -224,14 +241,18 @@ pub fn li_multiple_paths(
         let w_out = (eye - x).normalize_or_zero().as_vec3();
         // At the eye itself there is no camera ray; any axis serves.
         let axis = if w_out == Vec3::ZERO { Vec3::Z } else { -w_out };
+        let mut estimate = Vec3::ZERO;
         if let Some(env) = environment {
-            sum += environment_nee(medium, phase, env, x, -axis, false, rng);
+            estimate += environment_nee(medium, phase, env, x, -axis, false, rng);
         }
         let dir = phase.sample(axis, r2_point(offset, j as u32)).as_dvec3().normalize();
         let start = PathStart::Scattered { w_in: axis };
-        sum += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
+        estimate += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
+        sum += estimate;
+        squares += estimate.length_squared() / 3.0;
     }
-    sum / paths.max(1) as f32
+    let n = paths.max(1) as f32;
+    PathMoments { mean: sum / n, mean_square: squares / n }
 }
 
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
@@ -306,19 +327,29 @@ pub fn bake_cpu_emitting(
         MultipleEstimator::Paths { per_voxel } => {
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
-            let traced = AtomicU64::new(0);
             let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
             let started = std::time::Instant::now();
-            let volume = bake("paths", multiple_plan, Some(&path_plan.counts), &|i, _, _, _| {
-                let paths = path_plan.counts[i];
-                traced.fetch_add(paths as u64, Ordering::Relaxed);
-                let mut rng = Rng::with_domain(params.seed, i as u64, CACHE_PATHS_DOMAIN);
-                let sources = PathSources { environment: params.environment.as_ref(), emission };
-                li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, path_plan.origins_of(i), paths, camera.eye(), &mut rng)
-            });
+            let trace = |what: &str, plan: &PathPlan, seed: u64| -> Vec<PathMoments> {
+                let task = nimbus_progress::task(what, plan.total());
+                (0..plan.counts.len())
+                    .into_par_iter()
+                    .map(|i| {
+                        let paths = plan.counts[i];
+                        let mut rng = Rng::with_domain(seed, i as u64, CACHE_PATHS_DOMAIN);
+                        let sources = PathSources { environment: params.environment.as_ref(), emission };
+                        let m = li_multiple_path_moments(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), paths, camera.eye(), &mut rng);
+                        task.advance(paths as u64);
+                        m
+                    })
+                    .collect()
+            };
+            let (moments, counts) = top_up(&path_plan, multiple_plan, li_single.as_ref(), params, &mut stats, |what, plan, seed| Ok::<_, CacheError>(trace(what, plan, seed)))?;
             stats.stages.push(("paths", started.elapsed().as_millis() as u64));
-            stats.paths = traced.into_inner();
+            stats.paths = counts;
             stats.culled_unseen = path_plan.unseen();
+            let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
+            let (volume, bad) = multiple_plan.volume_of(&values);
+            nonfinite += bad;
             Some(volume)
         }
     };
@@ -369,4 +400,31 @@ fn typical_radius(photons: &PhotonMap, k: u32) -> f64 {
     let (lo, hi) = photons.positions.iter().fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), &p| (a.min(p), b.max(p)));
     let volume = (hi - lo).max(DVec3::splat(1e-6)).element_product();
     (k as f64 * volume / (photons.len() as f64 * 4.0 / 3.0 * PI)).cbrt()
+}
+
+/// The paths of `plan` traced by `trace(progress label, plan, seed)`, then, where
+/// [`CacheParams::path_tolerance`] asks for it and the predicted noise exceeds it, a second
+/// pass merged in (budget.rs): each voxel's moments in plan order, and the paths traced.
+/// Both backends run this, with their own `trace`.
+pub(crate) fn top_up<E>(
+    plan: &PathPlan,
+    voxels: &CachePlan,
+    single: Option<&Volume<Vec3>>,
+    params: &CacheParams,
+    stats: &mut BakeStats,
+    mut trace: impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
+) -> Result<(Vec<PathMoments>, u64), E> {
+    let first = trace("paths", plan, params.seed)?;
+    let Some(tolerance) = params.path_tolerance else { return Ok((first, plan.total())) };
+    let noise = predicted_noise(plan, voxels, &first, single);
+    let Some(extra) = more_paths(plan, noise, tolerance) else {
+        stats.path_noise = Some((noise, noise));
+        return Ok((first, plan.total()));
+    };
+    let more = plan.more(extra);
+    let second = trace("more paths", &more, second_pass_seed(params.seed))?;
+    let merged: Vec<PathMoments> = first.iter().zip(&second).enumerate().map(|(v, (a, b))| a.merged(plan.counts[v], *b, more.counts[v])).collect();
+    let all = PathPlan { counts: plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect(), ..more };
+    stats.path_noise = Some((noise, predicted_noise(&all, voxels, &merged, single)));
+    Ok((merged, all.total()))
 }

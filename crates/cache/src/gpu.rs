@@ -16,7 +16,7 @@ use crate::plan::Prologue;
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
-    transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathPlan, PhotonBins,
+    transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins,
     PATH_MAX_DEPTH,
 };
 
@@ -82,6 +82,9 @@ struct GpuPhoton {
 struct GpuOut {
     li: [f32; 3],
     used: u32,
+    /// The paths' mean square (budget.rs's PathMoments); 0 for the other kernels.
+    square: f32,
+    _pad: [u32; 3],
 }
 
 /// The CPU's quadrature, the heap bound and the paths' random-number domain as WGSL constants, so the two cannot drift apart.
@@ -179,7 +182,7 @@ pub fn bake_gpu_emitting(
     };
     stats.culled_unseen = path_plan.as_ref().map_or(0, PathPlan::unseen);
     let kernel = match &path_plan {
-        Some(paths) => Kernel::Paths(paths),
+        Some(paths) => Kernel::Paths(paths, params.seed),
         None => Kernel::Photons,
     };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
@@ -202,12 +205,28 @@ pub fn bake_gpu_emitting(
         match kernel {
             Kernel::Single => {}
             Kernel::Photons => stats.photons_gathered = used,
-            Kernel::Paths(_) => stats.paths = used,
+            Kernel::Paths(..) => stats.paths = used,
         }
         Ok(volume)
     };
     let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
-    let li_multiple = multiple.then(|| run(kernel, multiple_plan)).transpose()?;
+    let li_multiple = match (&path_plan, &baker) {
+        (Some(paths), Some(b)) if multiple => {
+            let started = std::time::Instant::now();
+            let positions = multiple_plan.voxel_positions();
+            let trace = |_: &str, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
+                Ok(b.run(Kernel::Paths(p, seed), &positions)?.iter().map(|o| PathMoments { mean: Vec3::from(o.li), mean_square: o.square }).collect())
+            };
+            let (moments, traced) = crate::cpu::top_up(paths, multiple_plan, li_single.as_ref(), params, &mut stats, trace)?;
+            stats.stages.push(("paths", started.elapsed().as_millis() as u64));
+            stats.paths = traced;
+            let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
+            let (volume, bad) = multiple_plan.volume_of(&values);
+            nonfinite += bad;
+            Some(volume)
+        }
+        _ => multiple.then(|| run(kernel, multiple_plan)).transpose()?,
+    };
     stats.nonfinite = nonfinite;
     let transmittance = stats.time("transmittance grids", || transmittance_grids(density, &depths));
     Ok((IlluminationCache { li_single, li_multiple, transmittance }, stats))
@@ -222,7 +241,7 @@ enum Kernel<'a> {
     Photons,
     /// Li_multiple by the plan's paths (`seed_paths`, then `bake_paths` in passes of
     /// [`PATHS_PER_DISPATCH`]).
-    Paths(&'a PathPlan),
+    Paths(&'a PathPlan, u64),
 }
 
 impl Kernel<'_> {
@@ -231,7 +250,7 @@ impl Kernel<'_> {
         match self {
             Kernel::Single => "single scattering",
             Kernel::Photons => "photon gather",
-            Kernel::Paths(_) => "paths",
+            Kernel::Paths(..) => "paths",
         }
     }
 }
@@ -394,14 +413,14 @@ impl<'a> GpuBaker<'a> {
         let points = ctx.storage_buffer("cache voxels", &points)?;
         let out = match kernel {
             // Each voxel's path count goes in with its zero sum.
-            Kernel::Paths(paths) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used }).collect::<Vec<_>>())?,
+            Kernel::Paths(paths, _) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used, square: 0.0, _pad: [0; 3] }).collect::<Vec<_>>())?,
             _ => ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
         };
         // Where each voxel's paths start (one dummy each for the other kernels: bindings
         // cannot be empty). u32 offsets suffice: 2^32 origins would be 64 GiB, past any
         // storage binding, and the upload fails on its size first.
         let (path_first, path_origins) = match kernel {
-            Kernel::Paths(paths) if !paths.origins.is_empty() => (
+            Kernel::Paths(paths, _) if !paths.origins.is_empty() => (
                 paths.first.iter().map(|&f| f as u32).collect(),
                 paths.origins.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect(),
             ),
@@ -414,12 +433,12 @@ impl<'a> GpuBaker<'a> {
         let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
             Kernel::Single => (vec![("bake_single", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's shadow rays", "or a longer --step"),
             Kernel::Photons => (vec![("bake_multiple", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's photon search", "or fewer --gather-neighbours"),
-            Kernel::Paths(paths) => {
+            Kernel::Paths(paths, seed) => {
                 assert_eq!(paths.counts.len() as u64, voxels, "one path count per voxel");
                 let (buffer, grid) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
                 let most = paths.counts.iter().copied().max().unwrap_or(0);
                 let passes = std::iter::once(("seed_paths", 0)).chain((0..most).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
-                let uniforms = GpuCacheParams { grid: *grid, ..self.uniforms };
+                let uniforms = GpuCacheParams { grid: *grid, seed: split_u64(seed), ..self.uniforms };
                 (passes, voxels * GPU_RNG_BYTES, uniforms, buffer, "a cache voxel's paths", "or a longer --step")
             }
         };
@@ -428,15 +447,15 @@ impl<'a> GpuBaker<'a> {
         // PATHS_PER_DISPATCH a voxel a `bake_paths` pass).
         let done = |entry: &str, first_path: u32, range: std::ops::Range<usize>| -> u64 {
             match kernel {
-                Kernel::Paths(paths) if entry == "bake_paths" => {
+                Kernel::Paths(paths, _) if entry == "bake_paths" => {
                     paths.counts[range].iter().map(|&c| u64::from(c.saturating_sub(first_path).min(PATHS_PER_DISPATCH))).sum()
                 }
-                Kernel::Paths(_) => 0,
+                Kernel::Paths(..) => 0,
                 _ => range.len() as u64,
             }
         };
         let total = match kernel {
-            Kernel::Paths(paths) => paths.counts.iter().map(|&c| u64::from(c)).sum(),
+            Kernel::Paths(paths, _) => paths.counts.iter().map(|&c| u64::from(c)).sum(),
             _ => voxels,
         };
         let task = nimbus_progress::task(kernel.name(), total);
@@ -446,7 +465,7 @@ impl<'a> GpuBaker<'a> {
         let every = total.div_ceil(nimbus_progress::STEPS).max(1);
         let mut pending = 0;
         let chunk = match kernel {
-            Kernel::Paths(_) => CHUNK,
+            Kernel::Paths(..) => CHUNK,
             _ => nimbus_progress::step_size(voxels, CHUNK, u64::from(WORKGROUP_SIZE)),
         };
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
@@ -525,7 +544,7 @@ mod tests {
                     }),
                 ),
                 ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
-                ("CacheOut", host_layout!(GpuOut { li, used })),
+                ("CacheOut", host_layout!(GpuOut { li, used, square, _pad })),
             ]);
             nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard).unwrap(), &mirrors);
         }

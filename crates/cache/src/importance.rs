@@ -63,6 +63,12 @@ pub struct PathPlan {
     pub counts: Vec<u32>,
     pub first: Vec<usize>,
     pub origins: Vec<DVec3>,
+    /// G_v per voxel (the module doc): what a voxel's noise adds to the image's squared error.
+    pub importance: Vec<f64>,
+    /// W_v per voxel: what its value adds to the image's summed level.
+    pub read_weight: Vec<f64>,
+    /// Importance rays that read any voxel: the pixels G and W are summed over.
+    pub covered_rays: usize,
 }
 
 impl PathPlan {
@@ -73,6 +79,22 @@ impl PathPlan {
 
     pub fn total(&self) -> u64 {
         self.counts.iter().map(|&n| n as u64).sum()
+    }
+
+    /// More paths for the same voxels: `extra[v]` for voxel v, from its origins (repeated
+    /// where it now has more paths than origins; the shaders and the CPU cycle through
+    /// min(count, [`MAX_ORIGINS_PER_VOXEL`]) of them).
+    pub fn more(&self, extra: Vec<u32>) -> PathPlan {
+        let mut first = Vec::with_capacity(extra.len());
+        let mut origins = Vec::new();
+        for (v, &n) in extra.iter().enumerate() {
+            first.push(origins.len());
+            let own = self.origins_of(v);
+            for j in 0..origin_count(n) as usize {
+                origins.push(own[j % own.len().max(1)]);
+            }
+        }
+        PathPlan { counts: extra, first, origins, importance: self.importance.clone(), read_weight: self.read_weight.clone(), covered_rays: self.covered_rays }
     }
 
     /// Voxels no path starts in: no camera ray reads them or any neighbour.
@@ -300,7 +322,9 @@ impl CameraImportance {
                 }
             }
         }
-        PathPlan { counts, first, origins }
+        let covered_rays = importance.reads.iter().filter(|r| !r.is_empty()).count();
+        let read_weight = importance.weight.iter().map(|&w| w as f64 / G_FIXED_ONE).collect();
+        PathPlan { counts, first, origins, importance: importance.g, read_weight, covered_rays }
     }
 
     /// Whether each voxel or one of its 26 neighbours is read by an importance sample: the

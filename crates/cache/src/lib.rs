@@ -52,6 +52,7 @@
 //! interpolation its neighbours, to huge values.
 
 mod bins;
+mod budget;
 mod cpu;
 mod gpu;
 mod importance;
@@ -59,7 +60,8 @@ mod lattice;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
+pub use budget::{more_paths, predicted_noise, second_pass_seed, PathMoments, MAX_PATH_GROWTH, PATH_TOLERANCE};
+pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_path_moments, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use lattice::{choose_single_lattice, SingleLattice, LATTICE_SAMPLES, MAX_REFINEMENT, SINGLE_LATTICE_TOLERANCE};
@@ -162,6 +164,11 @@ pub struct CacheParams {
     /// estimated relative interpolation error is within this ([`choose_single_lattice`]);
     /// None keeps `cache_scale` on every axis.
     pub single_tolerance: Option<f64>,
+    /// Where given, the path-traced Li_multiple is topped up until the relative noise its
+    /// paths leave in the image, predicted from their measured spread, is within this
+    /// (budget.rs; at most [`MAX_PATH_GROWTH`] times the paths); None traces the estimator's
+    /// count alone.
+    pub path_tolerance: Option<f64>,
     pub single: bool,
     pub multiple: bool,
     pub gather: Gather,
@@ -200,6 +207,9 @@ pub struct BakeStats {
     pub paths: u64,
     /// Of the baked voxels, given no paths because no camera ray reads them or a neighbour.
     pub culled_unseen: u64,
+    /// The relative noise the paths leave in the image, predicted after the first pass and
+    /// after all (budget.rs), where [`CacheParams::path_tolerance`] asked for it.
+    pub path_noise: Option<(f64, f64)>,
     /// Nodes of the lights' tabled transmittance.
     pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.

@@ -37,6 +37,7 @@ fn params(camera: Camera, medium: Medium) -> CacheParams {
         step: 0.5,
         cache_scale: 1.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: Some(2.0),
         single: true,
         multiple: true,

@@ -53,6 +53,7 @@ fn paths_only(v: &Volume<f32>, seed: u64) -> CacheParams {
         single: false,
         cache_scale: 1.5,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: Some(2.5),
         estimator: MultipleEstimator::Paths { per_voxel: 8 },
         seed,
@@ -234,6 +235,7 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
         camera: Camera::default_for_bounds(lo, hi).unwrap(),
         cache_scale: 2.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         ..params(&v)
     };
@@ -351,6 +353,7 @@ fn a_sun_with_a_disc_agrees_with_the_cpu_in_distribution() {
     let p = CacheParams {
         cache_scale: 1.5,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: Some(2.5),
         estimator: MultipleEstimator::Paths { per_voxel: 8 },
         lights: vec![sun],
@@ -422,6 +425,7 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         single: false,
         cache_scale: 2.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         estimator: MultipleEstimator::Paths { per_voxel: 4 },
         ..params(&v)

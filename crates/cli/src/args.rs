@@ -304,6 +304,9 @@ pub struct QualitySettings {
     /// vdbcache refines Li_single's lattice per axis to its interpolation tolerance
     /// (nimbus_cache::choose_single_lattice) unless `--cache-scale` is given.
     pub refine_single: bool,
+    /// vdbcache tops the paths up to its `--path-tolerance` (nimbus_cache::PATH_TOLERANCE)
+    /// unless `--paths` is given.
+    pub top_up_paths: bool,
     /// vdbmarch `--step` as a multiple of its default (nimbus_march::default_step).
     pub step_factor: f64,
     /// vdbmarch `--spp`; None: enough for the pixel's samples to lie half a density voxel
@@ -323,7 +326,7 @@ impl QualitySettings {
     /// cloud's noise sets it: 32 give 2.4%, 64 1.9-2.0%), and the march's samples per pixel
     /// by the image's footprint (the plume's sub-pixel wisps: 2.2% at one sample, 1.3% at 16).
     pub const DEFAULT: QualitySettings =
-        QualitySettings { paths: 64, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 1.0, multiple_scale: 2.0, refine_single: true, step_factor: 1.0, spp: None };
+        QualitySettings { paths: 64, photons: 200_000, distance: "delta", gather_neighbours: 64, cache_scale: 1.0, multiple_scale: 2.0, refine_single: true, top_up_paths: true, step_factor: 1.0, spp: None };
 }
 
 impl Quality {
@@ -342,9 +345,9 @@ impl Quality {
         match self {
             // Look development: a coarse lattice, not refined, and few paths (its blur and
             // noise are the error), one sample per pixel and a long march step.
-            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, gather_neighbours: 32, cache_scale: 2.0, multiple_scale: 4.0, refine_single: false, step_factor: 2.0, spp: Some(1), ..default },
-            // The default lattices at a quarter of the paths.
-            Quality::Preview => QualitySettings { paths: 16, ..default },
+            Quality::Draft => QualitySettings { paths: 4, photons: 50_000, gather_neighbours: 32, cache_scale: 2.0, multiple_scale: 4.0, refine_single: false, top_up_paths: false, step_factor: 2.0, spp: Some(1), ..default },
+            // The default lattices at a quarter of the paths, not topped up.
+            Quality::Preview => QualitySettings { paths: 16, top_up_paths: false, ..default },
             // Four times the default's paths (half its noise) and 16 stratified samples per
             // pixel, which average sub-pixel wisps as the reference does.
             Quality::Final => QualitySettings { paths: 256, photons: 3_200_000, gather_neighbours: 128, spp: Some(16), ..default },

@@ -21,6 +21,7 @@ pub fn params(medium: Medium, lights: Vec<Light>, camera: Camera) -> CacheParams
         step: 0.25,
         cache_scale: 1.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,

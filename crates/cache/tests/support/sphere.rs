@@ -41,6 +41,7 @@ impl Sphere {
             step: 0.5,
             cache_scale,
             single_tolerance: None,
+            path_tolerance: None,
             multiple_scale: None,
             single: false,
             multiple: true,
