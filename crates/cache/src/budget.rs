@@ -59,21 +59,17 @@ impl PathMoments {
     }
 }
 
-/// The relative noise the paths leave in the image (module doc), from the first pass's
-/// moments in plan order; `single`, Li_single where it was baked, for the image's level.
-pub fn predicted_noise(paths: &PathPlan, plan: &CachePlan, moments: &[PathMoments], single: Option<&Volume<Vec3>>) -> f64 {
-    let positions = single.map(|_| plan.voxel_positions());
+/// The relative noise the paths leave in the image (module doc), from the moments of their
+/// voxels in plan order; `single`, Li_single's level (the channels' mean) at each voxel where
+/// it was baked (else empty), counts toward the image's level.
+pub fn predicted_noise(paths: &PathPlan, moments: &[PathMoments], single: &[f32]) -> f64 {
     let (mut error, mut level) = (0.0f64, 0.0f64);
     for (v, m) in moments.iter().enumerate() {
         let n = paths.counts[v];
         if n > 0 {
             error += paths.importance[v] * m.path_variance(n) / n as f64;
         }
-        let single = match (single, &positions) {
-            (Some(s), Some(p)) => s.sample_world(p[v]),
-            _ => Vec3::ZERO,
-        };
-        let value = (m.mean + single).element_sum() as f64 / 3.0;
+        let value = m.mean.element_sum() as f64 / 3.0 + single.get(v).copied().unwrap_or(0.0) as f64;
         if value.is_finite() {
             level += paths.read_weight[v] * value;
         }
@@ -82,6 +78,12 @@ pub fn predicted_noise(paths: &PathPlan, plan: &CachePlan, moments: &[PathMoment
         return 0.0;
     }
     (paths.covered_rays as f64 * error).sqrt() / level
+}
+
+/// Li_single's level (the channels' mean) at each of `plan`'s voxels, for
+/// [`predicted_noise`]; empty without it.
+pub fn single_levels(plan: &CachePlan, single: Option<&Volume<Vec3>>) -> Vec<f32> {
+    single.map_or_else(Vec::new, |s| plan.voxel_positions().iter().map(|&x| s.sample_world(x).element_sum() / 3.0).collect())
 }
 
 /// The second pass's paths per voxel for a predicted noise `noise` against `tolerance`:
@@ -97,4 +99,48 @@ pub fn more_paths(paths: &PathPlan, noise: f64, tolerance: f64) -> Option<Vec<u3
 /// The second pass's seed: its own streams, so its paths are independent of the first's.
 pub fn second_pass_seed(seed: u64) -> u64 {
     seed ^ 0x5345_434f_4e44_0000 // "SECOND"
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_paths_spread_is_its_sample_variance_and_passes_merge_by_their_counts() {
+        // Paths of 1 and 3 (grey): mean 2, mean square 5, sample variance 2.
+        let m = PathMoments { mean: Vec3::splat(2.0), mean_square: 5.0 };
+        assert!((m.path_variance(2) - 2.0).abs() < 1e-12);
+        assert_eq!(m.path_variance(1), 0.0, "one path has no spread to measure");
+        let other = PathMoments { mean: Vec3::splat(5.0), mean_square: 25.0 };
+        let merged = m.merged(2, other, 1);
+        assert!((merged.mean - Vec3::splat(3.0)).abs().max_element() < 1e-6);
+        assert!((merged.mean_square - 35.0 / 3.0).abs() < 1e-5);
+        assert_eq!(m.merged(2, other, 0), m, "no second pass: the first's moments");
+    }
+
+    #[test]
+    fn the_predicted_noise_is_the_importance_weighted_variance_over_the_weighted_level() {
+        // Two voxels: G 4 and 1, W 2 and 1, 4 and 2 paths of spread 3 and 0, means 1 and 2
+        // (grey), Li_single 0.5 at the first; two covered rays.
+        let plan = PathPlan { counts: vec![4, 2], first: vec![0; 2], origins: Vec::new(), importance: vec![4.0, 1.0], read_weight: vec![2.0, 1.0], covered_rays: 2 };
+        // Sample variance 3 from 4 paths: mean square = 1 + 3 * 3 / 4.
+        let moments = [PathMoments { mean: Vec3::ONE, mean_square: 1.0 + 2.25 }, PathMoments { mean: Vec3::splat(2.0), mean_square: 4.0 }];
+        let error = 4.0 * 3.0 / 4.0; // G var / n, the second voxel's spread being 0
+        let level = 2.0 * (1.0 + 0.5) + 1.0 * 2.0;
+        let expected = (2.0f64 * error).sqrt() / level;
+        assert!((predicted_noise(&plan, &moments, &[0.5, 0.0]) - expected).abs() < 1e-6 * expected);
+        assert_eq!(predicted_noise(&plan, &[PathMoments::default(); 2], &[]), 0.0, "no light: nothing to be relative to");
+    }
+
+    #[test]
+    fn the_second_pass_scales_every_voxels_paths_by_the_squared_noise_ratio_up_to_the_cap() {
+        let plan = PathPlan { counts: vec![0, 1, 8, 20], first: vec![0; 4], origins: Vec::new(), importance: vec![0.0; 4], read_weight: vec![0.0; 4], covered_rays: 1 };
+        assert_eq!(more_paths(&plan, 0.01, 0.02), None, "under the tolerance: no second pass");
+        assert_eq!(more_paths(&plan, 0.03, 0.0), None, "0 turns it off");
+        // Twice the tolerance: four times the paths in all, three more per path.
+        assert_eq!(more_paths(&plan, 0.04, 0.02), Some(vec![0, 3, 24, 60]));
+        // Ten times: capped at MAX_PATH_GROWTH in all.
+        let capped = more_paths(&plan, 0.2, 0.02).unwrap();
+        assert_eq!(capped, vec![0, 15, 120, 300]);
+    }
 }

@@ -12,7 +12,7 @@ use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField,
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
-use crate::{more_paths, predicted_noise, second_pass_seed, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
+use crate::{more_paths, predicted_noise, second_pass_seed, single_levels, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -416,7 +416,8 @@ pub(crate) fn top_up<E>(
 ) -> Result<(Vec<PathMoments>, u64), E> {
     let first = trace("paths", plan, params.seed)?;
     let Some(tolerance) = params.path_tolerance else { return Ok((first, plan.total())) };
-    let noise = predicted_noise(plan, voxels, &first, single);
+    let single = single_levels(voxels, single);
+    let noise = predicted_noise(plan, &first, &single);
     let Some(extra) = more_paths(plan, noise, tolerance) else {
         stats.path_noise = Some((noise, noise));
         return Ok((first, plan.total()));
@@ -425,6 +426,6 @@ pub(crate) fn top_up<E>(
     let second = trace("more paths", &more, second_pass_seed(params.seed))?;
     let merged: Vec<PathMoments> = first.iter().zip(&second).enumerate().map(|(v, (a, b))| a.merged(plan.counts[v], *b, more.counts[v])).collect();
     let all = PathPlan { counts: plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect(), ..more };
-    stats.path_noise = Some((noise, predicted_noise(&all, voxels, &merged, single)));
+    stats.path_noise = Some((noise, predicted_noise(&all, &merged, &single)));
     Ok((merged, all.total()))
 }

@@ -319,6 +319,35 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     assert!((same_other as f64) < 0.5 * lit_other as f64, "seed 6 agrees with seed 5 at {same_other} of {lit_other} lit voxels");
 }
 
+/// The top-up (budget.rs) on both backends: the GPU's paths report their mean squares as the
+/// CPU's do, so both predict the same noise, trace a second pass of about the same size from
+/// the second pass's streams, and agree in distribution after it.
+#[test]
+fn paths_topped_up_to_a_tolerance_agree_with_the_cpu() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let none = PhotonMap::default();
+    // The first pass alone, its noise predicted (a tolerance no bake misses).
+    let first = CacheParams { path_tolerance: Some(1.0), ..paths_only(&v, 5) };
+    let (_, cpu_first) = bake_cpu(&v, &none, &first).unwrap();
+    let (_, gpu_first) = bake_gpu(ctx, &v, &none, &first).unwrap();
+    let (cpu_noise, gpu_noise) = (cpu_first.path_noise.unwrap().0, gpu_first.path_noise.unwrap().0);
+    eprintln!("predicted noise after the first pass: CPU {cpu_noise:.4}, GPU {gpu_noise:.4}");
+    assert!(cpu_noise > 0.0 && (gpu_noise / cpu_noise - 1.0).abs() < 0.05, "CPU {cpu_noise}, GPU {gpu_noise}");
+    // Half of it: about four times the paths in all.
+    let p = CacheParams { path_tolerance: Some(cpu_noise / 2.0), ..first };
+    let (cpu, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
+    let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
+    let growth = cpu_stats.paths as f64 / cpu_first.paths as f64;
+    eprintln!("CPU {:?} {} paths, GPU {:?} {} paths ({growth:.2}x the first pass)", cpu_stats.path_noise, cpu_stats.paths, gpu_stats.path_noise, gpu_stats.paths);
+    assert!((3.5..4.7).contains(&growth), "about four times the paths: {growth}");
+    assert!((gpu_stats.paths as f64 / cpu_stats.paths as f64 - 1.0).abs() < 0.05, "CPU {} paths, GPU {}", cpu_stats.paths, gpu_stats.paths);
+    let (n, _, _, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
+    eprintln!("{n} voxels; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
+    assert!(n > 500 && level > 0.0);
+    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+}
+
 /// A uniform sky and a map through the paths on both backends: escaping flights, and for
 /// the map next-event estimation at the voxel and at every collision, from the same random
 /// streams.

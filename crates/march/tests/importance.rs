@@ -88,6 +88,7 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
         step: 1.0,
         cache_scale: 4.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         single: false,
         multiple: true,

@@ -138,6 +138,7 @@ pub fn single_scattering_chain(density: &Volume<f32>, medium: Medium, sun: Light
         step: 0.5,
         cache_scale: 1.0,
         single_tolerance: None,
+        path_tolerance: None,
         multiple_scale: None,
         single: true,
         multiple: false,
