@@ -100,7 +100,7 @@ pub fn run(cmd: &mut Command) -> Output {
 /// [`pipe_output`], asserting the tool succeeded.
 pub fn pipe_ok(tool: &str, args: &[&str], input: &[u8]) -> Output {
     let out = pipe_output(tool, args, input);
-    assert!(out.status.success(), "{tool} {args:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{tool} {args:?} failed ({}): {}", out.status, String::from_utf8_lossy(&out.stderr));
     out
 }
 

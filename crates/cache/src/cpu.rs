@@ -184,7 +184,8 @@ pub fn li_multiple(
 /// each leaves its origin x in a direction drawn from the phase function about the camera
 /// ray's direction there (-w_out, w_out toward `eye`), so the phase weight cancels, and
 /// gathers all the light the path scatters toward x (its first collision is x's second
-/// scattering); the mean over the paths. `medium`'s majorant must suit delta tracking
+/// scattering); the mean over the paths, and the mean of their squares over the colour
+/// channels, from which the bake predicts the noise they leave in the image (budget.rs). `medium`'s majorant must suit delta tracking
 /// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
 /// `depths` where a light has a table.
 ///
@@ -200,23 +201,6 @@ pub fn li_multiple(
 /// no medium scattered), so nothing is counted twice.
 #[allow(clippy::too_many_arguments)]
 pub fn li_multiple_paths(
-    medium: DensityMedium,
-    optics: &Medium,
-    lights: &[Light],
-    depths: &LightDepths,
-    sources: PathSources,
-    origins: &[DVec3],
-    paths: u32,
-    eye: DVec3,
-    rng: &mut Rng,
-) -> Vec3 {
-    li_multiple_path_moments(medium, optics, lights, depths, sources, origins, paths, eye, rng).mean
-}
-
-/// [`li_multiple_paths`] with the mean square of the paths' estimates (over the colour
-/// channels), from which the bake predicts the noise they leave in the image (budget.rs).
-#[allow(clippy::too_many_arguments)]
-pub fn li_multiple_path_moments(
     medium: DensityMedium,
     optics: &Medium,
     lights: &[Light],
@@ -337,7 +321,7 @@ pub fn bake_cpu_emitting(
                         let paths = plan.counts[i];
                         let mut rng = Rng::with_domain(seed, i as u64, CACHE_PATHS_DOMAIN);
                         let sources = PathSources { environment: params.environment.as_ref(), emission };
-                        let m = li_multiple_path_moments(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), paths, camera.eye(), &mut rng);
+                        let m = li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), paths, camera.eye(), &mut rng);
                         task.advance(paths as u64);
                         m
                     })

@@ -259,6 +259,9 @@ impl Kernel<'_> {
 /// enough that lavapipe's loop limit (see cache.wgsl) is far off for ordinary media.
 const PATHS_PER_DISPATCH: u32 = 4;
 
+/// Most dispatches submitted before the host waits for the GPU (see `GpuBaker::run`).
+const MAX_IN_FLIGHT: u32 = 64;
+
 /// Bytes of one WGSL `Rng` in a storage array (vec2, vec4, vec4, u32; 16-byte aligned).
 const GPU_RNG_BYTES: u64 = 64;
 
@@ -468,7 +471,14 @@ impl<'a> GpuBaker<'a> {
             Kernel::Paths(..) => CHUNK,
             _ => nimbus_progress::step_size(voxels, CHUNK, u64::from(WORKGROUP_SIZE)),
         };
+        // A paths pass need not visit chunks whose voxels have all run out of paths: the
+        // passes run to the largest count, which one voxel the camera reads closely can set.
+        let chunk_most: Vec<u32> = match kernel {
+            Kernel::Paths(paths, _) => paths.counts.chunks(chunk as usize).map(|c| c.iter().copied().max().unwrap_or(0)).collect(),
+            _ => Vec::new(),
+        };
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
+        let mut in_flight = 0;
         for &(entry, first_path) in &passes {
             if !pipelines.iter().any(|(e, _)| *e == entry) {
                 pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout, &self.tables_layout, &self.emission_layout])?));
@@ -477,6 +487,10 @@ impl<'a> GpuBaker<'a> {
             let mut first = 0;
             while first < voxels {
                 let count = (voxels - first).min(chunk);
+                if entry == "bake_paths" && chunk_most[(first / chunk) as usize] <= first_path {
+                    first += count;
+                    continue;
+                }
                 let dispatch = GpuCacheParams { first: first as u32, count: count as u32, first_path, ..uniforms };
                 let uniform_buffer = ctx.uniform_buffer("cache params", &dispatch)?;
                 let [lights, starts, sorted] = &self.buffers;
@@ -488,8 +502,13 @@ impl<'a> GpuBaker<'a> {
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
                 pending += done(entry, first_path, first as usize..(first + count) as usize);
-                if task.shown() && pending >= every {
+                in_flight += 1;
+                // Each dispatch holds its uniform buffer and bind group until the GPU is
+                // done with it: waiting every MAX_IN_FLIGHT dispatches bounds that memory
+                // (a bake of thousands of passes, unwaited in a pipe, had grown to 24 GB).
+                if (task.shown() && pending >= every) || in_flight >= MAX_IN_FLIGHT {
                     ctx.wait()?;
+                    in_flight = 0;
                     task.advance(std::mem::take(&mut pending));
                 }
                 first += count;
