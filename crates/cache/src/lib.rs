@@ -19,7 +19,11 @@
 //!   voxels' centres did; docs/benchmarks.md). Voxels no camera ray reads, nor a neighbour, get no paths.
 //!   A voxel's paths take their first directions from its R2 sequence (rotated per voxel:
 //!   each direction still the phase function's), which spreads them evenly.
-//!   Unbiased per point, so the error falls as 1/sqrt(N). With the medium's emission
+//!   Unbiased per point, so the error falls as 1/sqrt(N). Where
+//!   [`CacheParams::path_tolerance`] is given, that count is a first pass: the paths' spread
+//!   per voxel, weighted by the camera importance, predicts the relative noise they leave in
+//!   the image, and a second pass scales every voxel's paths until it is within the
+//!   tolerance (budget.rs: [`predicted_noise`], [`more_paths`]; both backends, on the host). With the medium's emission
 //!   ([`bake_cpu_emitting`], [`bake_gpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
 //!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
 //!   along camera rays itself), with or without lights.
