@@ -19,7 +19,7 @@
 use glam::Vec3;
 use nimbus_volume::Volume;
 
-use crate::{CachePlan, PathPlan};
+use crate::{BakeStats, CacheParams, CachePlan, PathPlan};
 
 /// Most paths the second pass may add, as a multiple of the first pass's: bounds the bake's
 /// time where the predicted noise stays high (a medium no path count tames in reasonable
@@ -59,13 +59,14 @@ impl PathMoments {
     }
 }
 
-/// The relative noise the paths leave in the image (module doc), from the moments of their
-/// voxels in plan order; `single`, Li_single's level (the channels' mean) at each voxel where
-/// it was baked (else empty), counts toward the image's level.
-pub fn predicted_noise(paths: &PathPlan, moments: &[PathMoments], single: &[f32]) -> f64 {
+/// The relative noise the paths leave in the image (module doc), from the moments of
+/// `counts[v]` paths per voxel in plan order, weighed by `paths`' image weights; `single`,
+/// Li_single's level (the channels' mean) at each voxel where it was baked (else empty),
+/// counts toward the image's level.
+pub fn predicted_noise(paths: &PathPlan, counts: &[u32], moments: &[PathMoments], single: &[f32]) -> f64 {
     let (mut error, mut level) = (0.0f64, 0.0f64);
     for (v, m) in moments.iter().enumerate() {
-        let n = paths.counts[v];
+        let n = counts[v];
         if n > 0 {
             error += paths.importance[v] * m.path_variance(n) / n as f64;
         }
@@ -101,6 +102,43 @@ pub fn second_pass_seed(seed: u64) -> u64 {
     seed ^ 0x5345_434f_4e44_0000 // "SECOND"
 }
 
+/// The paths stage both backends share: `plan`'s paths traced by `trace(progress label,
+/// plan, seed)`, then, where [`CacheParams::path_tolerance`] asks for it and the predicted
+/// noise exceeds it, a second pass merged in. Records the paths traced, the noise predicted
+/// and the stage's time in `stats`; returns Li_multiple on `voxels` and its count of
+/// non-finite values (stored as zero).
+pub(crate) fn trace_to_tolerance<E>(
+    plan: &PathPlan,
+    voxels: &CachePlan,
+    single: Option<&Volume<Vec3>>,
+    params: &CacheParams,
+    stats: &mut BakeStats,
+    mut trace: impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
+) -> Result<(Volume<Vec3>, u64), E> {
+    let started = std::time::Instant::now();
+    let mut moments = trace("paths", plan, params.seed)?;
+    let mut traced = plan.total();
+    if let Some(tolerance) = params.path_tolerance {
+        let single = single_levels(voxels, single);
+        let noise = predicted_noise(plan, &plan.counts, &moments, &single);
+        stats.path_noise = Some((noise, noise));
+        if let Some(extra) = more_paths(plan, noise, tolerance) {
+            let more = plan.more(extra);
+            let second = trace("more paths", &more, second_pass_seed(params.seed))?;
+            for (v, (m, s)) in moments.iter_mut().zip(&second).enumerate() {
+                *m = m.merged(plan.counts[v], *s, more.counts[v]);
+            }
+            let counts: Vec<u32> = plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect();
+            stats.path_noise = Some((noise, predicted_noise(plan, &counts, &moments, &single)));
+            traced += more.total();
+        }
+    }
+    stats.stages.push(("paths", started.elapsed().as_millis() as u64));
+    stats.paths = traced;
+    let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
+    Ok(voxels.volume_of(&values))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -128,8 +166,8 @@ mod tests {
         let error = 4.0 * 3.0 / 4.0; // G var / n, the second voxel's spread being 0
         let level = 2.0 * (1.0 + 0.5) + 1.0 * 2.0;
         let expected = (2.0f64 * error).sqrt() / level;
-        assert!((predicted_noise(&plan, &moments, &[0.5, 0.0]) - expected).abs() < 1e-6 * expected);
-        assert_eq!(predicted_noise(&plan, &[PathMoments::default(); 2], &[]), 0.0, "no light: nothing to be relative to");
+        assert!((predicted_noise(&plan, &plan.counts, &moments, &[0.5, 0.0]) - expected).abs() < 1e-6 * expected);
+        assert_eq!(predicted_noise(&plan, &plan.counts, &[PathMoments::default(); 2], &[]), 0.0, "no light: nothing to be relative to");
     }
 
     #[test]

@@ -12,7 +12,8 @@ use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField,
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
-use crate::{more_paths, predicted_noise, second_pass_seed, single_levels, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
+use crate::budget::trace_to_tolerance;
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -185,8 +186,8 @@ pub fn li_multiple(
 /// ray's direction there (-w_out, w_out toward `eye`), so the phase weight cancels, and
 /// gathers all the light the path scatters toward x (its first collision is x's second
 /// scattering); the mean over the paths, and the mean of their squares over the colour
-/// channels, from which the bake predicts the noise they leave in the image (budget.rs). `medium`'s majorant must suit delta tracking
-/// ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
+/// channels, from which the bake predicts the noise they leave in the image (budget.rs).
+/// `medium`'s majorant must suit delta tracking ([`MajorantGrid::for_tracking`]); next-event estimation looks transmittance up in
 /// `depths` where a light has a table.
 ///
 /// With an environment, each path also estimates the environment's light scattered at x
@@ -271,17 +272,15 @@ pub fn bake_cpu_emitting(
 
     let mut nonfinite = 0;
     // f(voxel index in plan order, position, w_out, scratch).
-    // Progress counts a voxel's `weights` (its paths), else 1 a voxel.
-    let mut bake = |what: &str, plan: &CachePlan, weights: Option<&[u32]>, f: &(dyn Fn(usize, DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
+    let mut bake = |what: &str, plan: &CachePlan, f: &(dyn Fn(usize, DVec3, Vec3, &mut Vec<u32>) -> Vec3 + Sync)| {
         let positions = plan.voxel_positions();
-        let weight = |i: usize| weights.map_or(1, |w| w[i] as u64);
-        let task = nimbus_progress::task(what, (0..positions.len()).map(weight).sum());
+        let task = nimbus_progress::task(what, positions.len() as u64);
         let values: Vec<Vec3> = positions
             .par_iter()
             .enumerate()
             .map_init(Vec::new, |scratch, (i, &x)| {
                 let value = f(i, x, toward_eye(camera, x), scratch);
-                task.advance(weight(i));
+                task.advance(1);
                 value
             })
             .collect();
@@ -291,7 +290,7 @@ pub fn bake_cpu_emitting(
     };
     let started = std::time::Instant::now();
     let li_single = params.bakes_single().then(|| {
-        bake("single scattering", &plan, None, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
+        bake("single scattering", &plan, &|_, x, w_out, _| li_single(medium, &params.medium, &params.lights, &depths, x, w_out, step, params.min_transmittance))
     });
     stats.stages.push(("single", started.elapsed().as_millis() as u64));
     let li_multiple = match params.estimator {
@@ -300,7 +299,7 @@ pub fn bake_cpu_emitting(
             let bins = PhotonBins::new(&photons.positions, gather_cell(photons, params.gather));
             let gathered = AtomicU64::new(0);
             let empty_below = empty_ball_density(&majorant);
-            let volume = bake("photon gather", multiple_plan, None, &|_, x, w_out, scratch| {
+            let volume = bake("photon gather", multiple_plan, &|_, x, w_out, scratch| {
                 let (li, used) = li_multiple(density, empty_below, &params.medium, photons, &bins, params.gather, x, w_out, scratch);
                 gathered.fetch_add(used as u64, Ordering::Relaxed);
                 li
@@ -312,7 +311,7 @@ pub fn bake_cpu_emitting(
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
             let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
-            let started = std::time::Instant::now();
+            stats.culled_unseen = path_plan.unseen();
             let trace = |what: &str, plan: &PathPlan, seed: u64| -> Vec<PathMoments> {
                 let task = nimbus_progress::task(what, plan.total());
                 (0..plan.counts.len())
@@ -327,12 +326,7 @@ pub fn bake_cpu_emitting(
                     })
                     .collect()
             };
-            let (moments, counts) = top_up(&path_plan, multiple_plan, li_single.as_ref(), params, &mut stats, |what, plan, seed| Ok::<_, CacheError>(trace(what, plan, seed)))?;
-            stats.stages.push(("paths", started.elapsed().as_millis() as u64));
-            stats.paths = counts;
-            stats.culled_unseen = path_plan.unseen();
-            let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
-            let (volume, bad) = multiple_plan.volume_of(&values);
+            let (volume, bad) = trace_to_tolerance(&path_plan, multiple_plan, li_single.as_ref(), params, &mut stats, |what, plan, seed| Ok::<_, CacheError>(trace(what, plan, seed)))?;
             nonfinite += bad;
             Some(volume)
         }
@@ -386,30 +380,3 @@ fn typical_radius(photons: &PhotonMap, k: u32) -> f64 {
     (k as f64 * volume / (photons.len() as f64 * 4.0 / 3.0 * PI)).cbrt()
 }
 
-/// The paths of `plan` traced by `trace(progress label, plan, seed)`, then, where
-/// [`CacheParams::path_tolerance`] asks for it and the predicted noise exceeds it, a second
-/// pass merged in (budget.rs): each voxel's moments in plan order, and the paths traced.
-/// Both backends run this, with their own `trace`.
-pub(crate) fn top_up<E>(
-    plan: &PathPlan,
-    voxels: &CachePlan,
-    single: Option<&Volume<Vec3>>,
-    params: &CacheParams,
-    stats: &mut BakeStats,
-    mut trace: impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
-) -> Result<(Vec<PathMoments>, u64), E> {
-    let first = trace("paths", plan, params.seed)?;
-    let Some(tolerance) = params.path_tolerance else { return Ok((first, plan.total())) };
-    let single = single_levels(voxels, single);
-    let noise = predicted_noise(plan, &first, &single);
-    let Some(extra) = more_paths(plan, noise, tolerance) else {
-        stats.path_noise = Some((noise, noise));
-        return Ok((first, plan.total()));
-    };
-    let more = plan.more(extra);
-    let second = trace("more paths", &more, second_pass_seed(params.seed))?;
-    let merged: Vec<PathMoments> = first.iter().zip(&second).enumerate().map(|(v, (a, b))| a.merged(plan.counts[v], *b, more.counts[v])).collect();
-    let all = PathPlan { counts: plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect(), ..more };
-    stats.path_noise = Some((noise, predicted_noise(&all, &merged, &single)));
-    Ok((merged, all.total()))
-}

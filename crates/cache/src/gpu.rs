@@ -14,6 +14,7 @@ use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
+use crate::budget::trace_to_tolerance;
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
     transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins,
@@ -181,10 +182,6 @@ pub fn bake_gpu_emitting(
         _ => None,
     };
     stats.culled_unseen = path_plan.as_ref().map_or(0, PathPlan::unseen);
-    let kernel = match &path_plan {
-        Some(paths) => Kernel::Paths(paths, params.seed),
-        None => Kernel::Photons,
-    };
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
     stats.light_table_nodes = tables.nodes();
     let baker = match &volume {
@@ -205,27 +202,24 @@ pub fn bake_gpu_emitting(
         match kernel {
             Kernel::Single => {}
             Kernel::Photons => stats.photons_gathered = used,
-            Kernel::Paths(..) => stats.paths = used,
+            Kernel::Paths(..) => unreachable!("the paths run through trace_to_tolerance"),
         }
         Ok(volume)
     };
     let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
-    let li_multiple = match (&path_plan, &baker) {
-        (Some(paths), Some(b)) if multiple => {
-            let started = std::time::Instant::now();
+    let li_multiple = match &path_plan {
+        _ if !multiple => None,
+        Some(paths) => {
             let positions = multiple_plan.voxel_positions();
             let trace = |_: &str, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
+                let Some(b) = &baker else { return Ok(Vec::new()) };
                 Ok(b.run(Kernel::Paths(p, seed), &positions)?.iter().map(|o| PathMoments { mean: Vec3::from(o.li), mean_square: o.square }).collect())
             };
-            let (moments, traced) = crate::cpu::top_up(paths, multiple_plan, li_single.as_ref(), params, &mut stats, trace)?;
-            stats.stages.push(("paths", started.elapsed().as_millis() as u64));
-            stats.paths = traced;
-            let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
-            let (volume, bad) = multiple_plan.volume_of(&values);
+            let (volume, bad) = trace_to_tolerance(paths, multiple_plan, li_single.as_ref(), params, &mut stats, trace)?;
             nonfinite += bad;
             Some(volume)
         }
-        _ => multiple.then(|| run(kernel, multiple_plan)).transpose()?,
+        None => Some(run(Kernel::Photons, multiple_plan)?),
     };
     stats.nonfinite = nonfinite;
     let transmittance = stats.time("transmittance grids", || transmittance_grids(density, &depths));
@@ -258,9 +252,6 @@ impl Kernel<'_> {
 /// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
 /// enough that lavapipe's loop limit (see cache.wgsl) is far off for ordinary media.
 const PATHS_PER_DISPATCH: u32 = 4;
-
-/// Most dispatches submitted before the host waits for the GPU (see `GpuBaker::run`).
-const MAX_IN_FLIGHT: u32 = 64;
 
 /// Bytes of one WGSL `Rng` in a storage array (vec2, vec4, vec4, u32; 16-byte aligned).
 const GPU_RNG_BYTES: u64 = 64;
@@ -478,7 +469,6 @@ impl<'a> GpuBaker<'a> {
             _ => Vec::new(),
         };
         let mut pipelines: Vec<(&str, wgpu::ComputePipeline)> = Vec::new();
-        let mut in_flight = 0;
         for &(entry, first_path) in &passes {
             if !pipelines.iter().any(|(e, _)| *e == entry) {
                 pipelines.push((entry, ctx.compute_pipeline(entry, &self.source, entry, &[&self.volume_layout, &self.layout, &self.tables_layout, &self.emission_layout])?));
@@ -502,13 +492,8 @@ impl<'a> GpuBaker<'a> {
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
                 pending += done(entry, first_path, first as usize..(first + count) as usize);
-                in_flight += 1;
-                // Each dispatch holds its uniform buffer and bind group until the GPU is
-                // done with it: waiting every MAX_IN_FLIGHT dispatches bounds that memory
-                // (a bake of thousands of passes, unwaited in a pipe, had grown to 24 GB).
-                if (task.shown() && pending >= every) || in_flight >= MAX_IN_FLIGHT {
+                if task.shown() && pending >= every {
                     ctx.wait()?;
-                    in_flight = 0;
                     task.advance(std::mem::take(&mut pending));
                 }
                 first += count;

@@ -83,7 +83,8 @@ impl PathPlan {
 
     /// More paths for the same voxels: `extra[v]` for voxel v, from its origins (repeated
     /// where it now has more paths than origins; the shaders and the CPU cycle through
-    /// min(count, [`MAX_ORIGINS_PER_VOXEL`]) of them).
+    /// min(count, [`MAX_ORIGINS_PER_VOXEL`]) of them). Only the paths: the image's weights
+    /// stay with `self`, which predicts the noise of both passes (budget.rs).
     pub fn more(&self, extra: Vec<u32>) -> PathPlan {
         let mut first = Vec::with_capacity(extra.len());
         let mut origins = Vec::new();
@@ -94,7 +95,7 @@ impl PathPlan {
                 origins.push(own[j % own.len().max(1)]);
             }
         }
-        PathPlan { counts: extra, first, origins, importance: self.importance.clone(), read_weight: self.read_weight.clone(), covered_rays: self.covered_rays }
+        PathPlan { counts: extra, first, origins, importance: Vec::new(), read_weight: Vec::new(), covered_rays: 0 }
     }
 
     /// Voxels no path starts in: no camera ray reads them or any neighbour.
