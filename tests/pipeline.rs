@@ -258,6 +258,29 @@ fn paths_replace_photons_in_the_chain() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A path tolerance the top-up cannot reach within its cap is said without `-v` (and not
+/// with `-q`); one it reaches is not.
+#[test]
+fn a_path_tolerance_out_of_reach_is_said() {
+    let dir = scratch("tolerance");
+    let (d, _) = ball_density(&dir, &[]);
+    let bake = |extra: &[&str]| {
+        let args = [&["--extinction", "6", "--sun", "dir=0.3,0.4,-0.8,irradiance=2", "--width", "16", "--height", "12", "--paths", "2"][..], extra].concat();
+        let out = run(Command::new(bin("vdbcache")).arg(&d).args(args).arg("-o").arg(dir.join("c.vdb")));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let said = bake(&["--path-tolerance", "0.0001"]);
+    assert!(said.contains("above --path-tolerance 0.01%") && said.contains("16 times the first pass"), "{said}");
+    assert!(!bake(&["--path-tolerance", "0.0001", "-q"]).contains("path-tolerance"), "-q keeps it quiet");
+    let met = bake(&["--path-tolerance", "1"]);
+    assert!(!met.contains("path-tolerance"), "{met}");
+    let file = nimbus_vdb::VdbFile::open(dir.join("c.vdb")).unwrap();
+    let noise = nimbus_cli::PipelineMeta::of(&file).tool_value("vdbcache", "path_noise").unwrap();
+    let first: f64 = noise.split(':').next().unwrap().parse().unwrap();
+    assert!(first < 1.0, "the tolerance of 100% is met: {noise}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Each grid of a VDB as "name active-count sum-of-active-values", read by pyopenvdb (Debian's
 /// python3-openvdb): None, after a loud skip, where it is not installed.
 fn pyopenvdb_summary(path: &Path) -> Option<String> {
