@@ -2,7 +2,7 @@
 //! input's metadata and the --quality preset; the photons it reads, the grids it writes.
 
 use clap::Args;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{CameraArgs, EmissionArgs, EmissionGrids, Failure, Quality, SceneArgs, Stage};
 use nimbus_gpu::ComputeDevice;
 use nimbus_photon::PhotonMap;
@@ -225,9 +225,8 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
     }
     // The top-up stops at MAX_PATH_GROWTH times the first pass: say so where that left the
     // image noisier than asked (strong forward scattering can), rather than only under -v.
-    // (A fresh estimate after an uncapped second pass may land a hair above the tolerance.)
-    if let (Some(tolerance), Some((first, last))) = (params.path_tolerance, stats.path_noise) {
-        if first > tolerance * MAX_PATH_GROWTH.sqrt() && last > tolerance {
+    if let Some(tolerance) = params.path_tolerance {
+        if let Some(last) = noise_short_of(tolerance, stats.path_noise) {
             log.note(format!(
                 "the paths' noise in the image is predicted at {:.2}%, above --path-tolerance {:.2}%, after the most paths the bake adds ({MAX_PATH_GROWTH} times the first pass's); a larger --paths with --path-tolerance raises that limit",
                 100.0 * last,

@@ -93,8 +93,23 @@ pub fn more_paths(paths: &PathPlan, noise: f64, tolerance: f64) -> Option<Vec<u3
     if !(noise > tolerance && tolerance > 0.0) {
         return None;
     }
-    let growth = ((noise / tolerance).powi(2)).min(MAX_PATH_GROWTH) - 1.0;
+    let growth = wanted_growth(noise, tolerance).min(MAX_PATH_GROWTH) - 1.0;
     Some(paths.counts.iter().map(|&n| (n as f64 * growth).ceil().min(u32::MAX as f64) as u32).collect())
+}
+
+/// The paths in all, as a multiple of the first pass's, that a first pass of predicted noise
+/// `noise` asks for to meet `tolerance` (the noise goes as one over the root of the paths).
+fn wanted_growth(noise: f64, tolerance: f64) -> f64 {
+    (noise / tolerance).powi(2)
+}
+
+/// The noise the paths were left at where [`MAX_PATH_GROWTH`] stopped the second pass short of
+/// `tolerance` (`path_noise` as [`BakeStats::path_noise`]: first pass, final); None where the
+/// tolerance was met or the cap not reached (a fresh estimate after an uncapped second pass
+/// may land a hair above the tolerance: that is not a shortfall).
+pub fn noise_short_of(tolerance: f64, path_noise: Option<(f64, f64)>) -> Option<f64> {
+    let (first, last) = path_noise?;
+    (tolerance > 0.0 && wanted_growth(first, tolerance) > MAX_PATH_GROWTH && last > tolerance).then_some(last)
 }
 
 /// The second pass's seed: its own streams, so its paths are independent of the first's.
@@ -180,5 +195,15 @@ mod tests {
         // Ten times: capped at MAX_PATH_GROWTH in all.
         let capped = more_paths(&plan, 0.2, 0.02).unwrap();
         assert_eq!(capped, vec![0, 15, 120, 300]);
+    }
+
+    #[test]
+    fn a_shortfall_is_the_noise_the_cap_left_above_the_tolerance() {
+        // Ten times the tolerance asks for 100x the paths: the cap (16x) leaves 2.5x.
+        assert_eq!(noise_short_of(0.02, Some((0.2, 0.05))), Some(0.05));
+        assert_eq!(noise_short_of(0.02, Some((0.2, 0.019))), None, "the cap was enough");
+        // Twice the tolerance asks for 4x: no cap, so a final 0.0201 is the estimate's wobble.
+        assert_eq!(noise_short_of(0.02, Some((0.04, 0.0201))), None);
+        assert_eq!(noise_short_of(0.02, None), None, "no tolerance asked for, nothing predicted");
     }
 }

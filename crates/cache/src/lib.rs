@@ -64,7 +64,7 @@ mod lattice;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use budget::{more_paths, predicted_noise, second_pass_seed, single_levels, PathMoments, MAX_PATH_GROWTH, PATH_TOLERANCE};
+pub use budget::{more_paths, noise_short_of, predicted_noise, second_pass_seed, single_levels, PathMoments, MAX_PATH_GROWTH, PATH_TOLERANCE};
 pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
