@@ -9,9 +9,9 @@
 //!
 //! Rows: the march without noise, with the baked noise at each lattice (nodes per noise
 //! scale) read at each sample (`NoiseEval::Baked`), with the displaced medium baked on the
-//! density's lattice (`NoiseEval::Displaced`, the default) (a lattice of offsets finer than half a voxel is
-//! not baked but evaluated per sample, so at the default scale nodes=16 is the exact march; a lattice finer than half a voxel is not baked but evaluated per sample, so at
-//! the default scale nodes=16 is the exact march) and with the exact per-sample fBm;
+//! density's lattice (`NoiseEval::Displaced`, the default) (a lattice of offsets finer than
+//! half a voxel is not baked but evaluated per sample, so at the default scale nodes=16 is
+//! the exact march) and with the exact per-sample fBm;
 //! medians of `runs` alternating runs (the exact march once: it takes tens of times as
 //! long), and the ratio to the march without noise. Error: the relative RMSE of each image
 //! against the exact-noise image over the pixels it covers (alpha > 1%), relative to their
