@@ -204,7 +204,7 @@ pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: [usize; 3], octaves
     // Fbm::eval's constants (lacunarity 2, gain 1/2, the octave shift).
     #[allow(clippy::approx_constant)]
     const SHIFT: [f64; 3] = [0.318_309_886, 0.577_215_665, 0.693_147_181];
-    let [nx, ny, nz] = n;
+    let [_, ny, nz] = n;
     let mut sums = [vec![0.0f32; out.len()], vec![0.0f32; out.len()], vec![0.0f32; out.len()]];
     // Per axis and point: its cell (relative to the box's first) and the weights of the
     // cell's lower and upper corner: the lerp's (1 - t, t) and those times the offset from
