@@ -192,7 +192,8 @@ pub fn fbm3_vec_block(origin: [i64; 3], n: usize, spacing: f64, octaves: u32, se
 /// each gradient component, one per-axis offset: `sum Wx Wy Wz (gx (fx - dx) + gy (fy - dy)
 /// + gz (fz - dz))`. On a box each factor depends on one axis alone, so the sum is taken
 /// an axis at a time (z, then y, then x) over the noise lattice's gradients, which costs
-/// four multiply-adds a point and octave instead of eight dot products and seven lerps;
+/// four multiply-adds a point, octave and channel at the last axis (the first two run over
+/// the noise lattice's rows, about as many) instead of eight dot products and seven lerps;
 /// the cells, fractions and weights are found once per axis and octave, shared by the
 /// three channels, and the hashes once per noise lattice point the box spans.
 pub fn fbm3_vec_grid(origin: [f64; 3], spacing: [f64; 3], n: [usize; 3], octaves: u32, seed: u32, out: &mut [Vec3]) {
