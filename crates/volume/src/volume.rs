@@ -334,10 +334,22 @@ impl<T: Voxel> Volume<T> {
             }
             return [self.background; 8];
         }
-        std::array::from_fn(|n| {
-            let d = IVec3::new((n >> 2) as i32 & 1, (n >> 1) as i32 & 1, n as i32 & 1);
-            self.get(ijk + d)
-        })
+        // The cell reaches into the next brick along each axis where it starts at a brick's
+        // last voxel (a third of all cells): each of the 2, 4 or 8 bricks it touches is
+        // looked up once, not once per corner. Corner n's brick is that of corner n & m.
+        let m = (usize::from(local.x == BRICK_DIM - 1) << 2) | (usize::from(local.y == BRICK_DIM - 1) << 1) | usize::from(local.z == BRICK_DIM - 1);
+        let corner = |n: usize| IVec3::new((n >> 2) as i32 & 1, (n >> 1) as i32 & 1, n as i32 & 1);
+        let mut bricks = [None; 8];
+        for (k, b) in bricks.iter_mut().enumerate() {
+            if k & !m == 0 {
+                *b = self.brick_index(ijk + corner(k));
+            }
+        }
+        let at = |n: usize| {
+            let c = ijk + corner(n);
+            bricks[n & m].map_or(self.background, |b| self.values[b * BRICK_VOXELS + brick_offset(c & IVec3::splat(BRICK_DIM - 1))])
+        };
+        [at(0), at(1), at(2), at(3), at(4), at(5), at(6), at(7)]
     }
 
     pub fn sample_world(&self, p: DVec3) -> T {

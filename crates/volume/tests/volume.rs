@@ -471,3 +471,23 @@ fn tracking_cells_follow_the_optical_depth() {
     assert_eq!(m.at(DVec3::new(6.5, 6.5, 6.5)), 0.0);
     assert!(m.at(DVec3::new(5.5, 5.5, 5.5)) >= 1.0);
 }
+
+/// `corners` reads what `get` reads at each of a cell's eight corners, for every cell of a
+/// region of scattered bricks with gaps: inside one brick, across a face, an edge or a
+/// corner of bricks, and where some of the bricks a cell touches are absent.
+#[test]
+fn corners_are_the_eight_voxels_around_every_cell() {
+    let v = random_volume(7, -0.5);
+    let mut crossing = 0;
+    for x in -28..28 {
+        for y in -28..28 {
+            for z in -20..20 {
+                let ijk = IVec3::new(x, y, z);
+                let want: [f32; 8] = std::array::from_fn(|n| v.get(ijk + IVec3::new((n >> 2) as i32 & 1, (n >> 1) as i32 & 1, n as i32 & 1)));
+                assert_eq!(v.corners(ijk), want, "cell {ijk}");
+                crossing += usize::from((ijk & 7).max_element() == 7 && want.iter().any(|&w| w != -0.5) && want.contains(&-0.5));
+            }
+        }
+    }
+    assert!(crossing > 100, "cells reaching from a brick into a gap: {crossing}");
+}
