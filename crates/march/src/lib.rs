@@ -24,7 +24,8 @@
 //!   march, so it is baked once per render ([`NoiseEval`]). By default
 //!   ([`NoiseEval::Displaced`], the CPU) the displaced medium itself is baked: at each
 //!   point of the density's lattice the density and the cache at `x + o(x)`, `o` the exact
-//!   fBm there, each brick when a march first reads it (`offsets.rs`), and the march is
+//!   fBm there, each point once (in the 8^3 brick that owns it) when a march first reads a
+//!   brick holding it (`offsets.rs`), and the march is
 //!   the march without noise over it; the price is a resampling of the density (the image
 //!   0.3-0.5% from the exact noise's, about 40% of what the noise itself changes). Where the
 //!   density's lattice has fewer than 4 points per `noise_scale`, on the GPU, and with
