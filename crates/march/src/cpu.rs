@@ -9,7 +9,7 @@ use nimbus_optics::Rng;
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume};
+use crate::layout::{DensityPoint, Lattice, Layer, MarchVolume, BRICK_VALUES, CELL_OF_POINT};
 use crate::offsets::Offsets;
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Fused;
@@ -610,15 +610,27 @@ impl<T: DensityPoint> MarchVolume<T> {
             for from in (lo..hi).step_by(LANES) {
                 let cells = arith.cells(first, advance, (from as u32) as f32);
                 let m = LANES.min(hi - from);
+                // Samples in cells with no corner of positive density are left out: they
+                // would add no optical depth and no light.
+                let mut n = 0;
                 for j in 0..m {
                     let v = match cells.index[j] {
                         OUTSIDE => self.density.sample(arith, o + d * t),
+                        i if {
+                            let cell = CELL_OF_POINT[i as usize % BRICK_VALUES];
+                            span.occupied[(cell >> 6) as usize % 8] >> (cell & 63) & 1 == 0
+                        } =>
+                        {
+                            t += step;
+                            continue;
+                        }
                         i => Lattice::interpolate_at(arith, span.points, i as usize, cells.w[0][j], cells.w[1][j], cells.w[2][j]),
                     };
-                    self.take(arith, &mut b, j, dtau, t, v, &rays, None);
+                    self.take(arith, &mut b, n, dtau, t, v, &rays, None);
+                    n += 1;
                     t += step;
                 }
-                if !c.add(arith, &b, m) {
+                if n > 0 && !c.add(arith, &b, n) {
                     return c.finish(true);
                 }
             }

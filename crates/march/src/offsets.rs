@@ -86,7 +86,7 @@ impl Offsets {
             for (o, v) in out.iter_mut().zip(fbm) {
                 *o = (v.as_dvec3() * amplitude).as_vec3().extend(0.0);
             }
-            Visit { cells: CellBox::ALL, majorant: f32::INFINITY }
+            Visit::ALL
         });
         Offsets { lattice, anchor, per_world }
     }
