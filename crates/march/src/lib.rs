@@ -66,7 +66,8 @@
 //!
 //! - [`render_cpu`]: bands of 8 x 8 pixel tiles in parallel with rayon, over the march's
 //!   own layout of the volume (`layout.rs`: density and cache fused into one lattice of
-//!   apron bricks, a dense brick table, each brick's box of cells to visit), built once per
+//!   apron bricks, a dense brick table, each brick's box of cells to visit and a bit per
+//!   cell with a corner of positive density, whose samples alone are taken), built once per
 //!   render; f32 from each lookup on, eight samples' cells and exponentials at a time, with
 //!   an AVX2+FMA copy of the loop picked at run time (`simd.rs`). [`march_ray`] is the same
 //!   estimator in its plainest form (f64, the sparse volumes' own lookups), which the
