@@ -124,7 +124,8 @@ pub(crate) const CELL_OF_POINT: [u16; BRICK_VALUES] = {
 };
 
 impl Visit {
-    /// Every cell, every block.
+    /// Every cell sampled, no bound: a lattice a march reads but never walks (the offsets',
+    /// a cache grid on a lattice of its own).
     pub(crate) const ALL: Visit = Visit { cells: CellBox::ALL, majorant: f32::INFINITY, occupied: [u64::MAX; 8] };
 
     /// The bound of a brick's points, as [`nimbus_volume::MajorantGrid`] rounds it: 8 ulps
