@@ -85,6 +85,9 @@ struct CacheOut {
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
+    // PathMoments::halves: the paths' estimates (the channels' mean) summed at
+    // 8 * (path index parity) + (origin's octant about the node), for the lattice's bias.
+    halves: array<f32, 16>,
 }
 
 const GATHER_NEAREST: u32 = 0u;
@@ -99,7 +102,8 @@ const GATHER_RADIUS: u32 = 1u;
 @group(1) @binding(6) var<storage, read_write> out: array<CacheOut>;
 // Each voxel's path Rng between the dispatches of bake_paths.
 @group(1) @binding(7) var<storage, read_write> path_rngs: array<Rng>;
-// PathPlan::first and PathPlan::origins (relative to the host's origin) for bake_paths.
+// PathPlan::first and PathPlan::origins (relative to the host's origin, w the origin's
+// octant, PathPlan::octants) for bake_paths.
 @group(1) @binding(8) var<storage, read> path_first: array<u32>;
 @group(1) @binding(9) var<storage, read> path_origins: array<vec4<f32>>;
 // The environment (nimbus_optics::Environment::gpu_words), read by environment.wgsl.
@@ -378,17 +382,17 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
         g = gather_nearest(x, w_out);
     }
     if (g.used == 0u || g.radius <= 0.0) {
-        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
     }
     let mean_density = mean_density_in_ball(x, g.radius);
     if (mean_density < params.empty_below) {
-        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
     }
     let volume = 4.0 / 3.0 * OPTICS_PI * g.radius * g.radius * g.radius;
     let mean_sigma_s = medium_sigma_s(params.medium, mean_density);
     let estimate = g.sum / volume;
     let li = select(vec3<f32>(0.0), estimate / mean_sigma_s, mean_sigma_s > vec3<f32>(0.0));
-    return CacheOut(li, g.used, 0.0, 0u, 0u, 0u);
+    return CacheOut(li, g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
 }
 
 // ---------------------------------------------------------------------------------------
@@ -427,7 +431,8 @@ fn continue_paths(v: u32) {
     var squares = out[v].square;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
-        let x = path_origins[path_first[v] + p % min(n, CACHE_MAX_ORIGINS)].xyz;
+        let origin = path_origins[path_first[v] + p % min(n, CACHE_MAX_ORIGINS)];
+        let x = origin.xyz;
         let w_out = toward_eye(x);
         // At the eye itself there is no camera ray; any axis serves.
         var axis = vec3<f32>(0.0, 0.0, 1.0);
@@ -448,6 +453,8 @@ fn continue_paths(v: u32) {
         estimate = estimate + (path.single + path.multiple + path.emission);
         sum = sum + estimate;
         squares = squares + dot(estimate, estimate) / 3.0;
+        let half = 8u * (p & 1u) + u32(origin.w);
+        out[v].halves[half] = out[v].halves[half] + (estimate.x + estimate.y + estimate.z) / 3.0;
     }
     if (end == n) {
         sum = sum / f32(n);
@@ -471,7 +478,7 @@ fn bake_single(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     }
     let v = params.first + i;
     let x = points[v].xyz;
-    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u, 0.0, 0u, 0u, 0u);
+    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u, 0.0, 0u, 0u, 0u, array<f32, 16>());
     loop_guard_check();
 }
 

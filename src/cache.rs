@@ -2,7 +2,7 @@
 //! input's metadata and the --quality preset; the photons it reads, the grids it writes.
 
 use clap::Args;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LightLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LatticeBias, LightLattice, MultipleLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, MULTIPLE_LATTICE_TOLERANCE, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{CameraArgs, EmissionArgs, EmissionGrids, Failure, Quality, SceneArgs, Stage};
 use nimbus_gpu::ComputeDevice;
 use nimbus_photon::PhotonMap;
@@ -38,6 +38,13 @@ pub struct BakeArgs {
     /// [default: the --quality preset's, else 2]
     #[arg(long, value_name = "SCALE", help_heading = "Quality")]
     multiple_scale: Option<f64>,
+    /// Refine Li_multiple's lattice once where the bias it leaves in the image, estimated
+    /// from the paths' spread over each voxel's footprint, exceeds this (strong forward
+    /// scattering lit from behind needs it; the refined bake costs up to 8x); 0 turns it off.
+    /// [default: 0.015 without --multiple-scale or --paths, else off; the draft and preview
+    /// presets do not refine]
+    #[arg(long, value_name = "TOLERANCE", help_heading = "Quality")]
+    multiple_tolerance: Option<f64>,
     /// Gather vdbphoton's photons for multiple scattering, K per estimate, adaptive radius
     /// (instead of --paths). [default: the --quality preset's, else 64, with --radius unset]
     #[arg(long, value_name = "K", conflicts_with = "radius", help_heading = "Quality")]
@@ -116,6 +123,11 @@ impl BakeArgs {
             step: self.step,
             cache_scale: self.cache_scale.unwrap_or(preset.cache_scale),
             multiple_scale: Some(self.multiple_scale.unwrap_or(preset.multiple_scale)),
+            multiple_tolerance: match (self.multiple_tolerance, self.multiple_scale, self.paths) {
+                (Some(t), _, _) => (t > 0.0).then_some(t),
+                (None, None, None) => preset.top_up_paths.then_some(MULTIPLE_LATTICE_TOLERANCE),
+                _ => None,
+            },
             single_tolerance: match (self.cache_scale, self.single_tolerance) {
                 (Some(_), _) => None,
                 (None, Some(t)) => Some(t),
@@ -240,7 +252,7 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
 /// The bake's -v line.
 fn summary(s: &BakeStats) -> String {
     format!(
-        "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced{}, {} light table nodes{}; {}",
+        "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced{}, {} light table nodes{}{}; {}",
         s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths,
         s.path_noise.map_or(String::new(), |(first, last)| format!(" (their noise in the image predicted at {:.2}% after the first pass, {:.2}% after all)", 100.0 * first, 100.0 * last)),
         s.light_table_nodes,
@@ -248,8 +260,19 @@ fn summary(s: &BakeStats) -> String {
             "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels)",
             l.scale.x, l.scale.y, l.scale.z, 100.0 * l.estimate.x, 100.0 * l.estimate.y, 100.0 * l.estimate.z, l.samples
         )),
+        s.multiple_lattice.as_ref().map_or(String::new(), multiple_lattice_summary),
         s.describe_stages()
     )
+}
+
+/// How Li_multiple's lattice was settled, for the -v line.
+fn multiple_lattice_summary(l: &MultipleLattice) -> String {
+    let bias = |b: &LatticeBias| format!("{:.2}% (standard error of its square {:.2}%^2)", 100.0 * b.relative(), 1e4 * b.standard_error);
+    if l.scale == l.first_scale {
+        format!("; Li_multiple's lattice {} density voxels (its bias in the image estimated at {})", l.scale, bias(&l.bias))
+    } else {
+        format!("; Li_multiple's lattice refined from {} to {} density voxels (its bias in the image estimated at {}, then {})", l.first_scale, l.scale, bias(&l.first_bias), bias(&l.bias))
+    }
 }
 
 /// Puts the cache in `file`: `Li_single`, `Li_multiple` and the transmittance grids replace
@@ -294,7 +317,7 @@ pub fn record(params: &CacheParams, stats: &BakeStats, cache: &IlluminationCache
             Some(l) => format!("{}:{}:{}", l.scale.x, l.scale.y, l.scale.z),
             None => params.cache_scale.to_string(),
         }),
-        ("multiple_scale", params.multiple_scale().to_string()),
+        ("multiple_scale", stats.multiple_lattice.as_ref().map_or(params.multiple_scale(), |l| l.scale).to_string()),
         ("gather", match params.gather {
             Gather::Radius(r) => format!("radius:{r}"),
             Gather::Neighbours { k, max_radius } => format!("neighbours:{k}:{max_radius}"),

@@ -252,6 +252,22 @@ fn paths_replace_photons_in_the_chain() {
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(log.contains("paths traced") && !log.contains(" 0 paths traced"), "{log}");
     assert!(!log.contains("no photons"), "no warning about photons: {log}");
+    // The lattice's bias is estimated where asked, said under -v, and the lattice it settles
+    // on is the one recorded and stored.
+    let refined = dir.join("refined.vdb");
+    let out = run(Command::new(bin("vdbcache")).arg(&v).args(optics).args(["--width", "16", "--height", "12", "--paths", "8", "--multiple-scale", "3", "--multiple-tolerance", "0.0001", "-v", "-o"]).arg(&refined));
+    let log = String::from_utf8_lossy(&out.stderr);
+    let line = log.split("Li_multiple's lattice ").nth(1).unwrap_or_else(|| panic!("no lattice line: {log}"));
+    let settled = match line.strip_prefix("refined from 3 to ") {
+        Some(rest) => rest.split(' ').next().unwrap().to_string(),
+        None => line.split(' ').next().unwrap().to_string(),
+    };
+    assert!(line.contains("its bias in the image estimated at"), "{line}");
+    let file = nimbus_vdb::VdbFile::open(&refined).unwrap();
+    assert_eq!(nimbus_cli::PipelineMeta::of(&file).tool_value("vdbcache", "multiple_scale"), Some(settled.clone()), "{line}");
+    let density_voxel = nimbus_vdb::VdbFile::open(&v).unwrap().read_float("density").unwrap().transform().voxel_size().x;
+    let stored = file.read_vec3("Li_multiple").unwrap().transform().voxel_size().x / density_voxel;
+    assert!((stored - settled.parse::<f64>().unwrap()).abs() < 1e-9, "Li_multiple stored at {stored} voxels, {line}");
     let bad = Command::new(bin("vdbcache")).arg(&v).args(["--paths", "0", "-o"]).arg(dir.join("bad.vdb")).output().unwrap();
     assert_eq!(bad.status.code(), Some(2));
     assert!(!dir.join("bad.vdb").exists());

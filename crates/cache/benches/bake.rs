@@ -96,6 +96,7 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 64, max_radius: 12.0 * VOXEL },
@@ -207,6 +208,7 @@ fn paths_rows() {
         single: false,
         multiple: true,
         multiple_scale: Some(2.4),
+        multiple_tolerance: None,
         estimator: MultipleEstimator::Paths { per_voxel },
         seed: 1,
         ..params(&v, 60.0)
@@ -218,7 +220,7 @@ fn paths_rows() {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
         let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
         let _ = w_out;
-        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), Default::default(), &[x], 256, p.camera.eye(), &mut Rng::new(99, index)).mean
+        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), Default::default(), &[x], &[], 256, p.camera.eye(), &mut Rng::new(99, index)).mean
     });
 }
 

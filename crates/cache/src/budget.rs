@@ -37,6 +37,10 @@ pub const PATH_TOLERANCE: f64 = 0.02;
 pub struct PathMoments {
     pub mean: Vec3,
     pub mean_square: f32,
+    /// The paths' estimates (the channels' mean) summed by the parity of their index and the
+    /// octant of their origin about the node, index `8 * parity + octant`: two independent
+    /// halves of the paths, spread over the footprint (multiple_lattice.rs).
+    pub halves: [f32; 16],
 }
 
 impl PathMoments {
@@ -55,7 +59,8 @@ impl PathMoments {
             return self;
         }
         let (a, b) = (n as f32 / (n + m) as f32, m as f32 / (n + m) as f32);
-        PathMoments { mean: a * self.mean + b * other.mean, mean_square: a * self.mean_square + b * other.mean_square }
+        let halves = std::array::from_fn(|k| self.halves[k] + other.halves[k]);
+        PathMoments { mean: a * self.mean + b * other.mean, mean_square: a * self.mean_square + b * other.mean_square, halves }
     }
 }
 
@@ -117,11 +122,26 @@ pub fn second_pass_seed(seed: u64) -> u64 {
     seed ^ 0x5345_434f_4e44_0000 // "SECOND"
 }
 
+/// What [`trace_to_tolerance`] traced: each voxel's moments over both passes, and the
+/// second pass's plan where there was one.
+pub(crate) struct TracedPaths {
+    pub moments: Vec<PathMoments>,
+    pub more: Option<PathPlan>,
+}
+
+impl TracedPaths {
+    /// Li_multiple on `voxels` (the moments' means), and its count of non-finite values
+    /// (stored as zero).
+    pub fn volume(&self, voxels: &CachePlan) -> (Volume<Vec3>, u64) {
+        let values: Vec<Vec3> = self.moments.iter().map(|m| m.mean).collect();
+        voxels.volume_of(&values)
+    }
+}
+
 /// The paths stage both backends share: `plan`'s paths traced by `trace(progress label,
 /// plan, seed)`, then, where [`CacheParams::path_tolerance`] asks for it and the predicted
 /// noise exceeds it, a second pass merged in. Records the paths traced, the noise predicted
-/// and the stage's time in `stats`; returns Li_multiple on `voxels` and its count of
-/// non-finite values (stored as zero).
+/// and the stage's time in `stats`.
 pub(crate) fn trace_to_tolerance<E>(
     plan: &PathPlan,
     voxels: &CachePlan,
@@ -129,29 +149,30 @@ pub(crate) fn trace_to_tolerance<E>(
     params: &CacheParams,
     stats: &mut BakeStats,
     mut trace: impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
-) -> Result<(Volume<Vec3>, u64), E> {
+) -> Result<TracedPaths, E> {
     let started = std::time::Instant::now();
     let mut moments = trace("paths", plan, params.seed)?;
     let mut traced = plan.total();
+    let mut second = None;
     if let Some(tolerance) = params.path_tolerance {
         let single = single_levels(voxels, single);
         let noise = predicted_noise(plan, &plan.counts, &moments, &single);
         stats.path_noise = Some((noise, noise));
         if let Some(extra) = more_paths(plan, noise, tolerance) {
             let more = plan.more(extra);
-            let second = trace("more paths", &more, second_pass_seed(params.seed))?;
-            for (v, (m, s)) in moments.iter_mut().zip(&second).enumerate() {
+            let again = trace("more paths", &more, second_pass_seed(params.seed))?;
+            for (v, (m, s)) in moments.iter_mut().zip(&again).enumerate() {
                 *m = m.merged(plan.counts[v], *s, more.counts[v]);
             }
             let counts: Vec<u32> = plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect();
             stats.path_noise = Some((noise, predicted_noise(plan, &counts, &moments, &single)));
             traced += more.total();
+            second = Some(more);
         }
     }
     stats.stages.push(("paths", started.elapsed().as_millis() as u64));
-    stats.paths = traced;
-    let values: Vec<Vec3> = moments.iter().map(|m| m.mean).collect();
-    Ok(voxels.volume_of(&values))
+    stats.paths += traced;
+    Ok(TracedPaths { moments, more: second })
 }
 
 #[cfg(test)]
@@ -161,10 +182,10 @@ mod tests {
     #[test]
     fn a_paths_spread_is_its_sample_variance_and_passes_merge_by_their_counts() {
         // Paths of 1 and 3 (grey): mean 2, mean square 5, sample variance 2.
-        let m = PathMoments { mean: Vec3::splat(2.0), mean_square: 5.0 };
+        let m = PathMoments { mean: Vec3::splat(2.0), mean_square: 5.0, ..Default::default() };
         assert!((m.path_variance(2) - 2.0).abs() < 1e-12);
         assert_eq!(m.path_variance(1), 0.0, "one path has no spread to measure");
-        let other = PathMoments { mean: Vec3::splat(5.0), mean_square: 25.0 };
+        let other = PathMoments { mean: Vec3::splat(5.0), mean_square: 25.0, ..Default::default() };
         let merged = m.merged(2, other, 1);
         assert!((merged.mean - Vec3::splat(3.0)).abs().max_element() < 1e-6);
         assert!((merged.mean_square - 35.0 / 3.0).abs() < 1e-5);
@@ -175,9 +196,9 @@ mod tests {
     fn the_predicted_noise_is_the_importance_weighted_variance_over_the_weighted_level() {
         // Two voxels: G 4 and 1, W 2 and 1, 4 and 2 paths of spread 3 and 0, means 1 and 2
         // (grey), Li_single 0.5 at the first; two covered rays.
-        let plan = PathPlan { counts: vec![4, 2], first: vec![0; 2], origins: Vec::new(), importance: vec![4.0, 1.0], read_weight: vec![2.0, 1.0], covered_rays: 2 };
+        let plan = PathPlan { counts: vec![4, 2], first: vec![0; 2], origins: Vec::new(), octants: Vec::new(), importance: vec![4.0, 1.0], read_weight: vec![2.0, 1.0], covered_rays: 2 };
         // Sample variance 3 from 4 paths: mean square = 1 + 3 * 3 / 4.
-        let moments = [PathMoments { mean: Vec3::ONE, mean_square: 1.0 + 2.25 }, PathMoments { mean: Vec3::splat(2.0), mean_square: 4.0 }];
+        let moments = [PathMoments { mean: Vec3::ONE, mean_square: 1.0 + 2.25, ..Default::default() }, PathMoments { mean: Vec3::splat(2.0), mean_square: 4.0, ..Default::default() }];
         let error = 4.0 * 3.0 / 4.0; // G var / n, the second voxel's spread being 0
         let level = 2.0 * (1.0 + 0.5) + 1.0 * 2.0;
         let expected = (2.0f64 * error).sqrt() / level;
@@ -187,7 +208,7 @@ mod tests {
 
     #[test]
     fn the_second_pass_scales_every_voxels_paths_by_the_squared_noise_ratio_up_to_the_cap() {
-        let plan = PathPlan { counts: vec![0, 1, 8, 20], first: vec![0; 4], origins: Vec::new(), importance: vec![0.0; 4], read_weight: vec![0.0; 4], covered_rays: 1 };
+        let plan = PathPlan { counts: vec![0, 1, 8, 20], first: vec![0; 4], origins: Vec::new(), octants: Vec::new(), importance: vec![0.0; 4], read_weight: vec![0.0; 4], covered_rays: 1 };
         assert_eq!(more_paths(&plan, 0.01, 0.02), None, "under the tolerance: no second pass");
         assert_eq!(more_paths(&plan, 0.03, 0.0), None, "0 turns it off");
         // Twice the tolerance: four times the paths in all, three more per path.

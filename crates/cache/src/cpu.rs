@@ -12,8 +12,8 @@ use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField,
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
-use crate::budget::trace_to_tolerance;
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
+use crate::multiple_lattice::bake_paths;
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -200,6 +200,10 @@ pub fn li_multiple(
 /// Li_single term for it); at later ones, emitted light scattered more often. None of it is
 /// the emission vdbmarch adds along the camera ray itself (light emitted toward the eye that
 /// no medium scattered), so nothing is counted twice.
+///
+/// `octants[k]`, where given, is origin k's octant about the voxel's node
+/// ([`PathPlan::octants`]): the paths are also summed by it and by their index's parity
+/// ([`PathMoments::halves`]).
 #[allow(clippy::too_many_arguments)]
 pub fn li_multiple_paths(
     medium: DensityMedium,
@@ -208,12 +212,13 @@ pub fn li_multiple_paths(
     depths: &LightDepths,
     sources: PathSources,
     origins: &[DVec3],
+    octants: &[u8],
     paths: u32,
     eye: DVec3,
     rng: &mut Rng,
 ) -> PathMoments {
     let phase = optics.phase();
-    let (mut sum, mut squares) = (Vec3::ZERO, 0.0f32);
+    let (mut sum, mut squares, mut halves) = (Vec3::ZERO, 0.0f32, [0.0f32; 16]);
     if origins.is_empty() {
         return PathMoments::default();
     }
@@ -235,9 +240,10 @@ pub fn li_multiple_paths(
         estimate += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
         sum += estimate;
         squares += estimate.length_squared() / 3.0;
+        halves[8 * (j & 1) + octants.get(j % origins.len()).map_or(0, |&o| o as usize)] += estimate.element_sum() / 3.0;
     }
     let n = paths.max(1) as f32;
-    PathMoments { mean: sum / n, mean_square: squares / n }
+    PathMoments { mean: sum / n, mean_square: squares / n, halves }
 }
 
 /// Unit direction from world point `x` toward the eye: the w_out the cache is baked for.
@@ -310,23 +316,21 @@ pub fn bake_cpu_emitting(
         MultipleEstimator::Paths { per_voxel } => {
             let tracking = MajorantGrid::for_tracking(density, params.medium.extinction);
             let paths_medium = DensityMedium { majorant: &tracking, ..medium };
-            let path_plan = stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel));
-            stats.culled_unseen = path_plan.unseen();
-            let trace = |what: &str, plan: &PathPlan, seed: u64| -> Vec<PathMoments> {
+            let trace = |what: &str, _: &CachePlan, plan: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
                 let task = nimbus_progress::task(what, plan.total());
-                (0..plan.counts.len())
+                Ok((0..plan.counts.len())
                     .into_par_iter()
                     .map(|i| {
                         let paths = plan.counts[i];
                         let mut rng = Rng::with_domain(seed, i as u64, CACHE_PATHS_DOMAIN);
                         let sources = PathSources { environment: params.environment.as_ref(), emission };
-                        let m = li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), paths, camera.eye(), &mut rng);
+                        let m = li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), plan.octants_of(i), paths, camera.eye(), &mut rng);
                         task.advance(paths as u64);
                         m
                     })
-                    .collect()
+                    .collect())
             };
-            let (volume, bad) = trace_to_tolerance(&path_plan, multiple_plan, li_single.as_ref(), params, &mut stats, |what, plan, seed| Ok::<_, CacheError>(trace(what, plan, seed)))?;
+            let (volume, bad) = bake_paths(multiple_plan, density, &majorant, params, per_voxel, li_single.as_ref(), &mut stats, trace)?;
             nonfinite += bad;
             Some(volume)
         }

@@ -14,10 +14,10 @@ use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
 use crate::cpu::{empty_ball_density, gather_cell, BALL_DIRECTIONS, BALL_SHELLS, CACHE_PATHS_DOMAIN};
-use crate::budget::trace_to_tolerance;
+use crate::multiple_lattice::bake_paths;
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
-    transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, CameraImportance, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins,
+    transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins,
     PATH_MAX_DEPTH,
 };
 
@@ -86,6 +86,8 @@ struct GpuOut {
     /// The paths' mean square (budget.rs's PathMoments); 0 for the other kernels.
     square: f32,
     _pad: [u32; 3],
+    /// PathMoments::halves: the paths' sums by parity and origin octant.
+    halves: [f32; 16],
 }
 
 /// The CPU's quadrature, the heap bound and the paths' random-number domain as WGSL constants, so the two cannot drift apart.
@@ -174,14 +176,6 @@ pub fn bake_gpu_emitting(
     // The host chooses the lattice and plans the voxels by the CPU's very rule.
     let (plan, own_plan, mut stats) = CachePlan::for_bake(medium, params, &depths, photons, emits, timed);
     let multiple_plan = own_plan.as_ref().unwrap_or(&plan);
-    // The paths, their counts and origins, are decided on the host by the CPU's very rule.
-    let path_plan = match params.estimator {
-        MultipleEstimator::Paths { per_voxel } if multiple => {
-            Some(stats.time("importance", || CameraImportance::path_plan(multiple_plan, density, &majorant, params, per_voxel)))
-        }
-        _ => None,
-    };
-    stats.culled_unseen = path_plan.as_ref().map_or(0, PathPlan::unseen);
     let work = (single && plan.stats.baked > 0) || (multiple && multiple_plan.stats.baked > 0);
     stats.light_table_nodes = tables.nodes();
     let baker = match &volume {
@@ -207,19 +201,20 @@ pub fn bake_gpu_emitting(
         Ok(volume)
     };
     let li_single = single.then(|| run(Kernel::Single, &plan)).transpose()?;
-    let li_multiple = match &path_plan {
+    let li_multiple = match params.estimator {
         _ if !multiple => None,
-        Some(paths) => {
-            let positions = multiple_plan.voxel_positions();
-            let trace = |_: &str, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
+        // The paths, their counts and origins, and the lattice, are decided on the host by
+        // the CPU's very rule (multiple_lattice.rs).
+        MultipleEstimator::Paths { per_voxel } => {
+            let trace = |_: &str, voxels: &CachePlan, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
                 let Some(b) = &baker else { return Ok(Vec::new()) };
-                Ok(b.run(Kernel::Paths(p, seed), &positions)?.iter().map(|o| PathMoments { mean: Vec3::from(o.li), mean_square: o.square }).collect())
+                Ok(b.run(Kernel::Paths(p, seed), &voxels.voxel_positions())?.iter().map(|o| PathMoments { mean: Vec3::from(o.li), mean_square: o.square, halves: o.halves }).collect())
             };
-            let (volume, bad) = trace_to_tolerance(paths, multiple_plan, li_single.as_ref(), params, &mut stats, trace)?;
+            let (volume, bad) = bake_paths(multiple_plan, density, &majorant, params, per_voxel, li_single.as_ref(), &mut stats, trace)?;
             nonfinite += bad;
             Some(volume)
         }
-        None => Some(run(Kernel::Photons, multiple_plan)?),
+        MultipleEstimator::Photons => Some(run(Kernel::Photons, multiple_plan)?),
     };
     stats.nonfinite = nonfinite;
     let transmittance = stats.time("transmittance grids", || transmittance_grids(density, &depths));
@@ -407,7 +402,7 @@ impl<'a> GpuBaker<'a> {
         let points = ctx.storage_buffer("cache voxels", &points)?;
         let out = match kernel {
             // Each voxel's path count goes in with its zero sum.
-            Kernel::Paths(paths, _) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used, square: 0.0, _pad: [0; 3] }).collect::<Vec<_>>())?,
+            Kernel::Paths(paths, _) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used, square: 0.0, _pad: [0; 3], halves: [0.0; 16] }).collect::<Vec<_>>())?,
             _ => ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
         };
         // Where each voxel's paths start (one dummy each for the other kernels: bindings
@@ -416,7 +411,7 @@ impl<'a> GpuBaker<'a> {
         let (path_first, path_origins) = match kernel {
             Kernel::Paths(paths, _) if !paths.origins.is_empty() => (
                 paths.first.iter().map(|&f| f as u32).collect(),
-                paths.origins.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect(),
+                paths.origins.iter().zip(&paths.octants).map(|(&p, &o)| (p - self.origin).as_vec3().extend(o as f32).to_array()).collect(),
             ),
             _ => (vec![0u32], vec![[0f32; 4]]),
         };
@@ -548,7 +543,7 @@ mod tests {
                     }),
                 ),
                 ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
-                ("CacheOut", host_layout!(GpuOut { li, used, square, _pad })),
+                ("CacheOut", host_layout!(GpuOut { li, used, square, _pad, halves })),
             ]);
             nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard).unwrap(), &mirrors);
         }

@@ -63,6 +63,9 @@ pub struct PathPlan {
     pub counts: Vec<u32>,
     pub first: Vec<usize>,
     pub origins: Vec<DVec3>,
+    /// Per origin, the octant about its voxel's node it lies in ([`octant`]): the paths'
+    /// spread within the footprint, which estimates the lattice's bias (multiple_lattice.rs).
+    pub octants: Vec<u8>,
     /// G_v per voxel (the module doc): what a voxel's noise adds to the image's squared error.
     pub importance: Vec<f64>,
     /// W_v per voxel: what its value adds to the image's summed level.
@@ -77,6 +80,11 @@ impl PathPlan {
         &self.origins[self.first[v]..self.first[v] + origin_count(self.counts[v]) as usize]
     }
 
+    /// Their octants ([`PathPlan::octants`]).
+    pub fn octants_of(&self, v: usize) -> &[u8] {
+        &self.octants[self.first[v]..self.first[v] + origin_count(self.counts[v]) as usize]
+    }
+
     pub fn total(&self) -> u64 {
         self.counts.iter().map(|&n| n as u64).sum()
     }
@@ -87,15 +95,32 @@ impl PathPlan {
     /// stay with `self`, which predicts the noise of both passes (budget.rs).
     pub fn more(&self, extra: Vec<u32>) -> PathPlan {
         let mut first = Vec::with_capacity(extra.len());
-        let mut origins = Vec::new();
+        let (mut origins, mut octants) = (Vec::new(), Vec::new());
         for (v, &n) in extra.iter().enumerate() {
             first.push(origins.len());
-            let own = self.origins_of(v);
+            let own = self.first[v]..self.first[v] + origin_count(self.counts[v]) as usize;
             for j in 0..origin_count(n) as usize {
-                origins.push(own[j % own.len().max(1)]);
+                let k = own.start + j % own.len().max(1);
+                origins.push(self.origins[k]);
+                octants.push(self.octants[k]);
             }
         }
-        PathPlan { counts: extra, first, origins, importance: Vec::new(), read_weight: Vec::new(), covered_rays: 0 }
+        PathPlan { counts: extra, first, origins, octants, importance: Vec::new(), read_weight: Vec::new(), covered_rays: 0 }
+    }
+
+    /// The octant of voxel `v`'s path `j` (its origin's, [`PathPlan::octants`]).
+    pub fn octant_of(&self, v: usize, j: u32) -> usize {
+        self.octants[self.first[v] + (j % origin_count(self.counts[v]).max(1)) as usize] as usize
+    }
+
+    /// Voxel `v`'s paths per half (even and odd path index) and octant: the counts behind
+    /// [`PathMoments::halves`](crate::PathMoments::halves), index `8 * half + octant`.
+    pub fn half_octant_counts(&self, v: usize) -> [u32; 16] {
+        let mut n = [0u32; 16];
+        for j in 0..self.counts[v] {
+            n[8 * (j as usize & 1) + self.octant_of(v, j)] += 1;
+        }
+        n
     }
 
     /// Voxels no path starts in: no camera ray reads them or any neighbour.
@@ -105,7 +130,7 @@ impl PathPlan {
 }
 
 /// The camera rays the importance is estimated along, and how the march weighs its samples.
-struct ImportanceRays<'a> {
+pub(crate) struct ImportanceRays<'a> {
     camera: &'a Camera,
     density: &'a Volume<f32>,
     majorant: &'a MajorantGrid,
@@ -120,7 +145,7 @@ struct ImportanceRays<'a> {
 }
 
 impl<'a> ImportanceRays<'a> {
-    fn new(plan: &CachePlan, density: &'a Volume<f32>, majorant: &'a MajorantGrid, extinction: f32, camera: &'a Camera, min_transmittance: f64) -> Self {
+    pub(crate) fn new(plan: &CachePlan, density: &'a Volume<f32>, majorant: &'a MajorantGrid, extinction: f32, camera: &'a Camera, min_transmittance: f64) -> Self {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
         let stride = ((w * h) as f64 / IMPORTANCE_RAYS as f64).sqrt().ceil().max(1.0) as usize;
         ImportanceRays {
@@ -136,14 +161,14 @@ impl<'a> ImportanceRays<'a> {
         }
     }
 
-    fn pixels(&self) -> usize {
+    pub(crate) fn pixels(&self) -> usize {
         self.sw * self.sh
     }
 
     /// Marches pixel `p`'s ray as `vdbmarch` does (step: half the plan's voxel edge) and
     /// calls `f(x, w)` at each sample, w its weight in the pixel's value,
     /// `T (1 - exp(-sigma_t dt))`.
-    fn march_pixel(&self, p: usize, mut f: impl FnMut(DVec3, f64)) {
+    pub(crate) fn march_pixel(&self, p: usize, mut f: impl FnMut(DVec3, f64)) {
         let (px, py) = ((p % self.sw * self.stride) as f64, (p / self.sw * self.stride) as f64);
         let (stride, step) = (self.stride, self.step);
         let transform = self.density.transform();
@@ -323,9 +348,16 @@ impl CameraImportance {
                 }
             }
         }
+        let mut octants = vec![0u8; origins.len()];
+        for (v, &p) in positions.iter().enumerate() {
+            let node = plan.transform.to_index(p);
+            for k in first[v]..first[v] + origin_count(counts[v]) as usize {
+                octants[k] = octant(plan.transform.to_index(origins[k]) - node) as u8;
+            }
+        }
         let covered_rays = importance.reads.iter().filter(|r| !r.is_empty()).count();
         let read_weight = importance.weight.iter().map(|&w| w as f64 / G_FIXED_ONE).collect();
-        PathPlan { counts, first, origins, importance: importance.g, read_weight, covered_rays }
+        PathPlan { counts, first, origins, octants, importance: importance.g, read_weight, covered_rays }
     }
 
     /// Whether each voxel or one of its 26 neighbours is read by an importance sample: the
@@ -375,6 +407,11 @@ impl CameraImportance {
     }
 }
 
+/// The octant of an offset from a node (lattice index units): bit 2 x >= 0, bit 1 y, bit 0 z.
+pub(crate) fn octant(rel: DVec3) -> usize {
+    (rel.x >= 0.0) as usize * 4 + (rel.y >= 0.0) as usize * 2 + (rel.z >= 0.0) as usize
+}
+
 /// The origins of a voxel with `paths` paths.
 fn origin_count(paths: u32) -> u32 {
     paths.min(MAX_ORIGINS_PER_VOXEL)
@@ -386,7 +423,7 @@ fn to_fixed(x: f64) -> u64 {
 
 /// Adds `weight` times each trilinear corner weight at cache index `c` (as
 /// `Volume::sample_index` interpolates) to `out`, for the corners `index` plans.
-fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64, u64)>) {
+pub(crate) fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Vec<(u32, f64, u64)>) {
     let Some((b, f)) = lattice_cell(c) else { return };
     for corner in 0..8 {
         let o = IVec3::new((corner >> 2) & 1, (corner >> 1) & 1, corner & 1);

@@ -61,6 +61,7 @@ mod cpu;
 mod gpu;
 mod importance;
 mod lattice;
+mod multiple_lattice;
 mod plan;
 
 pub use bins::PhotonBins;
@@ -69,6 +70,7 @@ pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
 pub use lattice::{choose_single_lattice, SingleLattice, LATTICE_SAMPLES, MAX_REFINEMENT, SINGLE_LATTICE_TOLERANCE};
+pub use multiple_lattice::{lattice_bias, refined_scale, LatticeBias, MultipleLattice, MULTIPLE_LATTICE_TOLERANCE};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 
@@ -173,6 +175,10 @@ pub struct CacheParams {
     /// (budget.rs; at most [`MAX_PATH_GROWTH`] times the paths); None traces the estimator's
     /// count alone.
     pub path_tolerance: Option<f64>,
+    /// Where given, the path-traced Li_multiple is traced again on a finer lattice where the
+    /// bias its lattice leaves in the image, estimated from the paths, exceeds this
+    /// (multiple_lattice.rs); None keeps `multiple_scale`.
+    pub multiple_tolerance: Option<f64>,
     pub single: bool,
     pub multiple: bool,
     pub gather: Gather,
@@ -220,6 +226,8 @@ pub struct BakeStats {
     pub nonfinite: u64,
     /// Li_single's lattice as chosen ([`choose_single_lattice`]), where it was measured.
     pub single_lattice: Option<SingleLattice>,
+    /// Li_multiple's lattice as settled by its estimated bias, where it was estimated.
+    pub multiple_lattice: Option<MultipleLattice>,
     /// Wall-clock milliseconds of the bake's parts, in order, for `-v`.
     pub stages: Vec<(&'static str, u64)>,
 }
@@ -252,6 +260,14 @@ impl BakeStats {
         self.culled_view += other.culled_view;
         self.culled_empty += other.culled_empty;
         self.baked += other.baked;
+    }
+
+    /// The voxel counts with one plan's (`old`) replaced by another's (`new`).
+    pub fn replace_counts(&mut self, old: &BakeStats, new: &BakeStats) {
+        self.candidates = self.candidates - old.candidates + new.candidates;
+        self.culled_view = self.culled_view - old.culled_view + new.culled_view;
+        self.culled_empty = self.culled_empty - old.culled_empty + new.culled_empty;
+        self.baked = self.baked - old.baked + new.baked;
     }
 }
 

@@ -39,6 +39,7 @@ fn params(camera: Camera, medium: Medium) -> CacheParams {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: Some(2.0),
+        multiple_tolerance: None,
         single: true,
         multiple: true,
         gather: Gather::Neighbours { k: 32, max_radius: 1.0 },
@@ -67,7 +68,7 @@ fn deep_inside_a_uniform_emitting_medium_li_is_emission_over_absorption() {
     // The optical depth to the nearest face is 29: no path gets out.
     let paths = 20_000;
     let mut rng = Rng::new(3, 0);
-    let li = li_multiple_paths(medium, &optics, &[], &LightDepths::default(), nimbus_tracking::PathSources { environment: None, emission: Some(&field) }, &[centre], paths, centre + DVec3::X, &mut rng).mean;
+    let li = li_multiple_paths(medium, &optics, &[], &LightDepths::default(), nimbus_tracking::PathSources { environment: None, emission: Some(&field) }, &[centre], &[], paths, centre + DVec3::X, &mut rng).mean;
     let expected = E / (optics.extinction * 0.5);
     for k in 0..3 {
         let rel = (li[k] / expected[k] - 1.0).abs();

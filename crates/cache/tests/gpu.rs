@@ -55,6 +55,7 @@ fn paths_only(v: &Volume<f32>, seed: u64) -> CacheParams {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: Some(2.5),
+        multiple_tolerance: None,
         estimator: MultipleEstimator::Paths { per_voxel: 8 },
         seed,
         ..params(v)
@@ -237,6 +238,7 @@ fn photon_searches_longer_than_a_software_adapter_runs_are_refused() {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         ..params(&v)
     };
     match bake_gpu(ctx, &v, &map, &p) {
@@ -348,6 +350,40 @@ fn paths_topped_up_to_a_tolerance_agree_with_the_cpu() {
     assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
 }
 
+/// Li_multiple's lattice bias (multiple_lattice.rs) from the GPU's paths as from the CPU's:
+/// the same streams summed by the same parities and origin octants give the same estimate,
+/// and a tolerance below it refines both to the same finer lattice.
+#[test]
+fn the_lattice_bias_is_estimated_and_acted_on_as_on_the_cpu() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let none = PhotonMap::default();
+    let keep = CacheParams { multiple_tolerance: Some(1.0), ..paths_only(&v, 5) };
+    let (_, cpu) = bake_cpu(&v, &none, &keep).unwrap();
+    let (_, gpu) = bake_gpu(ctx, &v, &none, &keep).unwrap();
+    let (c, g) = (cpu.multiple_lattice.unwrap(), gpu.multiple_lattice.unwrap());
+    eprintln!("CPU {c:?}\nGPU {g:?}");
+    assert_eq!((c.first_scale, c.scale), (2.5, 2.5), "a tolerance of 100% keeps the lattice");
+    assert_eq!((g.first_scale, g.scale), (2.5, 2.5));
+    assert!(c.bias.rays > 100 && c.bias.rays == g.bias.rays, "the same importance rays");
+    assert!(c.bias.squared > 0.0, "the ball's footprints leave some bias: {c:?}");
+    let spread = 4.0 * (c.bias.standard_error.powi(2) + g.bias.standard_error.powi(2)).sqrt();
+    assert!((c.bias.squared - g.bias.squared).abs() <= spread, "CPU {:?}, GPU {:?}", c.bias, g.bias);
+    // A tolerance far below the estimate: both refine to the floor (Li_single's 1.5 voxels).
+    let refine = CacheParams { multiple_tolerance: Some(1e-4), ..keep };
+    let (cpu_cache, cpu) = bake_cpu(&v, &none, &refine).unwrap();
+    let (gpu_cache, gpu) = bake_gpu(ctx, &v, &none, &refine).unwrap();
+    let (c, g) = (cpu.multiple_lattice.unwrap(), gpu.multiple_lattice.unwrap());
+    assert_eq!((c.first_scale, c.scale), (2.5, 1.5), "{c:?}");
+    assert_eq!((g.first_scale, g.scale), (2.5, 1.5), "{g:?}");
+    let (cpu_li, gpu_li) = (cpu_cache.li_multiple.unwrap(), gpu_cache.li_multiple.unwrap());
+    assert!((cpu_li.transform().voxel_size().x - 0.15).abs() < 1e-12, "the finer lattice is what is stored");
+    assert_eq!(cpu.baked, gpu.baked);
+    let (n, _, _, level, mean, se) = paired_differences(&cpu_li, &gpu_li);
+    assert!(n > 500 && level > 0.0);
+    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+}
+
 /// A uniform sky and a map through the paths on both backends: escaping flights, and for
 /// the map next-event estimation at the voxel and at every collision, from the same random
 /// streams.
@@ -384,6 +420,7 @@ fn a_sun_with_a_disc_agrees_with_the_cpu_in_distribution() {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: Some(2.5),
+        multiple_tolerance: None,
         estimator: MultipleEstimator::Paths { per_voxel: 8 },
         lights: vec![sun],
         seed: 3,
@@ -456,6 +493,7 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         estimator: MultipleEstimator::Paths { per_voxel: 4 },
         ..params(&v)
     };

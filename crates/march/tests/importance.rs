@@ -90,6 +90,7 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         single: false,
         multiple: true,
         gather: Gather::Neighbours { k: 1, max_radius: 1.0 },

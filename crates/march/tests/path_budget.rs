@@ -35,6 +35,7 @@ fn render(density: &Volume<f32>, seed: u64, tolerance: f64) -> (Vec<f64>, BakeSt
         single_tolerance: None,
         path_tolerance: Some(tolerance),
         multiple_scale: Some(2.0),
+        multiple_tolerance: None,
         single: false,
         multiple: true,
         gather: Gather::Neighbours { k: 1, max_radius: 1.0 },

@@ -23,6 +23,7 @@ pub fn params(medium: Medium, lights: Vec<Light>, camera: Camera) -> CacheParams
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 32, max_radius: 1.0 },

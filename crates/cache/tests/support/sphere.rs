@@ -43,6 +43,7 @@ impl Sphere {
             single_tolerance: None,
             path_tolerance: None,
             multiple_scale: None,
+            multiple_tolerance: None,
             single: false,
             multiple: true,
             gather,
@@ -161,7 +162,7 @@ impl Sphere {
                     .map(|b| {
                         let mut rng = Rng::new(seed, i as u64 * 8 + b);
                         // w_out = +X: the eye lies along +X from p.
-                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), Default::default(), &[p], paths / 8, p + DVec3::X, &mut rng).mean.x as f64
+                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), Default::default(), &[p], &[], paths / 8, p + DVec3::X, &mut rng).mean.x as f64
                     })
                     .collect();
                 let mean = batches.iter().sum::<f64>() / 8.0;

@@ -140,6 +140,7 @@ pub fn single_scattering_chain(density: &Volume<f32>, medium: Medium, sun: Light
         single_tolerance: None,
         path_tolerance: None,
         multiple_scale: None,
+        multiple_tolerance: None,
         single: true,
         multiple: false,
         gather: Gather::Neighbours { k: 8, max_radius: 1.0 },
