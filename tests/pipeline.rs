@@ -382,7 +382,9 @@ fn quality_presets_set_the_tools_and_flags_override_them() {
     // final traces paths and says the photons go unused; an explicit --gather-neighbours
     // gathers them instead, on final's lattice.
     let (c_photons, cache_size) = (dir.join("c-photons.vdb"), ["--width", "16", "--height", "12"]);
-    let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final"]).args(cache_size).arg("-o").arg(&c));
+    // (--multiple-tolerance 0 keeps final's lattice: on this 24-voxel ball the paths estimate
+    // its bias at 4-5% and would refine it, which the paths test checks.)
+    let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final", "--multiple-tolerance", "0"]).args(cache_size).arg("-o").arg(&c));
     assert!(String::from_utf8_lossy(&out.stderr).contains("photons are not used"), "{out:?}");
     run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", "final", "--gather-neighbours", "32"]).args(cache_size).arg("-o").arg(&c_photons));
     let out = run(Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "final", "--spp", "3", "-v"]).arg("-o").arg(&e));

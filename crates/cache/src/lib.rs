@@ -23,7 +23,11 @@
 //!   [`CacheParams::path_tolerance`] is given, that count is a first pass: the paths' spread
 //!   per voxel, weighted by the camera importance, predicts the relative noise they leave in
 //!   the image, and a second pass scales every voxel's paths until it is within the
-//!   tolerance (budget.rs: [`predicted_noise`], [`more_paths`]; both backends, on the host). With the medium's emission
+//!   tolerance (budget.rs: [`predicted_noise`], [`more_paths`]; both backends, on the host).
+//!   Where [`CacheParams::multiple_tolerance`] is given, the same paths, summed by their
+//!   origins' octants in two independent halves, estimate the bias the lattice leaves in
+//!   the image, and a lattice biased beyond it is traced again finer (multiple_lattice.rs:
+//!   [`lattice_bias`], [`refined_scale`]). With the medium's emission
 //!   ([`bake_cpu_emitting`], [`bake_gpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
 //!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
 //!   along camera rays itself), with or without lights.

@@ -224,7 +224,7 @@ mod tests {
     use super::*;
 
     fn bias(relative: f64, standard_error: f64) -> LatticeBias {
-        LatticeBias { squared: relative * relative, standard_error, rays: 100 }
+        LatticeBias { squared: relative.signum() * relative * relative, standard_error, rays: 100 }
     }
 
     #[test]
