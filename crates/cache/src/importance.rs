@@ -165,6 +165,11 @@ impl<'a> ImportanceRays<'a> {
         self.sw * self.sh
     }
 
+    /// Which of `k` x `k` tiles of the image pixel `p` lies in (row-major).
+    pub(crate) fn tile(&self, p: usize, k: usize) -> usize {
+        (p % self.sw) * k / self.sw + k * ((p / self.sw) * k / self.sh)
+    }
+
     /// Marches pixel `p`'s ray as `vdbmarch` does (step: half the plan's voxel edge) and
     /// calls `f(x, w)` at each sample, w its weight in the pixel's value,
     /// `T (1 - exp(-sigma_t dt))`.

@@ -19,7 +19,8 @@
 //! mean level it tracked the bias measured against the path-traced reference within about a
 //! third, on lattices of 1 to 4 voxels.
 //!
-//! Where the estimate exceeds [`MULTIPLE_LATTICE_TOLERANCE`] by more than its standard error,
+//! Where the estimate exceeds [`MULTIPLE_LATTICE_TOLERANCE`] by more than its standard error
+//! (from the spread of 8 x 8 tiles of the image: neighbouring rays read the same voxels),
 //! the bake traces Li_multiple again on a finer lattice: the bias goes about as the spacing
 //! (measured 6.9%, 3.2%, 1.8%, 1.0% at 4, 2, 1.5, 1 voxels), so the spacing is scaled to
 //! bring it to two thirds of the tolerance, at most halved, and never finer than Li_single's
@@ -39,6 +40,9 @@ use crate::{BakeStats, CacheParams, CachePlan, CameraImportance, PathPlan};
 /// (about 1.5% after 2 x 2 blocks), a bias up to 1.5% keeps the chain near 2%: the sheet
 /// scene, estimated at 1.1%, measured 1.5% in all.
 pub const MULTIPLE_LATTICE_TOLERANCE: f64 = 0.015;
+
+/// The image is cut into this many tiles each way for the estimate's standard error.
+const ERROR_TILES: usize = 8;
 
 /// Most the lattice is refined in one step: halved (eight times the voxels).
 const MAX_REFINEMENT: f64 = 2.0;
@@ -131,15 +135,17 @@ pub fn lattice_bias(
         .collect();
     let index = plan.voxel_index();
     let rays = ImportanceRays::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
-    // Per ray: D_A D_B, its square, the ray's level, whether it reads any voxel.
-    let totals = (0..rays.pixels())
+    // Per ray: D_A D_B, the ray's level, whether it reads any voxel; summed per tile of the
+    // image, as neighbouring rays read the same voxels and their products are not
+    // independent: the standard error comes from the tiles' spread (a ratio estimator).
+    let tiles = (0..rays.pixels())
         .into_par_iter()
-        .map_init(Vec::new, |reads, p| {
+        .fold_with((vec![[0.0f64; 3]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
             let (mut d, mut level) = ([0.0f64; 2], 0.0f64);
             rays.march_pixel(p, |x, w| {
                 reads.clear();
                 let c = plan.transform.to_index(x);
-                spread(&index, c, w, reads);
+                spread(&index, c, w, &mut reads);
                 for &(v, t, _) in reads.iter() {
                     let f = &footprints[v as usize];
                     if !f.level.is_finite() {
@@ -155,18 +161,23 @@ pub fn lattice_bias(
                     }
                 }
             });
-            let cross = d[0] * d[1];
-            [cross, cross * cross, level, (level > 0.0) as u8 as f64]
+            let tile = &mut tiles[rays.tile(p, ERROR_TILES)];
+            tile[0] += d[0] * d[1];
+            tile[1] += level;
+            tile[2] += (level > 0.0) as u8 as f64;
+            (tiles, reads)
         })
-        .reduce(|| [0.0; 4], |a, b| std::array::from_fn(|k| a[k] + b[k]));
-    let n = totals[3];
-    let level = totals[2] / n.max(1.0);
+        .map(|(tiles, _)| tiles)
+        .reduce(|| vec![[0.0f64; 3]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
+    let total = |k: usize| tiles.iter().map(|t| t[k]).sum::<f64>();
+    let (n, level) = (total(2), total(1) / total(2).max(1.0));
     if !(n > 0.0 && level > 0.0) {
         return LatticeBias::default();
     }
-    let mean = totals[0] / n;
-    let variance = (totals[1] / n - mean * mean).max(0.0);
-    LatticeBias { squared: mean / (level * level), standard_error: (variance / n).sqrt() / (level * level), rays: n as usize }
+    let mean = total(0) / n;
+    let variance: f64 = tiles.iter().map(|t| (t[0] - mean * t[2]).powi(2)).sum::<f64>() / (n * n);
+    let level2 = level * level;
+    LatticeBias { squared: mean / level2, standard_error: variance.sqrt() / level2, rays: n as usize }
 }
 
 /// Li_multiple by paths on `first` (Li_multiple's plan), and where
