@@ -14,7 +14,8 @@
 # WORKDIR), issue #30's 2% target. The reference's own noise comes from a second reference of
 # a quarter of the paths and another seed (their difference is sqrt(5) times the first's
 # noise) and is taken out of the chain's error in quadrature. MULTIPLE_SCALES (e.g. "4 2 1")
-# runs the chain again at each Li_multiple lattice (`vdbcache --multiple-scale`), the paths
+# runs the chain again at each Li_multiple lattice (`vdbcache --multiple-scale`: fixed, not
+# refined by its estimated bias as the default's may be), the paths
 # topped up to the same noise: what the lattice costs in accuracy (docs/benchmarks.md,
 # "Li_multiple's lattice and the paths' second pass"). SINGLE=0 skips the single-scattering
 # table (its brute-force march takes minutes a scene).

@@ -85,9 +85,12 @@ struct CacheOut {
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
-    // PathMoments::halves: the paths' estimates (the channels' mean) summed at
-    // 8 * (path index parity) + (origin's octant about the node), for the lattice's bias.
-    halves: array<f32, 16>,
+}
+
+// PathMoments::halves: a voxel's paths' estimates (the channels' mean) summed at
+// 8 * (path index parity) + (origin's octant about the node), for the lattice's bias.
+struct PathHalves {
+    sums: array<f32, 16>,
 }
 
 const GATHER_NEAREST: u32 = 0u;
@@ -108,6 +111,8 @@ const GATHER_RADIUS: u32 = 1u;
 @group(1) @binding(9) var<storage, read> path_origins: array<vec4<f32>>;
 // The environment (nimbus_optics::Environment::gpu_words), read by environment.wgsl.
 @group(1) @binding(10) var<storage, read> environment: array<f32>;
+// PathHalves per voxel for bake_paths (one dummy for the other kernels).
+@group(1) @binding(11) var<storage, read_write> path_halves: array<PathHalves>;
 
 fn env_word(i: u32) -> f32 {
     return environment[i];
@@ -382,17 +387,17 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
         g = gather_nearest(x, w_out);
     }
     if (g.used == 0u || g.radius <= 0.0) {
-        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
     }
     let mean_density = mean_density_in_ball(x, g.radius);
     if (mean_density < params.empty_below) {
-        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
+        return CacheOut(vec3<f32>(0.0), g.used, 0.0, 0u, 0u, 0u);
     }
     let volume = 4.0 / 3.0 * OPTICS_PI * g.radius * g.radius * g.radius;
     let mean_sigma_s = medium_sigma_s(params.medium, mean_density);
     let estimate = g.sum / volume;
     let li = select(vec3<f32>(0.0), estimate / mean_sigma_s, mean_sigma_s > vec3<f32>(0.0));
-    return CacheOut(li, g.used, 0.0, 0u, 0u, 0u, array<f32, 16>());
+    return CacheOut(li, g.used, 0.0, 0u, 0u, 0u);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -454,7 +459,7 @@ fn continue_paths(v: u32) {
         sum = sum + estimate;
         squares = squares + dot(estimate, estimate) / 3.0;
         let half = 8u * (p & 1u) + u32(origin.w);
-        out[v].halves[half] = out[v].halves[half] + (estimate.x + estimate.y + estimate.z) / 3.0;
+        path_halves[v].sums[half] = path_halves[v].sums[half] + (estimate.x + estimate.y + estimate.z) / 3.0;
     }
     if (end == n) {
         sum = sum / f32(n);
@@ -478,7 +483,7 @@ fn bake_single(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     }
     let v = params.first + i;
     let x = points[v].xyz;
-    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u, 0.0, 0u, 0u, 0u, array<f32, 16>());
+    out[v] = CacheOut(li_single(x, toward_eye(x)), 0u, 0.0, 0u, 0u, 0u);
     loop_guard_check();
 }
 

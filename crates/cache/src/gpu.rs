@@ -36,7 +36,7 @@ const EMISSION_GROUP: u32 = 3;
 /// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
 const CHUNK: u64 = 1 << 15;
 /// Group 1 binding of the [`LoopGuard`] flag (after the 11 buffers).
-const GUARD_BINDING: u32 = 11;
+const GUARD_BINDING: u32 = 12;
 
 /// WGSL `CacheUniforms`.
 #[repr(C)]
@@ -86,8 +86,13 @@ struct GpuOut {
     /// The paths' mean square (budget.rs's PathMoments); 0 for the other kernels.
     square: f32,
     _pad: [u32; 3],
-    /// PathMoments::halves: the paths' sums by parity and origin octant.
-    halves: [f32; 16],
+}
+
+/// PathMoments::halves of one voxel (`PathHalves`, its own buffer: only the paths fill it).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuHalves {
+    sums: [f32; 16],
 }
 
 /// The CPU's quadrature, the heap bound and the paths' random-number domain as WGSL constants, so the two cannot drift apart.
@@ -186,7 +191,7 @@ pub fn bake_gpu_emitting(
     let mut nonfinite = 0;
     let mut run = |kernel: Kernel<'_>, plan: &CachePlan| -> Result<Volume<Vec3>, CacheError> {
         let out = match &baker {
-            Some(b) => b.run(kernel, &plan.voxel_positions())?,
+            Some(b) => b.run(kernel, &plan.voxel_positions())?.0,
             None => Vec::new(),
         };
         let values: Vec<Vec3> = out.iter().map(|o| Vec3::from(o.li)).collect();
@@ -208,7 +213,8 @@ pub fn bake_gpu_emitting(
         MultipleEstimator::Paths { per_voxel } => {
             let trace = |_: &str, voxels: &CachePlan, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
                 let Some(b) = &baker else { return Ok(Vec::new()) };
-                Ok(b.run(Kernel::Paths(p, seed), &voxels.voxel_positions())?.iter().map(|o| PathMoments { mean: Vec3::from(o.li), mean_square: o.square, halves: o.halves }).collect())
+                let (out, halves) = b.run(Kernel::Paths(p, seed), &voxels.voxel_positions())?;
+                Ok(out.iter().zip(&halves).map(|(o, h)| PathMoments { mean: Vec3::from(o.li), mean_square: o.square, halves: h.sums }).collect())
             };
             let (volume, bad) = bake_paths(multiple_plan, density, &majorant, params, per_voxel, li_single.as_ref(), &mut stats, trace)?;
             nonfinite += bad;
@@ -307,6 +313,7 @@ impl<'a> GpuBaker<'a> {
                 storage_entry(8, true),
                 storage_entry(9, true),
                 storage_entry(10, true),
+                storage_entry(11, false),
                 guard.layout_entry(),
             ],
         )?;
@@ -392,17 +399,18 @@ impl<'a> GpuBaker<'a> {
 
     /// Runs `kernel` over the voxels at `positions`, in dispatches of at most [`CHUNK`]
     /// voxels (and [`PATHS_PER_DISPATCH`] paths), and reads back.
-    fn run(&self, kernel: Kernel<'_>, positions: &[DVec3]) -> Result<Vec<GpuOut>, GpuError> {
+    /// The voxels' results, and for the paths their halves (else empty).
+    fn run(&self, kernel: Kernel<'_>, positions: &[DVec3]) -> Result<(Vec<GpuOut>, Vec<GpuHalves>), GpuError> {
         let ctx = self.ctx;
         let voxels = positions.len() as u64;
         if voxels == 0 {
-            return Ok(Vec::new());
+            return Ok((Vec::new(), Vec::new()));
         }
         let points: Vec<[f32; 4]> = positions.iter().map(|&p| (p - self.origin).as_vec3().extend(0.0).to_array()).collect();
         let points = ctx.storage_buffer("cache voxels", &points)?;
         let out = match kernel {
             // Each voxel's path count goes in with its zero sum.
-            Kernel::Paths(paths, _) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used, square: 0.0, _pad: [0; 3], halves: [0.0; 16] }).collect::<Vec<_>>())?,
+            Kernel::Paths(paths, _) => ctx.storage_buffer("cache values", &paths.counts.iter().map(|&used| GpuOut { li: [0.0; 3], used, square: 0.0, _pad: [0; 3] }).collect::<Vec<_>>())?,
             _ => ctx.storage_buffer_zeroed("cache values", voxels * size_of::<GpuOut>() as u64)?,
         };
         // Where each voxel's paths start (one dummy each for the other kernels: bindings
@@ -417,6 +425,8 @@ impl<'a> GpuBaker<'a> {
         };
         let path_first = ctx.storage_buffer("cache path firsts", &path_first)?;
         let path_origins = ctx.storage_buffer("cache path origins", &path_origins)?;
+        let halves_size = size_of::<GpuHalves>() as u64 * if matches!(kernel, Kernel::Paths(..)) { voxels } else { 1 };
+        let halves = ctx.storage_buffer_zeroed("cache path halves", halves_size)?;
         // (entry, first path) in order; the same voxels' state passes between them in `out`
         // and the Rng buffer.
         let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
@@ -483,7 +493,7 @@ impl<'a> GpuBaker<'a> {
                     ctx,
                     "cache",
                     &self.layout,
-                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment],
+                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment, &halves],
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
                 pending += done(entry, first_path, first as usize..(first + count) as usize);
@@ -496,8 +506,9 @@ impl<'a> GpuBaker<'a> {
         }
         self.guard.check(ctx, work, remedy)?;
         let values = ctx.read_buffer(&out)?;
+        let halves: Vec<GpuHalves> = if matches!(kernel, Kernel::Paths(..)) { ctx.read_buffer(&halves)? } else { Vec::new() };
         task.advance(pending);
-        Ok(values)
+        Ok((values, halves))
     }
 }
 
@@ -543,7 +554,8 @@ mod tests {
                     }),
                 ),
                 ("CachePhoton", host_layout!(GpuPhoton { position, index, power, _pad0, dir, _pad1 })),
-                ("CacheOut", host_layout!(GpuOut { li, used, square, _pad, halves })),
+                ("CacheOut", host_layout!(GpuOut { li, used, square, _pad })),
+                ("PathHalves", host_layout!(GpuHalves { sums })),
             ]);
             nimbus_gpu::wgsl_layout::check_layouts(&cache_source(filterable, loop_guard).unwrap(), &mirrors);
         }
