@@ -34,7 +34,8 @@ pub struct BakeArgs {
     single_tolerance: Option<f64>,
     /// Li_multiple's own cache voxel edge in density voxels: multiple scattering is smoother
     /// than single, so a coarser lattice holds it at an eighth of the voxels. A strongly
-    /// forward-scattering medium lit from behind the eye needs 1 for 2% (about 6x the bake).
+    /// forward-scattering medium lit from behind the eye needs 1 for 2%, which the default
+    /// finds by itself (--multiple-tolerance); given alone, the lattice stays as given.
     /// [default: the --quality preset's, else 2]
     #[arg(long, value_name = "SCALE", help_heading = "Quality")]
     multiple_scale: Option<f64>,
