@@ -434,6 +434,7 @@ fn continue_paths(v: u32) {
     let offset = path_offset(v);
     var sum = out[v].li;
     var squares = out[v].square;
+    var halves = path_halves[v].sums;
     let end = min(params.first_path + params.path_count, n);
     for (var p = params.first_path; p < end; p = p + 1u) {
         let origin = path_origins[path_first[v] + p % min(n, CACHE_MAX_ORIGINS)];
@@ -459,7 +460,7 @@ fn continue_paths(v: u32) {
         sum = sum + estimate;
         squares = squares + dot(estimate, estimate) / 3.0;
         let half = 8u * (p & 1u) + u32(origin.w);
-        path_halves[v].sums[half] = path_halves[v].sums[half] + (estimate.x + estimate.y + estimate.z) / 3.0;
+        halves[half] = halves[half] + (estimate.x + estimate.y + estimate.z) / 3.0;
     }
     if (end == n) {
         sum = sum / f32(n);
@@ -467,6 +468,7 @@ fn continue_paths(v: u32) {
     }
     out[v].li = sum;
     out[v].square = squares;
+    path_halves[v].sums = halves;
     path_rngs[v] = rng;
 }
 

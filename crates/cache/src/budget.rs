@@ -140,12 +140,12 @@ impl TracedPaths {
 
 /// The paths stage both backends share: `plan`'s paths traced by `trace(progress label,
 /// plan, seed)`, then, where [`CacheParams::path_tolerance`] asks for it and the predicted
-/// noise exceeds it, a second pass merged in. Records the paths traced, the noise predicted
-/// and the stage's time in `stats`.
+/// noise exceeds it, a second pass merged in; `single` is Li_single's level at the voxels
+/// ([`single_levels`], or empty). Records the paths traced, the noise predicted and the
+/// stage's time in `stats`.
 pub(crate) fn trace_to_tolerance<E>(
     plan: &PathPlan,
-    voxels: &CachePlan,
-    single: Option<&Volume<Vec3>>,
+    single: &[f32],
     params: &CacheParams,
     stats: &mut BakeStats,
     mut trace: impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
@@ -155,8 +155,7 @@ pub(crate) fn trace_to_tolerance<E>(
     let mut traced = plan.total();
     let mut second = None;
     if let Some(tolerance) = params.path_tolerance {
-        let single = single_levels(voxels, single);
-        let noise = predicted_noise(plan, &plan.counts, &moments, &single);
+        let noise = predicted_noise(plan, &plan.counts, &moments, single);
         stats.path_noise = Some((noise, noise));
         if let Some(extra) = more_paths(plan, noise, tolerance) {
             let more = plan.more(extra);
@@ -165,7 +164,7 @@ pub(crate) fn trace_to_tolerance<E>(
                 *m = m.merged(plan.counts[v], *s, more.counts[v]);
             }
             let counts: Vec<u32> = plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect();
-            stats.path_noise = Some((noise, predicted_noise(plan, &counts, &moments, &single)));
+            stats.path_noise = Some((noise, predicted_noise(plan, &counts, &moments, single)));
             traced += more.total();
             second = Some(more);
         }

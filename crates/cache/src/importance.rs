@@ -108,19 +108,22 @@ impl PathPlan {
         PathPlan { counts: extra, first, origins, octants, importance: Vec::new(), read_weight: Vec::new(), covered_rays: 0 }
     }
 
-    /// The octant of voxel `v`'s path `j` (its origin's, [`PathPlan::octants`]).
-    pub fn octant_of(&self, v: usize, j: u32) -> usize {
-        self.octants[self.first[v] + (j % origin_count(self.counts[v]).max(1)) as usize] as usize
-    }
-
     /// Voxel `v`'s paths per half (even and odd path index) and octant: the counts behind
-    /// [`PathMoments::halves`](crate::PathMoments::halves), index `8 * half + octant`.
+    /// [`PathMoments::halves`](crate::PathMoments::halves), index `8 * half + octant`. Path j
+    /// starts from origin j mod m (m origins), so origin k serves paths k, k + m, k + 2m, ...:
+    /// all of k's parity where m is even, alternating from it where m is odd.
     pub fn half_octant_counts(&self, v: usize) -> [u32; 16] {
-        let mut n = [0u32; 16];
-        for j in 0..self.counts[v] {
-            n[8 * (j as usize & 1) + self.octant_of(v, j)] += 1;
+        let (n, m) = (self.counts[v], origin_count(self.counts[v]));
+        let mut counts = [0u32; 16];
+        for (k, &o) in self.octants_of(v).iter().enumerate() {
+            let k = k as u32;
+            let paths = (n - k).div_ceil(m);
+            let own = if m % 2 == 0 { paths } else { paths.div_ceil(2) };
+            let parity = (k & 1) as usize;
+            counts[8 * parity + o as usize] += own;
+            counts[8 * (1 - parity) + o as usize] += paths - own;
         }
-        n
+        counts
     }
 
     /// Voxels no path starts in: no camera ray reads them or any neighbour.
@@ -445,6 +448,25 @@ pub(crate) fn spread(index: &VoxelIndex<'_>, c: DVec3, weight: f64, out: &mut Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn half_octant_counts_are_the_paths_by_parity_and_origin_octant() {
+        // Voxels of 5 (odd: 5 origins), 20 and 37 paths (16 origins each), path j from
+        // origin j mod m, origin k in octant k mod 8.
+        let counts = vec![5u32, 20, 37];
+        let first: Vec<usize> = vec![0, 5, 21];
+        let octants: Vec<u8> = (0..37).map(|k| (k % 8) as u8).collect();
+        let plan = PathPlan { counts: counts.clone(), first, origins: vec![DVec3::ZERO; 37], octants, importance: Vec::new(), read_weight: Vec::new(), covered_rays: 0 };
+        for (v, &n) in counts.iter().enumerate() {
+            let mut expected = [0u32; 16];
+            let m = n.min(MAX_ORIGINS_PER_VOXEL);
+            for j in 0..n {
+                expected[8 * (j as usize & 1) + plan.octants_of(v)[(j % m) as usize] as usize] += 1;
+            }
+            assert_eq!(plan.half_octant_counts(v), expected, "voxel {v}");
+            assert_eq!(expected.iter().sum::<u32>(), n);
+        }
+    }
 
     #[test]
     fn paths_add_up_exactly_and_follow_the_square_root_of_importance() {

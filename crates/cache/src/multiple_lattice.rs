@@ -31,7 +31,7 @@ use glam::{DVec3, Vec3};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::budget::{single_levels, trace_to_tolerance, PathMoments};
+use crate::budget::{single_levels, trace_to_tolerance, PathMoments, TracedPaths};
 use crate::importance::{octant, spread, ImportanceRays};
 use crate::{BakeStats, CacheParams, CachePlan, CameraImportance, PathPlan};
 
@@ -183,7 +183,8 @@ pub fn lattice_bias(
 /// Li_multiple by paths on `first` (Li_multiple's plan), and where
 /// [`CacheParams::multiple_tolerance`] asks for it and the lattice's estimated bias exceeds
 /// it, again on a finer lattice ([`refined_scale`]). `trace(label, voxels, paths, seed)`
-/// traces one pass. Returns the volume, its non-finite count, and the lattice settled.
+/// traces one pass. Returns the volume and its non-finite count; the lattice settled goes
+/// in `stats`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn bake_paths<E>(
     first: &CachePlan,
@@ -195,39 +196,36 @@ pub(crate) fn bake_paths<E>(
     stats: &mut BakeStats,
     mut trace: impl FnMut(&str, &CachePlan, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
 ) -> Result<(Volume<Vec3>, u64), E> {
-    let mut refined: Option<CachePlan> = None;
-    let mut settled: Option<MultipleLattice> = None;
-    loop {
-        let voxels = refined.as_ref().unwrap_or(first);
+    // One lattice's paths to tolerance, and their bias where it is asked for.
+    let mut pass = |voxels: &CachePlan, stats: &mut BakeStats| -> Result<(TracedPaths, Option<LatticeBias>), E> {
         let paths = stats.time("importance", || CameraImportance::path_plan(voxels, density, majorant, params, per_voxel));
         stats.culled_unseen = paths.unseen();
-        let traced = trace_to_tolerance(&paths, voxels, single, params, stats, |what, p, seed| trace(what, voxels, p, seed))?;
-        let Some(tolerance) = params.multiple_tolerance else { return Ok(traced.volume(voxels)) };
-        let started = std::time::Instant::now();
-        let bias = lattice_bias(voxels, density, majorant, params, &paths, traced.more.as_ref(), &traced.moments, &single_levels(voxels, single));
-        stats.stages.push(("lattice bias", started.elapsed().as_millis() as u64));
-        let scale = voxels.transform.voxel_size().x / density.transform().voxel_size().x;
-        let next = match &mut settled {
-            Some(s) => {
-                s.bias = bias;
-                None
-            }
-            None => {
-                settled = Some(MultipleLattice { first_scale: scale, scale, first_bias: bias, bias });
-                refined_scale(scale, params.cache_scale, &bias, tolerance)
-            }
-        };
-        let Some(finer) = next else {
-            stats.multiple_lattice = settled;
-            return Ok(traced.volume(voxels));
-        };
-        let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
-        stats.replace_counts(&voxels.stats, &plan.stats);
-        if let Some(s) = &mut settled {
-            s.scale = finer;
+        let wanted = params.path_tolerance.is_some() || params.multiple_tolerance.is_some();
+        let levels = if wanted { single_levels(voxels, single) } else { Vec::new() };
+        let traced = trace_to_tolerance(&paths, &levels, params, stats, |what, p, seed| trace(what, voxels, p, seed))?;
+        let bias = params.multiple_tolerance.map(|_| {
+            stats.time("lattice bias", || lattice_bias(voxels, density, majorant, params, &paths, traced.more.as_ref(), &traced.moments, &levels))
+        });
+        Ok((traced, bias))
+    };
+    let (traced, bias) = pass(first, stats)?;
+    let (Some(tolerance), Some(bias)) = (params.multiple_tolerance, bias) else { return Ok(traced.volume(first)) };
+    let scale = first.transform.voxel_size().x / density.transform().voxel_size().x;
+    let mut settled = MultipleLattice { first_scale: scale, scale, first_bias: bias, bias };
+    let volume = match refined_scale(scale, params.cache_scale, &bias, tolerance) {
+        None => traced.volume(first),
+        Some(finer) => {
+            drop(traced);
+            let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
+            stats.replace_counts(&first.stats, &plan.stats);
+            let (traced, bias) = pass(&plan, stats)?;
+            settled.scale = finer;
+            settled.bias = bias.expect("the tolerance asks for the bias");
+            traced.volume(&plan)
         }
-        refined = Some(plan);
-    }
+    };
+    stats.multiple_lattice = Some(settled);
+    Ok(volume)
 }
 
 #[cfg(test)]

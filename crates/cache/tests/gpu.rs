@@ -289,6 +289,17 @@ fn paired_differences(cpu: &Volume<Vec3>, gpu: &Volume<Vec3>) -> (usize, usize, 
     (n, n_lit, same, mean_cpu, mean, (var / n as f64).sqrt())
 }
 
+/// Asserts that both backends' Li_multiple agree in distribution ([`paired_differences`]:
+/// more than 500 voxels, a non-zero level, the mean difference within four standard errors)
+/// and returns the voxels, the lit ones and those the same to 1e-4.
+fn assert_same_in_distribution(cpu: &Volume<Vec3>, gpu: &Volume<Vec3>, what: &str) -> (usize, usize, usize) {
+    let (n, lit, same, level, mean, se) = paired_differences(cpu, gpu);
+    eprintln!("{what}: {n} voxels, {lit} lit, {same} of those the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
+    assert!(n > 500 && level > 0.0, "{what}: {n} voxels, level {level}");
+    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "{what}: mean difference {mean} against its standard error {se}");
+    (n, lit, same)
+}
+
 #[test]
 fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
@@ -304,14 +315,11 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     assert!(cpu.li_single.is_none() && gpu.li_single.is_none());
     // The host decides every voxel's count for both backends: N per voxel on average, exactly.
     let (cpu, gpu) = (cpu.li_multiple.unwrap(), gpu.li_multiple.unwrap());
-    let (n, lit, same, level, mean, se) = paired_differences(&cpu, &gpu);
     assert_eq!(cpu_stats.paths, per_voxel as u64 * cpu_stats.baked, "N paths per voxel on average");
     assert_eq!(gpu_stats.paths, cpu_stats.paths, "paths traced");
     assert_eq!(gpu_stats.culled_unseen, cpu_stats.culled_unseen, "the same path plan");
     assert!(gpu_stats.light_table_nodes > 0 && gpu_stats.light_table_nodes == cpu_stats.light_table_nodes, "the sun's table serves next-event estimation");
-    eprintln!("{n} voxels, {lit} lit, {same} of those the same to 1e-4; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
-    assert!(n > 500 && level > 0.0);
-    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+    let (_, lit, same) = assert_same_in_distribution(&cpu, &gpu, "paths");
     // The same stream per voxel (seed, voxel, domain): most voxels' paths take the very same
     // turns; f32 decides a few of them otherwise.
     assert!(lit > 500 && same as f64 >= 0.5 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's random numbers?");
@@ -344,10 +352,7 @@ fn paths_topped_up_to_a_tolerance_agree_with_the_cpu() {
     eprintln!("CPU {:?} {} paths, GPU {:?} {} paths ({growth:.2}x the first pass)", cpu_stats.path_noise, cpu_stats.paths, gpu_stats.path_noise, gpu_stats.paths);
     assert!((3.5..4.7).contains(&growth), "about four times the paths: {growth}");
     assert!((gpu_stats.paths as f64 / cpu_stats.paths as f64 - 1.0).abs() < 0.05, "CPU {} paths, GPU {}", cpu_stats.paths, gpu_stats.paths);
-    let (n, _, _, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
-    eprintln!("{n} voxels; mean CPU {level:.4e}, mean GPU - CPU {mean:.3e} +- {se:.3e}");
-    assert!(n > 500 && level > 0.0);
-    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+    assert_same_in_distribution(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap(), "topped up");
 }
 
 /// Li_multiple's lattice bias (multiple_lattice.rs) from the GPU's paths as from the CPU's:
@@ -379,9 +384,7 @@ fn the_lattice_bias_is_estimated_and_acted_on_as_on_the_cpu() {
     let (cpu_li, gpu_li) = (cpu_cache.li_multiple.unwrap(), gpu_cache.li_multiple.unwrap());
     assert!((cpu_li.transform().voxel_size().x - 0.15).abs() < 1e-12, "the finer lattice is what is stored");
     assert_eq!(cpu.baked, gpu.baked);
-    let (n, _, _, level, mean, se) = paired_differences(&cpu_li, &gpu_li);
-    assert!(n > 500 && level > 0.0);
-    assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+    assert_same_in_distribution(&cpu_li, &gpu_li, "refined lattice");
 }
 
 /// A uniform sky and a map through the paths on both backends: escaping flights, and for
@@ -398,11 +401,9 @@ fn the_environment_in_the_paths_agrees_with_the_cpu_in_distribution() {
         let (cpu, _) = bake_cpu(&v, &none, &p).unwrap();
         let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
         assert_eq!(gpu_stats.nonfinite, 0);
-        let (n, lit, same, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
-        let what = if sky.wants_next_event() { "map" } else { "sky" };
-        eprintln!("{what}, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
-        assert!(n > 500 && lit > 500 && level > 0.0);
-        assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+        let what = format!("{}, {} lights", if sky.wants_next_event() { "map" } else { "sky" }, lights.len());
+        let (_, lit, same) = assert_same_in_distribution(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap(), &what);
+        assert!(lit > 500, "{what}: {lit} lit voxels");
         assert!(same as f64 >= 0.3 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
     }
 }
@@ -544,10 +545,9 @@ fn emission_in_the_paths_agrees_with_the_cpu_in_distribution() {
         let (gpu, gpu_stats) = nimbus_cache::bake_gpu_emitting(ctx, &v, &none, &p, Some(&field)).unwrap();
         assert_eq!(gpu_stats.nonfinite, 0);
         assert_eq!(gpu_stats.paths, cpu_stats.paths, "the same path plan");
-        let (n, lit, same, level, mean, se) = paired_differences(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap());
-        eprintln!("emission, {} lights: {n} voxels, {lit} lit, {same} the same to 1e-4; mean CPU {level:.4e}, GPU - CPU {mean:.3e} +- {se:.3e}", lights.len());
-        assert!(n > 500 && lit > 500 && level > 0.0);
-        assert!(mean.abs() <= 4.0 * se + 1e-4 * level, "mean difference {mean} against its standard error {se}");
+        let what = format!("emission, {} lights", lights.len());
+        let (_, lit, same) = assert_same_in_distribution(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap(), &what);
+        assert!(lit > 500, "{what}: {lit} lit voxels");
         assert!(same as f64 >= 0.5 * lit as f64, "only {same} of {lit} lit voxels agree: not the CPU's estimator?");
     }
     // Without the field and without lights the GPU bakes nothing, as the CPU.
