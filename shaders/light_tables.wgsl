@@ -34,7 +34,8 @@ struct LightTable {
     // The index's first entry in light_table_index.
     index_first: u32,
     brick_dims: vec3<i32>,
-    // 0: the light has no table.
+    // 0: the light has no table; 1: transmittance is interpolated across the rays; 2: optical
+    // depth is (an unsheared lattice, OpticalDepthVolume::depth_across).
     tabled: u32,
 }
 
@@ -88,7 +89,8 @@ fn light_table_along_ray(t0: f32, t1: f32, d0: f32, d1: f32, u: f32) -> f32 {
 
 // Transmittance toward light `light` from x as its table resolves it
 // (OpticalDepthVolume::lookup): x, along each of the four rays around it by
-// light_table_along_ray, then bilinear across them in Volume::sample_index's corner order; y, the weight of the caller's own
+// light_table_along_ray, then bilinear across them in Volume::sample_index's corner order (in
+// optical depth where `tabled` is 2, else in transmittance); y, the weight of the caller's own
 // shadow ray beside it, 1 where the light has no table, rising across LIGHT_TABLE_SPREAD as
 // the nodes stray from the interpolation (their weighted mean absolute deviation from it) over
 // a shadow edge sharper than the lattice.
@@ -129,7 +131,15 @@ fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
     let a01 = light_table_along_ray(v[2], v[3], r[2], r[3], w.z);
     let a10 = light_table_along_ray(v[4], v[5], r[4], r[5], w.z);
     let a11 = light_table_along_ray(v[6], v[7], r[6], r[7], w.z);
-    let l = volume_lerp(volume_lerp(vec4<f32>(a00), vec4<f32>(a01), w.y), volume_lerp(vec4<f32>(a10), vec4<f32>(a11), w.y), w.x);
+    var l: vec4<f32>;
+    if (t.tabled == 2u) {
+        let tiny = 1.17549435e-38;
+        let depth = volume_lerp(volume_lerp(vec4<f32>(-log(max(a00, tiny))), vec4<f32>(-log(max(a01, tiny))), w.y),
+                                volume_lerp(vec4<f32>(-log(max(a10, tiny))), vec4<f32>(-log(max(a11, tiny))), w.y), w.x);
+        l = exp(-depth);
+    } else {
+        l = volume_lerp(volume_lerp(vec4<f32>(a00), vec4<f32>(a01), w.y), volume_lerp(vec4<f32>(a10), vec4<f32>(a11), w.y), w.x);
+    }
     var deviation = 0.0;
     for (var n = 0; n < 8; n = n + 1) {
         let f = select(vec3<f32>(1.0) - w, w, vec3<bool>(((n >> 2u) & 1) == 1, ((n >> 1u) & 1) == 1, (n & 1) == 1));

@@ -309,8 +309,8 @@ pub struct QualitySettings {
     pub top_up_paths: bool,
     /// vdbmarch `--step` as a multiple of its default (nimbus_march::default_step).
     pub step_factor: f64,
-    /// vdbmarch `--spp`; None: enough for the pixel's samples to lie half a density voxel
-    /// apart at the volume (`nimbus_march::default_spp`).
+    /// vdbmarch `--spp`; None: enough for the pixel's samples to lie a quarter of a
+    /// density voxel apart at the volume (`nimbus_march::default_spp`).
     pub spp: Option<u32>,
 }
 

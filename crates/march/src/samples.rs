@@ -18,18 +18,22 @@ pub fn default_step(transform: &Transform) -> f64 {
 pub const MAX_DEFAULT_SAMPLES_PER_SIDE: u32 = 4;
 
 /// The default samples per pixel for `camera` over `density`: n x n stratified samples, n
-/// enough that a pixel's samples lie at most half a density voxel apart at the distance of
-/// the volume's centre (n = ceil(2 x pixel footprint / thinnest voxel width), 1 to
-/// [`MAX_DEFAULT_SAMPLES_PER_SIDE`]). Where pixels are wider than voxels, one sample per
-/// pixel aliases the density's sub-pixel detail (the bundled plume at 128 x 72: 2.2% off the
-/// reference at 1 sample, 1.3% at 16); where they are narrower, one sample is all it takes
-/// (the Cloud1-class scene at 1024 x 576: one).
+/// enough that a pixel's samples lie at most a quarter of a density voxel apart at the
+/// distance of the volume's centre (n = ceil(4 x pixel footprint / thinnest voxel width), 1
+/// to [`MAX_DEFAULT_SAMPLES_PER_SIDE`]). The pixel is a box filter and its n x n samples a
+/// quadrature of it, whose error goes as the square of their spacing over the density's
+/// detail, the voxel: a ball of particles each about a voxel wide, pixels 0.55 voxels wide,
+/// is 1.2% off the path-traced reference at 2 x 2 (samples 0.28 voxels apart), 0.55% at
+/// 3 x 3, 0.36% at 4 x 4 (docs/benchmarks.md, "Dense media"); half a voxel apart had been
+/// measured only where the cap decides (the bundled plume at 128 x 72: 2.2% at one sample,
+/// 1.3% at 16). Where pixels are a quarter of a voxel or narrower one sample is all it
+/// takes (the Cloud1-class scene at 1024 x 576, the bundled cloud at 960 x 540: one).
 pub fn default_spp(camera: &Camera, density: &Volume<f32>) -> u32 {
     let Some((lo, hi)) = density.world_bounds() else { return 1 };
     let distance = (0.5 * (lo + hi) - camera.eye()).length();
     let footprint = 2.0 * distance * (0.5 * camera.fov_deg().to_radians()).tan() / camera.width() as f64;
     let voxel = density.transform().voxel_widths().min_element();
-    let n = (2.0 * footprint / voxel).ceil();
+    let n = (4.0 * footprint / voxel).ceil();
     let n = if n.is_finite() { (n as u32).clamp(1, MAX_DEFAULT_SAMPLES_PER_SIDE) } else { 1 };
     n * n
 }
@@ -57,9 +61,10 @@ mod tests {
         v.set(IVec3::ZERO, 1.0);
         // 100 units away, 40 degrees: a pixel 72.8 / width units wide.
         let camera = |width| Camera::new(DVec3::new(0.0, -100.0, 0.0), DVec3::ZERO, DVec3::Z, 40.0, width, width / 2).unwrap();
-        assert_eq!(default_spp(&camera(1024), &v), 1, "pixels a seventh of a voxel");
-        assert_eq!(default_spp(&camera(128), &v), 4, "pixels 0.57 voxels wide: 2 x 2");
-        assert_eq!(default_spp(&camera(64), &v), 9, "1.14 voxels: 3 x 3");
+        assert_eq!(default_spp(&camera(1024), &v), 1, "pixels a fourteenth of a voxel");
+        assert_eq!(default_spp(&camera(256), &v), 4, "0.28 voxels: 2 x 2");
+        assert_eq!(default_spp(&camera(128), &v), 9, "pixels 0.57 voxels wide: 3 x 3");
+        assert_eq!(default_spp(&camera(64), &v), 16, "1.14 voxels: 4 x 4");
         assert_eq!(default_spp(&camera(8), &v), 16, "at most 4 x 4");
         assert_eq!(default_spp(&camera(128), &Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0)), 1, "an empty volume");
     }

@@ -252,7 +252,7 @@ impl GpuLightTables {
                 brick_min: lo.to_array(),
                 index_first: first as u32,
                 brick_dims: dims.to_array(),
-                tabled: 1,
+                tabled: if plan.depth_across() { 2 } else { 1 },
             });
             placed.push(Some((plan, bricks)));
             bricks += coords.len();
