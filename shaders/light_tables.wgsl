@@ -1,12 +1,13 @@
-// requires: volume_lerp, LIGHT_TABLE_BRICK_LOG2, LIGHT_TABLE_SPREAD, LIGHT_TABLE_ALONG_FLOOR
+// requires: volume_lerp, LIGHT_TABLE_BRICK_LOG2, LIGHT_TABLE_SPREAD, LIGHT_TABLE_SINGLE_SPREAD, LIGHT_TABLE_ALONG_FLOOR
 //
 // The lights' tabled transmittance on the GPU (nimbus_tracking::GpuLightTables): the twin of
 // nimbus_tracking::LightDepths::get (which lights have a table) and of
 // OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).
 //
 // Composed after volume.wgsl (its volume_lerp) and the host-generated brick layout
-// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2, and LIGHT_TABLE_SPREAD and
-// LIGHT_TABLE_ALONG_FLOOR, nimbus_tracking's TABLED_SPREAD and ALONG_RAY_FLOOR:
+// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2, and LIGHT_TABLE_SPREAD,
+// LIGHT_TABLE_SINGLE_SPREAD and LIGHT_TABLE_ALONG_FLOOR, nimbus_tracking's TABLED_SPREAD,
+// SINGLE_SPREAD and ALONG_RAY_FLOOR:
 // light_tables_wgsl prepends them).
 // Binds group 2, whatever the number of lights:
 // - light_tables: one LightTable per light of the scene, `tabled` 0 where the light has none
@@ -95,6 +96,12 @@ fn light_table_along_ray(t0: f32, t1: f32, d0: f32, d1: f32, u: f32) -> f32 {
 // the nodes stray from the interpolation (their weighted mean absolute deviation from it) over
 // a shadow edge sharper than the lattice.
 fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
+    return light_table_lookup_within(light, x, LIGHT_TABLE_SPREAD);
+}
+
+// light_table_lookup, the shadow ray blended in across `spread` instead
+// (OpticalDepthVolume::lookup_within; LIGHT_TABLE_SINGLE_SPREAD for single scattering).
+fn light_table_lookup_within(light: u32, x: vec3<f32>, spread: vec2<f32>) -> vec2<f32> {
     let t = light_tables[light];
     if (t.tabled == 0u) {
         return vec2<f32>(1.0, 1.0);
@@ -145,6 +152,6 @@ fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
         let f = select(vec3<f32>(1.0) - w, w, vec3<bool>(((n >> 2u) & 1) == 1, ((n >> 1u) & 1) == 1, (n & 1) == 1));
         deviation = deviation + f.x * f.y * f.z * abs(v[n] - l.x);
     }
-    let ray_weight = clamp((deviation - LIGHT_TABLE_SPREAD.x) / (LIGHT_TABLE_SPREAD.y - LIGHT_TABLE_SPREAD.x), 0.0, 1.0);
+    let ray_weight = clamp((deviation - spread.x) / (spread.y - spread.x), 0.0, 1.0);
     return vec2<f32>(l.x, ray_weight);
 }

@@ -116,6 +116,40 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
     }
 }
 
+/// Single scattering hands the table's lookups to the shadow ray from a lower spread
+/// (SINGLE_SPREAD) than the paths' next-event estimates (TABLED_SPREAD): under an oblique sun
+/// into a medium optically thick within a voxel, interpolating across the sheared lattice
+/// misses where the depth changes across a cell, and the lower spread takes those points to
+/// the ray.
+#[test]
+fn single_scattering_takes_the_shadow_ray_from_a_lower_spread() {
+    let v = blob(Transform::uniform(0.05, DVec3::new(0.3, -1.2, 2.0)), 16);
+    let majorant = MajorantGrid::build(&v);
+    let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 3000.0 };
+    let sun = Vec3::new(0.6, 0.3, -0.74).normalize();
+    let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
+    assert!(!table.depth_across);
+    let mut rng = Rng::new(3, 0);
+    let (mut lit, mut err_single, mut err_paths, mut asked_single, mut asked_paths) = (0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
+    for _ in 0..20000 {
+        let x = v.transform().to_world((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 16.0);
+        if v.sample_world(x) <= 0.0 {
+            continue;
+        }
+        let ray = (-shadow_ray(medium, x, sun, 0.005)).exp();
+        let (single, paths) = (table.lookup_within(x, nimbus_tracking::SINGLE_SPREAD), table.lookup(x));
+        lit += ray;
+        err_single += (single.resolve(|| ray) - ray).abs();
+        err_paths += (paths.resolve(|| ray) - ray).abs();
+        asked_single += (single.ray_weight > 0.0) as usize;
+        asked_paths += (paths.ray_weight > 0.0) as usize;
+    }
+    eprintln!("lit {lit:.1}: mean |dT| / mean T {:.4} (single) against {:.4} (paths); rays asked {asked_single} against {asked_paths}", err_single / lit, err_paths / lit);
+    assert!(lit > 20.0, "enough lit points ({lit})");
+    assert!(asked_single > asked_paths, "the lower spread asks for more rays");
+    assert!(err_single < 0.5 * err_paths, "single scattering's lookups must follow the rays more closely: {err_single} against {err_paths}");
+}
+
 #[test]
 fn nodes_along_a_ray_hold_the_closed_form_depth_and_stop_past_the_opaque_depth() {
     let v = blob(Transform::uniform(0.1, DVec3::ZERO), 12);
