@@ -149,6 +149,28 @@ fn metadata_carries_parameters_down_the_chain() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A ball optically thick within a voxel (69 optical depths a voxel at its peak) under the
+/// default sun, straight down: the chain in the reference's mean. The sun's light table
+/// interpolated transmittance across its rays, the chord of a convex exp wherever the depth
+/// changes across a cell, and the paths' next-event estimates read it: this came out 1.74%
+/// bright (32 x 24; 2.1% at 64 x 48); with optical depth interpolated across the rays of an
+/// unsheared lattice, 0.16% dark.
+#[test]
+fn a_ball_optically_thick_within_a_voxel_is_lit_as_the_reference_lights_it() {
+    let dir = scratch("dense");
+    let (d, _) = ball_density(&dir, &[]);
+    let (c, chain, reference) = (dir.join("c.vdb"), dir.join("chain.exr"), dir.join("reference.exr"));
+    let medium = ["--extinction", "0.1", "--width", "32", "--height", "24", "--device", "cpu"];
+    run(Command::new(bin("vdbcache")).arg(&d).args(medium).arg("-o").arg(&c));
+    run(Command::new(bin("vdbmarch")).arg(&c).args(["--spp", "16", "--device", "cpu"]).arg("-o").arg(&chain));
+    run(Command::new(bin("vdbmarch")).arg(&d).args(medium).args(["--reference", "--spp", "4096", "--seed", "3"]).arg("-o").arg(&reference));
+    let sum = |path: &Path| read_rgba(path).iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let (got, want) = (sum(&chain), sum(&reference));
+    assert!(want > 0.0, "the reference must see the lit ball");
+    assert!((got / want - 1.0).abs() < 0.008, "chain / reference mean {}", got / want);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `--conserve-mass`: the grid holds the particles' mass (2000 of mass 1), `-v` says the
 /// option is on, and the output's nimbus record carries it.
 #[test]
