@@ -39,9 +39,11 @@ pub struct BakeArgs {
     /// [default: the --quality preset's, else 2]
     #[arg(long, value_name = "SCALE", help_heading = "Quality")]
     multiple_scale: Option<f64>,
-    /// Refine Li_multiple's lattice once where the bias it leaves in the image, estimated
-    /// from the paths' spread over each voxel's footprint, exceeds this (strong forward
-    /// scattering lit from behind needs it; the refined bake costs up to 8x); 0 turns it off.
+    /// Refine Li_multiple's lattice where the bias it leaves in the image, estimated from
+    /// the paths' spread over each voxel's footprint, exceeds this, halving at most per pass
+    /// down to half of --cache-scale (strong forward scattering lit from behind and media
+    /// optically thick within a voxel need it; each pass costs up to 8x the one before); 0
+    /// turns it off.
     /// [default: 0.015 without --multiple-scale or --paths, else off; the draft and preview
     /// presets do not refine]
     #[arg(long, value_name = "TOLERANCE", help_heading = "Quality")]

@@ -147,10 +147,27 @@ pub(crate) struct ImportanceRays<'a> {
     step: f64,
 }
 
+/// Pixels between neighbouring importance rays on each axis: 1 up to [`IMPORTANCE_RAYS`]
+/// pixels, then enough to keep the rays within it.
+pub(crate) fn importance_stride(camera: &Camera) -> usize {
+    let pixels = camera.width() as f64 * camera.height() as f64;
+    (pixels / IMPORTANCE_RAYS as f64).sqrt().ceil().max(1.0) as usize
+}
+
+/// How far apart the importance rays pass at the volume's centre, in the density's thinnest
+/// voxel widths: a path-traced lattice finer than this has voxels no importance ray reads,
+/// which get their paths from the node alone and not from where the image reads them.
+pub(crate) fn importance_ray_spacing(camera: &Camera, density: &Volume<f32>) -> f64 {
+    let Some((lo, hi)) = density.world_bounds() else { return 0.0 };
+    let distance = (0.5 * (lo + hi) - camera.eye()).length();
+    let spacing = camera.pixel_width_at(distance) * importance_stride(camera) as f64 / density.transform().voxel_widths().min_element();
+    if spacing.is_finite() { spacing } else { 0.0 }
+}
+
 impl<'a> ImportanceRays<'a> {
     pub(crate) fn new(plan: &CachePlan, density: &'a Volume<f32>, majorant: &'a MajorantGrid, extinction: f32, camera: &'a Camera, min_transmittance: f64) -> Self {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
-        let stride = ((w * h) as f64 / IMPORTANCE_RAYS as f64).sqrt().ceil().max(1.0) as usize;
+        let stride = importance_stride(camera);
         ImportanceRays {
             camera,
             density,

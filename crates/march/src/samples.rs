@@ -31,7 +31,7 @@ pub const MAX_DEFAULT_SAMPLES_PER_SIDE: u32 = 4;
 pub fn default_spp(camera: &Camera, density: &Volume<f32>) -> u32 {
     let Some((lo, hi)) = density.world_bounds() else { return 1 };
     let distance = (0.5 * (lo + hi) - camera.eye()).length();
-    let footprint = 2.0 * distance * (0.5 * camera.fov_deg().to_radians()).tan() / camera.width() as f64;
+    let footprint = camera.pixel_width_at(distance);
     let voxel = density.transform().voxel_widths().min_element();
     let n = (4.0 * footprint / voxel).ceil();
     let n = if n.is_finite() { (n as u32).clamp(1, MAX_DEFAULT_SAMPLES_PER_SIDE) } else { 1 };

@@ -127,6 +127,11 @@ impl Camera {
     pub fn fov_deg(&self) -> f64 {
         self.fov_deg
     }
+    /// The width a pixel spans at `distance` from the eye (world units), at the image's
+    /// centre.
+    pub fn pixel_width_at(&self, distance: f64) -> f64 {
+        2.0 * distance * self.tan_half_fov_x / self.width as f64
+    }
     pub fn width(&self) -> u32 {
         self.width
     }
