@@ -22,9 +22,10 @@ pub const MAX_DEFAULT_SAMPLES_PER_SIDE: u32 = 4;
 /// distance of the volume's centre (n = ceil(4 x pixel footprint / thinnest voxel width), 1
 /// to [`MAX_DEFAULT_SAMPLES_PER_SIDE`]). The pixel is a box filter and its n x n samples a
 /// quadrature of it, whose error goes as the square of their spacing over the density's
-/// detail, the voxel: a ball of particles each about a voxel wide, pixels 0.55 voxels wide,
-/// is 1.2% off the path-traced reference at 2 x 2 (samples 0.28 voxels apart), 0.55% at
-/// 3 x 3, 0.36% at 4 x 4 (docs/benchmarks.md, "Dense media"); half a voxel apart had been
+/// detail, the voxel: a ball of particles each about a voxel wide, pixels 0.77 voxels wide,
+/// is 1.2% off the path-traced reference at 2 x 2 (samples 0.38 voxels apart, the old rule's
+/// choice), 0.55% at 3 x 3, 0.36% at 4 x 4 (0.19 apart, this rule's; docs/benchmarks.md,
+/// "Dense media"); half a voxel apart had been
 /// measured only where the cap decides (the bundled plume at 128 x 72: 2.2% at one sample,
 /// 1.3% at 16). Where pixels are a quarter of a voxel or narrower one sample is all it
 /// takes (the Cloud1-class scene at 1024 x 576, the bundled cloud at 960 x 540: one).
