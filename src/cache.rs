@@ -70,8 +70,8 @@ pub struct BakeArgs {
     /// The relative noise the paths may leave in the image. After the first pass of paths the
     /// bake predicts it from their measured spread and, where it is more, traces up to 15
     /// times as many again (strong forward scattering needs them; a diffuse cloud does not);
-    /// 0 turns it off. [default: 0.02 without --paths, off with it; the draft and preview
-    /// presets do not top up]
+    /// 0 turns it off. [default: 0.02 without --paths, off with it; the draft preset 0.1, the
+    /// preview preset 0.04]
     #[arg(long, value_name = "TOLERANCE", help_heading = "Quality")]
     path_tolerance: Option<f64>,
     /// Random seed of --paths. [default: what the input records, else 0]
@@ -128,7 +128,7 @@ impl BakeArgs {
             multiple_scale: Some(self.multiple_scale.unwrap_or(preset.multiple_scale)),
             multiple_tolerance: match (self.multiple_tolerance, self.multiple_scale, self.paths) {
                 (Some(t), _, _) => (t > 0.0).then_some(t),
-                (None, None, None) => preset.top_up_paths.then_some(MULTIPLE_LATTICE_TOLERANCE),
+                (None, None, None) => preset.refine_multiple.then_some(MULTIPLE_LATTICE_TOLERANCE),
                 _ => None,
             },
             single_tolerance: match (self.cache_scale, self.single_tolerance) {
@@ -138,7 +138,7 @@ impl BakeArgs {
             },
             path_tolerance: match (self.path_tolerance, self.paths) {
                 (Some(t), _) => (t > 0.0).then_some(t),
-                (None, None) => preset.top_up_paths.then_some(PATH_TOLERANCE),
+                (None, None) => preset.path_noise.map(|times| times * PATH_TOLERANCE),
                 (None, Some(_)) => None,
             },
             single: !self.no_single,

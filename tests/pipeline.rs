@@ -427,6 +427,22 @@ fn quality_presets_set_the_tools_and_flags_override_them() {
         let scales: Vec<f64> = single_scale.split(':').map(|v| v.parse().unwrap_or_else(|_| panic!("single_scale={single_scale}"))).collect();
         assert!(scales.len() == 3 && scales.iter().all(|&s| s > 0.0 && s <= 1.0), "single_scale={single_scale}");
     }
+    // draft and preview top their paths up to 10% and 4% noise in the image (a fixed count
+    // a voxel left 25% on a finely voxelised cloud); an explicit --paths traces its count once.
+    for (quality, tolerance) in [("draft", 10.0), ("preview", 4.0)] {
+        let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", quality, "-v"]).args(cache_size).arg("-o").arg(dir.join("c-noise.vdb")));
+        let log = String::from_utf8_lossy(&out.stderr);
+        let after_all: f64 = log
+            .split(" after the first pass, ")
+            .nth(1)
+            .and_then(|rest| rest.split('%').next())
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{quality}: no predicted noise in {log}"));
+        let out_of_reach = format!("above --path-tolerance {tolerance:.2}%");
+        assert!(after_all <= tolerance || log.contains(&out_of_reach), "{quality}: {after_all}% after all, tolerance {tolerance}%: {log}");
+        let out = run(Command::new(bin("vdbcache")).arg(&p).args(["--quality", quality, "--paths", "4", "-v"]).args(cache_size).arg("-o").arg(dir.join("c-noise.vdb")));
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("after the first pass"), "{quality} --paths 4 traces once: {out:?}");
+    }
     let bad = Command::new(bin("vdbmarch")).arg(&c).args(["--quality", "ultra"]).arg("-o").arg(dir.join("x.exr")).output().unwrap();
     assert_eq!(bad.status.code(), Some(2));
     std::fs::remove_dir_all(&dir).ok();
