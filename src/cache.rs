@@ -52,8 +52,8 @@ pub struct BakeArgs {
     /// (instead of --paths). [default: the --quality preset's, else 64, with --radius unset]
     #[arg(long, value_name = "K", conflicts_with = "radius", help_heading = "Quality")]
     gather_neighbours: Option<u32>,
-    /// Preset: draft, preview or final (lattices and --paths; flags override, and
-    /// --gather-neighbours or --radius gathers photons instead of tracing paths).
+    /// Preset: draft, preview or final (lattices, --paths and --path-tolerance; flags
+    /// override, and --gather-neighbours or --radius gathers photons instead of tracing paths).
     #[arg(long, value_enum, help_heading = "Quality")]
     quality: Option<Quality>,
     /// Fixed gather radius (world units) instead of --gather-neighbours.
