@@ -103,9 +103,12 @@ pub fn compose_shader(filterable: bool, stage: &str) -> String {
 /// included. `None`, after a loud message on stderr, only when the machine has no adapter at
 /// all; CI has lavapipe, so there the GPU tests always run. An adapter that exists but cannot
 /// be used is a failure, not a skip.
+///
+/// The calling thread holds the device until it ends ([`hold_test_device`]): a test drives it
+/// alone, as the tools do.
 pub fn test_context() -> Option<&'static GpuContext> {
     static CTX: std::sync::OnceLock<Option<GpuContext>> = std::sync::OnceLock::new();
-    CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
+    let ctx = CTX.get_or_init(|| match DeviceChoice::Gpu.resolve() {
         Ok(device) => {
             let ctx = device.gpu().expect("--device gpu resolves to a GPU").clone();
             eprintln!("GPU tests run on {} (FLOAT32_FILTERABLE: {})", ctx.info, ctx.float32_filterable());
@@ -117,5 +120,34 @@ pub fn test_context() -> Option<&'static GpuContext> {
         }
         Err(e) => panic!("a GPU adapter exists but cannot be used: {e}"),
     })
-    .as_ref()
+    .as_ref()?;
+    hold_test_device();
+    Some(ctx)
+}
+
+/// Takes the process-wide test device for the calling thread until the thread ends (libtest
+/// runs each test on its own thread); a second call on the same thread is free.
+///
+/// Why: the tools drive their device from one thread, but libtest ran a binary's GPU tests on
+/// parallel threads against the one shared device, and under a loaded `make test` that met
+/// wgpu-core 30.0.1's resource registry panicking on an id it no longer held (`storage.rs:114`,
+/// epoch mismatch, in the march's GPU tests) and, on CI, a GPU render of the emission test that
+/// did not repeat itself (184 pixels changed, rendered again on the same inputs; the CPU
+/// changed none). Both were seen only with a binary's tests running side by side, and never
+/// reproduced alone. A test must therefore not
+/// wait on another thread that calls [`test_context`].
+fn hold_test_device() {
+    use std::cell::RefCell;
+    use std::sync::{Mutex, MutexGuard, PoisonError};
+    static DEVICE: Mutex<()> = Mutex::new(());
+    thread_local! {
+        static HELD: RefCell<Option<MutexGuard<'static, ()>>> = const { RefCell::new(None) };
+    }
+    HELD.with(|held| {
+        let mut held = held.borrow_mut();
+        if held.is_none() {
+            // A test that failed while holding it poisons nothing the next one needs.
+            *held = Some(DEVICE.lock().unwrap_or_else(PoisonError::into_inner));
+        }
+    });
 }
