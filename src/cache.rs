@@ -99,7 +99,8 @@ pub struct BakeArgs {
     #[arg(long, help_heading = "Output")]
     pub keep_photons: bool,
     /// The medium's emission, which the paths gather so a fire lights its own smoke (the
-    /// emission vdbmarch adds along camera rays is the same; pass it the same flags).
+    /// emission vdbmarch adds along camera rays is the same: the flags travel to it in the
+    /// cache's metadata).
     #[command(flatten)]
     emission: EmissionArgs,
 }
@@ -173,8 +174,10 @@ impl BakeArgs {
 
     /// The medium's emission, where the flags or the input's fire grids give one; warns
     /// where a photon gather would take another from the photons than the flags give.
-    pub fn emission(&self, stage: &Stage, params: &CacheParams) -> Result<Option<EmissionGrids>, Failure> {
-        let emission = self.emission.resolve(&stage.file, &stage.log)?;
+    /// Returns the emission flags in force too (the flags over the input's record), which the
+    /// cache records for vdbmarch.
+    pub fn emission(&self, stage: &Stage, params: &CacheParams) -> Result<(Option<EmissionGrids>, EmissionArgs), Failure> {
+        let (emission, flags) = self.emission.resolve_over(&stage.file, &stage.meta, &stage.log)?;
         let photons_emission = stage.meta.emission().unwrap_or("none");
         if let (Some(e), false) = (&emission, paths(params)) {
             if e.params.describe() != photons_emission {
@@ -184,7 +187,7 @@ impl BakeArgs {
                 ));
             }
         }
-        Ok(emission)
+        Ok((emission, flags))
     }
 }
 

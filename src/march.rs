@@ -158,7 +158,7 @@ impl RenderArgs {
                 log.warn(format!("{flag} is for ray marching; the reference path tracer ignores it"));
             }
         }
-        let emission = self.emission.resolve(file, log)?;
+        let (emission, _) = self.emission.resolve_over(file, meta, log)?;
         let environment = self.environment.resolve(meta, log, None)?;
         let params = ReferenceParams {
             lights: self.lights.resolve(meta, log, None, environment.is_some())?,
@@ -198,7 +198,7 @@ impl RenderArgs {
             log.warn("--sun/--point are for --reference; the cache's lighting is already baked");
         }
         let cache = IlluminationCache { li_single: read_vec3_grid(file, "Li_single")?, li_multiple: read_vec3_grid(file, "Li_multiple")?, ..Default::default() };
-        let emission = self.emission.resolve(file, log)?;
+        let (emission, _) = self.emission.resolve_over(file, meta, log)?;
         if cache.li_single.is_none() && cache.li_multiple.is_none() && emission.is_none() {
             log.warn("the input has no illumination cache (Li_single, Li_multiple): the volume renders black over the background (run vdbcache first)");
         }

@@ -70,8 +70,9 @@ impl TraceArgs {
     }
 
     /// The medium's emission, where the flags or the input's fire grids give one.
-    pub fn emission(&self, stage: &Stage) -> Result<Option<EmissionGrids>, Failure> {
-        self.emission.resolve(&stage.file, &stage.log)
+    /// Returns the emission flags in force too, which the photon file records for later tools.
+    pub fn emission(&self, stage: &Stage) -> Result<(Option<EmissionGrids>, EmissionArgs), Failure> {
+        self.emission.resolve_over(&stage.file, &stage.meta, &stage.log)
     }
 }
 

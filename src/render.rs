@@ -326,11 +326,9 @@ pub fn flags_for(args: &Args, chain: &[Tool], index: usize, extra: Option<&Vec<S
         f.push(format!("--{name}").into());
         f.push(value.into());
     };
-    // particles2vdb and vdbphoton record the seed (nimbus:seed) and the rest take it from the
-    // file; vdbcache does not record it, so where the chain starts at vdbcache (a density
-    // input, no photons) vdbmarch gets it too.
-    let first_records = matches!(chain[0], Tool::Particles2vdb | Tool::Vdbphoton);
-    if let (true, Some(seed)) = (index == 0 || (tool == Tool::Vdbmarch && !first_records), args.seed) {
+    // Every tool records the seed (nimbus:seed) and the next takes it from the file, so only
+    // the first gets it (issue #47: vdbcache records it too).
+    if let (0, Some(seed)) = (index, args.seed) {
         push("seed", seed.to_string());
     }
     if let (Some(q), true) = (args.quality, tool != Tool::Particles2vdb) {
@@ -435,9 +433,9 @@ mod tests {
         let f = flags(&shared, &[Tool::Particles2vdb, Tool::Vdbphoton, Tool::Vdbcache, Tool::Vdbmarch]);
         assert!(f[1].starts_with("--sun ") && f[1].contains("--albedo 0.5") && !f[1].contains("--seed"), "{}", f[1]);
         assert!(!f[2].contains("--sun") && f[2].contains("--eye 0,-5,0"), "{}", f[2]);
-        // A density input starts at vdbcache, which does not record the seed: vdbmarch gets it.
+        // A density input starts at vdbcache, which records the seed for vdbmarch.
         let f = flags(&shared, &[Tool::Vdbcache, Tool::Vdbmarch]);
-        assert!(f[0].contains("--seed 7") && f[1].contains("--seed 7"), "{f:?}");
+        assert!(f[0].contains("--seed 7") && !f[1].contains("--seed"), "{f:?}");
     }
 
     #[test]

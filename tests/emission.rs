@@ -338,10 +338,13 @@ fn explicit_emission_flags_win_over_a_recognised_fire() {
     let flags: &[&str] = &["--emission-grid", "flame", "--emission-strength", "5", "--emission-color", "1,0.5,0.2"];
     let no_light: &[&str] = &["--albedo", "0", "--sky", "0,0,0"];
 
+    // The flags on vdbcache alone (issue #47: they travel in the cache's record to vdbmarch,
+    // whose own recognition of the Mantaflow fire must not override them).
     let cache = pipe_ok("vdbcache", &[camera, no_light, flags, &["--device", "cpu"]].concat(), &vdb);
-    let march = pipe_ok("vdbmarch", &[flags, &["-v", "--device", "cpu", "--spp", "16"]].concat(), &cache.stdout);
+    let march = pipe_ok("vdbmarch", &["-v", "--device", "cpu", "--spp", "16"], &cache.stdout);
     let log = String::from_utf8_lossy(&march.stderr);
     assert!(!log.contains("recognised"), "explicit flags lost to the recognition: {log}");
+    assert!(log.contains("emission: grid=flame,strength=5,color=1,0.5,0.2 (the input's record)"), "-v names the record as the source: {log}");
     assert_eq!(exr_attribute(&march.stdout, "nimbus:emission").as_deref(), Some("grid=flame,strength=5,color=1,0.5,0.2"));
     let pixels = rgba_of(&march.stdout);
 

@@ -40,7 +40,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let photons = cache::read_photons(&stage.file)?;
     stage.log.verbose(format!("{}; {} photons", nimbus_cli::describe_density(&stage.grid, &stage.density), photons.len()));
     let params = args.bake.params(&stage, &photons)?;
-    let emission = args.bake.emission(&stage, &params)?;
+    let (emission, emission_flags) = args.bake.emission(&stage, &params)?;
     let device = args.common.compute_device(&stage.log)?;
     let (baked, stats) = cache::bake(&stage, &device, &photons, &params, emission.as_ref())?;
     cache::store(&mut stage.file, &baked, params.lights.len(), args.bake.keep_photons)?;
@@ -48,7 +48,7 @@ fn vdbcache(args: Args) -> Result<(), Failure> {
     let scattered = cache::scattered_emission(&stage, &params, &baked, emission.as_ref());
     let scene = (&params.medium, &params.lights[..], params.environment.as_ref());
     stage.write(Args::NAME, &args.out, scene, &record, |meta| {
-        meta.camera(&params.camera)?.emission(&scattered)?;
+        meta.camera(&params.camera)?.seed(params.seed)?.emission(&scattered)?.emission_flags(&emission_flags)?;
         Ok(())
     })
 }

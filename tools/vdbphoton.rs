@@ -39,7 +39,7 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let mut stage = Stage::open(Args::NAME, &args.common, args.input.as_deref(), args.grid.as_deref())?;
     stage.log.verbose(nimbus_cli::describe_density(&stage.grid, &stage.density));
     let params = args.trace.params(&stage)?;
-    let emission = args.trace.emission(&stage)?;
+    let (emission, emission_flags) = args.trace.emission(&stage)?;
     let device = args.common.compute_device(&stage.log)?;
     let (map, stats) = photon::trace(&stage, &device, &params, emission.as_ref())?;
     // The photons replace any earlier photon map; everything else passes through.
@@ -47,7 +47,7 @@ fn vdbphoton(args: Args) -> Result<(), Failure> {
     let carried = photon::carried_emission(emission.as_ref(), &stats);
     let scene = (&params.medium, &params.lights[..], params.environment.as_ref());
     stage.write(Args::NAME, &args.out, scene, &photon::record(&params, &stats), |meta| {
-        meta.seed(params.seed)?.emission(&carried)?;
+        meta.seed(params.seed)?.emission(&carried)?.emission_flags(&emission_flags)?;
         Ok(())
     })
 }

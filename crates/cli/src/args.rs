@@ -109,6 +109,8 @@ impl MediumArgs {
             g: self.g.unwrap_or(base.g),
         };
         medium.validate().map_err(|e| Failure::usage(format!("{e} (medium flags)")))?;
+        let given = self.extinction.is_some() || self.albedo.is_some() || self.g.is_some();
+        log.verbose(format!("medium: {medium} ({})", setting_source(given, recorded.is_some())));
         if let (Some(recorded), Some(what)) = (recorded, consistency) {
             if recorded != medium {
                 log.warn(format!("medium {medium} differs from the one {what} ({recorded})"));
@@ -145,6 +147,8 @@ impl LightArgs {
         let recorded = meta.lights()?;
         let fallback = if lit_otherwise { Vec::new() } else { vec![Light::default_sun()] };
         let lights = self.given().or_else(|| recorded.clone()).unwrap_or(fallback);
+        let given = self.given().is_some();
+        log.verbose(format!("lights: {} ({})", nimbus_optics::format_lights(&lights), if given { "flags" } else { setting_source(false, recorded.is_some()) }));
         if let (Some(recorded), Some(what)) = (recorded, consistency) {
             if recorded != lights {
                 log.warn(format!("lights differ from the ones {what}"));
@@ -201,6 +205,7 @@ impl CameraArgs {
             (None, None) => Camera::default_for_bounds(DVec3::splat(-1.0), DVec3::ONE).expect("unit box camera"),
         };
         if !self.any() {
+            log.verbose(format!("camera: {base} ({})", setting_source(false, recorded.is_some())));
             return Ok(base);
         }
         let (fov, width, height) = (self.fov.unwrap_or(base.fov_deg()), self.width.unwrap_or(base.width()), self.height.unwrap_or(base.height()));
@@ -217,6 +222,7 @@ impl CameraArgs {
             None => (self.eye.unwrap_or(base.eye()), self.look_at.unwrap_or(base.look_at()), self.up.unwrap_or(base.up())),
         };
         let camera = Camera::new(eye, look_at, up, fov, width, height).map_err(|e| Failure::usage(format!("{e} (camera flags)")))?;
+        log.verbose(format!("camera: {camera} ({})", setting_source(true, recorded.is_some())));
         if let (Some(recorded), Some(what)) = (recorded, consistency) {
             // Resolution alone does not change what the cache holds.
             let moved = recorded.eye() != camera.eye() || recorded.look_at() != camera.look_at() || recorded.fov_deg() != camera.fov_deg() || recorded.up() != camera.up();
@@ -225,6 +231,17 @@ impl CameraArgs {
             }
         }
         Ok(camera)
+    }
+}
+
+/// Where a setting came from, for `-v` (issue #47): the flags, the input's record (what an
+/// earlier tool was given or chose), both (flags over the record), or the default.
+pub fn setting_source(given: bool, recorded: bool) -> &'static str {
+    match (given, recorded) {
+        (true, true) => "flags over the input's record",
+        (true, false) => "flags",
+        (false, true) => "the input's record",
+        (false, false) => "default",
     }
 }
 

@@ -12,7 +12,7 @@ use nimbus_tracking::EmissionField;
 use nimbus_vdb::{GridKind, VdbFile};
 use nimbus_volume::Volume;
 
-use crate::{parse_rgb, read_density, Failure, Log};
+use crate::{parse_rgb, read_density, Failure, Log, PipelineMeta};
 
 /// Emission (issue #19): radiance per unit length `S * color * grid(x)` and/or a blackbody
 /// from a temperature grid, with Cycles' Principled Volume meaning (`nimbus_optics::Emission`).
@@ -103,9 +103,116 @@ fn grid_max(file: &VdbFile, name: &str) -> Result<Option<(Volume<f32>, f32)>, Fa
     Ok((max > 0.0).then_some((v, max)))
 }
 
+/// What [`EmissionArgs::record`] writes for `--no-emission`.
+const RECORD_OFF: &str = "off";
+
 impl EmissionArgs {
+    /// Whether any emission flag was given.
+    fn any(&self) -> bool {
+        self.no_emission
+            || self.emission_grid.is_some()
+            || self.emission_strength.is_some()
+            || self.emission_color.is_some()
+            || self.temperature_grid.is_some()
+            || self.temperature_scale.is_some()
+            || self.blackbody_intensity.is_some()
+    }
+
+    /// The explicit choice, as `nimbus:emission_flags` records it so that it travels down the
+    /// chain as the medium does (issue #47): `off` for `--no-emission`, else the flags given,
+    /// `grid=NAME;strength=S;color=R,G,B;temperature=NAME;scale=K;blackbody=B` (only those
+    /// given; `;` and `%` in a grid name escaped as `%3B` and `%25`). None where no flag was
+    /// given: a recognised fire is recognised again from the same grids downstream.
+    pub fn record(&self) -> Option<String> {
+        if self.no_emission {
+            return Some(RECORD_OFF.into());
+        }
+        let escape = |n: &str| n.replace('%', "%25").replace(';', "%3B");
+        let mut parts = Vec::new();
+        if let Some(g) = &self.emission_grid {
+            parts.push(format!("grid={}", escape(g)));
+        }
+        if let Some(s) = self.emission_strength {
+            parts.push(format!("strength={s}"));
+        }
+        if let Some(c) = self.emission_color {
+            parts.push(format!("color={},{},{}", c.x, c.y, c.z));
+        }
+        if let Some(g) = &self.temperature_grid {
+            parts.push(format!("temperature={}", escape(g)));
+        }
+        if let Some(k) = self.temperature_scale {
+            parts.push(format!("scale={k}"));
+        }
+        if let Some(b) = self.blackbody_intensity {
+            parts.push(format!("blackbody={b}"));
+        }
+        (!parts.is_empty()).then(|| parts.join(";"))
+    }
+
+    /// Reads [`EmissionArgs::record`]'s text back.
+    pub fn parse_record(text: &str) -> Result<EmissionArgs, String> {
+        let mut args = EmissionArgs::default();
+        if text == RECORD_OFF {
+            args.no_emission = true;
+            return Ok(args);
+        }
+        let unescape = |n: &str| n.replace("%3B", ";").replace("%25", "%");
+        let number = |key: &str, v: &str| v.parse::<f32>().map_err(|_| format!("{key}={v} is not a number"));
+        for part in text.split(';').filter(|p| !p.is_empty()) {
+            let (key, value) = part.split_once('=').ok_or_else(|| format!("'{part}' is not key=value"))?;
+            match key {
+                "grid" => args.emission_grid = Some(unescape(value)),
+                "strength" => args.emission_strength = Some(number(key, value)?),
+                "color" => args.emission_color = Some(parse_rgb(value)?),
+                "temperature" => args.temperature_grid = Some(unescape(value)),
+                "scale" => args.temperature_scale = Some(number(key, value)?),
+                "blackbody" => args.blackbody_intensity = Some(number(key, value)?),
+                _ => return Err(format!("unknown key '{key}'")),
+            }
+        }
+        Ok(args)
+    }
+
+    /// The flags over the choice an earlier tool recorded (`nimbus:emission_flags`), flag by
+    /// flag, as the medium's flags go over its record; `--no-emission` on either side stands
+    /// alone (a later tool's emission flags lift an earlier `--no-emission`). The second value
+    /// says where the choice came from, for `-v`.
+    pub fn over_record(&self, meta: &PipelineMeta) -> Result<(EmissionArgs, &'static str), Failure> {
+        let Some(recorded) = meta.emission_flags()? else {
+            return Ok((self.clone(), if self.any() { "flags" } else { "recognised from the grids" }));
+        };
+        if self.no_emission || (recorded.no_emission && self.any()) {
+            return Ok((self.clone(), "flags"));
+        }
+        if recorded.no_emission {
+            return Ok((recorded, "the input's record"));
+        }
+        let merged = EmissionArgs {
+            emission_grid: self.emission_grid.clone().or(recorded.emission_grid),
+            emission_strength: self.emission_strength.or(recorded.emission_strength),
+            emission_color: self.emission_color.or(recorded.emission_color),
+            temperature_grid: self.temperature_grid.clone().or(recorded.temperature_grid),
+            temperature_scale: self.temperature_scale.or(recorded.temperature_scale),
+            blackbody_intensity: self.blackbody_intensity.or(recorded.blackbody_intensity),
+            no_emission: false,
+        };
+        Ok((merged, if self.any() { "flags over the input's record" } else { "the input's record" }))
+    }
+
+    /// The emission of the stage's file: the flags over what an earlier tool recorded
+    /// ([`EmissionArgs::over_record`]), resolved by [`EmissionArgs::resolve`]; returns the
+    /// merged flags too, for the tool to record in turn.
+    pub fn resolve_over(&self, file: &VdbFile, meta: &PipelineMeta, log: &Log) -> Result<(Option<EmissionGrids>, EmissionArgs), Failure> {
+        let (args, source) = self.over_record(meta)?;
+        let grids = args.resolve(file, log)?;
+        log.verbose(format!("emission: {} ({source})", grids.as_ref().map_or("none".to_string(), |g| g.params.describe())));
+        Ok((grids, args))
+    }
+
     /// The emission: from the flags, else recognised from the file's grids (Blender's
     /// `temperature` and `flame`, Houdini pyro's `temperature`, `heat`, `flame`), else none.
+    /// Tools call [`EmissionArgs::resolve_over`], which puts the flags over the file's record.
     pub fn resolve(&self, file: &VdbFile, log: &Log) -> Result<Option<EmissionGrids>, Failure> {
         let args = self;
         if args.no_emission {
@@ -189,10 +296,73 @@ impl EmissionArgs {
             }
             return Ok(None);
         }
-        if explicit {
-            log.verbose(format!("emission: {}", params.describe()));
-        }
         Ok(Some(EmissionGrids { params, grid, temperature }))
     }
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(f: impl FnOnce(&mut EmissionArgs)) -> EmissionArgs {
+        let mut a = EmissionArgs::default();
+        f(&mut a);
+        a
+    }
+
+    /// The record reads back as the flags it was written from, a grid name with the
+    /// separator in it included.
+    #[test]
+    fn the_record_reads_back_as_the_flags() {
+        let given = args(|a| {
+            a.emission_grid = Some("fl;a%me".into());
+            a.emission_strength = Some(5.0);
+            a.emission_color = Some(Vec3::new(1.0, 0.5, 0.2));
+            a.temperature_grid = Some("temperature".into());
+            a.temperature_scale = Some(800.0);
+            a.blackbody_intensity = Some(0.25);
+        });
+        let text = given.record().unwrap();
+        assert_eq!(text, "grid=fl%3Ba%25me;strength=5;color=1,0.5,0.2;temperature=temperature;scale=800;blackbody=0.25");
+        let back = EmissionArgs::parse_record(&text).unwrap();
+        assert_eq!(back.record().unwrap(), text);
+        assert_eq!(back.emission_grid.as_deref(), Some("fl;a%me"));
+        assert_eq!(EmissionArgs::parse_record("off").unwrap().no_emission, true);
+        assert_eq!(args(|a| a.no_emission = true).record().as_deref(), Some("off"));
+        assert!(EmissionArgs::default().record().is_none(), "no flags, no record: the grids are recognised again");
+        assert!(EmissionArgs::parse_record("strength=x").is_err());
+        assert!(EmissionArgs::parse_record("colour=1,1,1").is_err());
+        assert!(EmissionArgs::parse_record("grid").is_err());
+    }
+
+    fn meta_with(record: Option<&str>) -> PipelineMeta {
+        let mut file = VdbFile::new();
+        if let Some(r) = record {
+            file.set_metadata(crate::meta::EMISSION_FLAGS, r.to_string()).unwrap();
+        }
+        PipelineMeta::of(&file)
+    }
+
+    /// Flags go over the record flag by flag; `--no-emission` stands alone on either side.
+    #[test]
+    fn flags_go_over_the_record() {
+        let recorded = meta_with(Some("grid=flame;strength=5;color=1,0.5,0.2"));
+        let (merged, source) = EmissionArgs::default().over_record(&recorded).unwrap();
+        assert_eq!(merged.record().as_deref(), Some("grid=flame;strength=5;color=1,0.5,0.2"));
+        assert_eq!(source, "the input's record");
+        let (merged, source) = args(|a| a.emission_strength = Some(2.0)).over_record(&recorded).unwrap();
+        assert_eq!(merged.record().as_deref(), Some("grid=flame;strength=2;color=1,0.5,0.2"));
+        assert_eq!(source, "flags over the input's record");
+        let (merged, _) = args(|a| a.no_emission = true).over_record(&recorded).unwrap();
+        assert!(merged.no_emission);
+        let off = meta_with(Some("off"));
+        assert!(EmissionArgs::default().over_record(&off).unwrap().0.no_emission, "an upstream --no-emission travels");
+        let (lifted, _) = args(|a| a.emission_grid = Some("heat".into())).over_record(&off).unwrap();
+        assert!(!lifted.no_emission && lifted.emission_grid.as_deref() == Some("heat"), "a later flag lifts it");
+        let (none, source) = EmissionArgs::default().over_record(&meta_with(None)).unwrap();
+        assert!(none.record().is_none());
+        assert_eq!(source, "recognised from the grids");
+        assert!(EmissionArgs::default().over_record(&meta_with(Some("nonsense"))).is_err(), "a bad record is an input error");
+    }
+}

@@ -99,7 +99,7 @@ impl EnvironmentArgs {
             }
         }
         if let Some(env) = &environment {
-            log.verbose(format!("environment: {}", env.describe()));
+            log.verbose(format!("environment: {} ({})", env.describe(), crate::setting_source(self.given(), recorded.is_some())));
         }
         Ok(environment)
     }

@@ -33,7 +33,7 @@ mod motion;
 mod runner;
 mod vdbio;
 
-pub use args::{command, fit_view, given_flags, parse_args, parse_args_from, parse_direction, parse_dvec3, parse_rgb, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
+pub use args::{command, fit_view, given_flags, parse_args, parse_args_from, parse_direction, parse_dvec3, parse_rgb, setting_source, CameraArgs, CommonArgs, LightArgs, MediumArgs, Quality, QualitySettings, VdbOutputArgs};
 pub use environment::{read_environment_map, EnvironmentArgs};
 pub use emission::{EmissionArgs, EmissionGrids};
 pub use failure::{run, Failure, ResultExt};

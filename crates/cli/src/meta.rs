@@ -21,6 +21,9 @@ pub const SEED: &str = "nimbus:seed";
 pub const DENSITY_GRID: &str = "nimbus:density_grid";
 pub const ENVIRONMENT: &str = "nimbus:environment";
 pub const EMISSION: &str = "nimbus:emission";
+/// The emission flags given to an earlier tool (`EmissionArgs::record`), so a later tool
+/// takes the same choice over its own recognition of the grids (issue #47).
+pub const EMISSION_FLAGS: &str = "nimbus:emission_flags";
 
 /// A file's metadata, read as the pipeline's shared parameters.
 pub struct PipelineMeta {
@@ -79,6 +82,14 @@ impl PipelineMeta {
         self.text(EMISSION)
     }
 
+    /// The emission flags an earlier tool was given ([`EMISSION_FLAGS`]).
+    pub fn emission_flags(&self) -> Result<Option<crate::EmissionArgs>, Failure> {
+        match self.text(EMISSION_FLAGS) {
+            None => Ok(None),
+            Some(s) => crate::EmissionArgs::parse_record(s).map(Some).map_err(|e| Failure::input(format!("bad metadata {EMISSION_FLAGS}: {e}"), &self.file)),
+        }
+    }
+
     /// A value from a tool's `key=value` record, e.g. `tool_value("vdbphoton", "distance")`.
     pub fn tool_value(&self, tool: &str, key: &str) -> Option<String> {
         let record = self.text(&format!("nimbus:{tool}"))?;
@@ -134,6 +145,14 @@ impl<'a> MetaWriter<'a> {
     /// [`EMISSION`]: `describe` is `nimbus_optics::Emission::describe`'s text, or `none`.
     pub fn emission(&mut self, describe: &str) -> Result<&mut Self, Failure> {
         self.set(EMISSION, describe.to_string())?;
+        Ok(self)
+    }
+
+    /// [`EMISSION_FLAGS`], where emission flags were given (to this tool or an earlier one).
+    pub fn emission_flags(&mut self, args: &crate::EmissionArgs) -> Result<&mut Self, Failure> {
+        if let Some(record) = args.record() {
+            self.set(EMISSION_FLAGS, record)?;
+        }
         Ok(self)
     }
 
