@@ -58,6 +58,8 @@
 //! `vdbmarch --reference` renders the same image by an unbiased path tracer over the
 //! density alone ([`render_reference_cpu`], [`ReferenceParams`]; see `reference.rs`): the
 //! ground truth every accuracy figure is measured against.
+//! `vdbmarch --verify` traces a sample of the marched image's blocks with the same
+//! tracer and reports the image's error against them ([`verify_cpu`], `verify.rs`).
 //!
 //! # Backends
 //!
@@ -103,6 +105,7 @@ mod offsets;
 mod reference;
 mod samples;
 mod simd;
+mod verify;
 mod view;
 
 pub use cpu::{march_ray, render_cpu, render_cpu_with, RayResult, MOTION_DOMAIN};
@@ -111,6 +114,7 @@ pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_W
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
 pub use samples::{default_spp, default_step, MAX_DEFAULT_SAMPLES_PER_SIDE};
+pub use verify::{estimate, verify_cpu, BlockSample, Estimate, Verification, VerifyParams, VERIFY_SEED};
 pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_with, render_reference_gpu, render_reference_gpu_with, ReferenceParams, REFERENCE_WGSL};
 
 /// What the medium holds beyond its density, for the renders that take it (`render_cpu_with`

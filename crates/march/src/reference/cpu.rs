@@ -10,31 +10,14 @@ use crate::{Image, MarchError, MediumFields, RayResult};
 
 /// Pixel `index` of the reference image: `spp` jittered samples averaged.
 fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Option<&EmissionField>, motion: Option<&MotionBlur>, index: u64) -> RayResult {
-    let camera = &params.camera;
-    let w = camera.width() as u64;
-    let (px, py) = ((index % w) as f64, (index / w) as f64);
     let mut sum = RayResult::default();
-    let map = crate::visible_map(params.visible_environment());
     for sample in 0..params.spp {
-        let mut rng = Rng::with_domain(params.seed, sample_stream(index, sample), REFERENCE_DOMAIN);
-        // With motion blur the whole sample, its camera ray and path, sees the medium at one
-        // time in the shutter (from a stream of its own: the other draws stay as they are).
-        let medium = match motion {
-            Some(m) => DensityMedium { motion: Some(m.at(Rng::with_domain(params.seed, sample_stream(index, sample), crate::MOTION_DOMAIN).next_f64())), ..medium },
-            None => medium,
-        };
-        let (jx, jy) = (rng.next_f64(), rng.next_f64());
-        let (origin, dir) = camera.ray(px + jx, py + jy);
-        let tr = MediumRay::new(medium, origin, dir, 0.0, f64::INFINITY).transmittance_ratio(&mut rng, RATIO_ROULETTE);
-        let sources = PathSources { environment: params.environment.as_ref(), emission };
-        let light = trace_path(medium, &params.medium, &params.lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, params.max_depth, &mut rng, sources);
-        sum.single += light.single;
-        sum.multiple += light.multiple;
-        sum.emission += light.emission;
-        sum.transmittance += tr as f32;
-        if let Some(env) = map {
-            sum.behind += env.radiance(dir.as_vec3()) * tr as f32;
-        }
+        let s = reference_sample(medium, params, emission, motion, index, sample);
+        sum.single += s.single;
+        sum.multiple += s.multiple;
+        sum.emission += s.emission;
+        sum.transmittance += s.transmittance;
+        sum.behind += s.behind;
     }
     let inv = 1.0 / params.spp as f32;
     RayResult {
@@ -44,6 +27,43 @@ fn reference_pixel(medium: DensityMedium, params: &ReferenceParams, emission: Op
         depth: f32::INFINITY,
         emission: sum.emission * inv,
         behind: sum.behind * inv,
+    }
+}
+
+/// Sample `sample` of pixel `index`: one jittered camera ray, its transmittance by ratio
+/// tracking and one path, from the sample's own stream (so `vdbmarch --verify` can trace any
+/// subset of pixels and samples and draw exactly what the full render would).
+pub(crate) fn reference_sample(
+    medium: DensityMedium,
+    params: &ReferenceParams,
+    emission: Option<&EmissionField>,
+    motion: Option<&MotionBlur>,
+    index: u64,
+    sample: u32,
+) -> RayResult {
+    let camera = &params.camera;
+    let w = camera.width() as u64;
+    let (px, py) = ((index % w) as f64, (index / w) as f64);
+    let map = crate::visible_map(params.visible_environment());
+    let mut rng = Rng::with_domain(params.seed, sample_stream(index, sample), REFERENCE_DOMAIN);
+    // With motion blur the whole sample, its camera ray and path, sees the medium at one
+    // time in the shutter (from a stream of its own: the other draws stay as they are).
+    let medium = match motion {
+        Some(m) => DensityMedium { motion: Some(m.at(Rng::with_domain(params.seed, sample_stream(index, sample), crate::MOTION_DOMAIN).next_f64())), ..medium },
+        None => medium,
+    };
+    let (jx, jy) = (rng.next_f64(), rng.next_f64());
+    let (origin, dir) = camera.ray(px + jx, py + jy);
+    let tr = MediumRay::new(medium, origin, dir, 0.0, f64::INFINITY).transmittance_ratio(&mut rng, RATIO_ROULETTE);
+    let sources = PathSources { environment: params.environment.as_ref(), emission };
+    let light = trace_path(medium, &params.medium, &params.lights, Shadowing::RatioTracked, origin, dir, PathStart::Camera, params.max_depth, &mut rng, sources);
+    RayResult {
+        single: light.single,
+        multiple: light.multiple,
+        transmittance: tr as f32,
+        depth: f32::INFINITY,
+        emission: light.emission,
+        behind: map.map_or(glam::Vec3::ZERO, |env| env.radiance(dir.as_vec3()) * tr as f32),
     }
 }
 

@@ -30,6 +30,7 @@ mod cpu;
 mod gpu;
 
 pub use cpu::{render_reference_cpu, render_reference_cpu_with};
+pub(crate) use cpu::reference_sample;
 pub use gpu::{reference_tile_pixels, render_reference_gpu, render_reference_gpu_with, REFERENCE_WGSL};
 
 use glam::Vec3;
