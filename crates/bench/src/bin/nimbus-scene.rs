@@ -2,29 +2,66 @@
 //! flags that complete it: the medium and lights on the first line, the camera on the second.
 //!
 //!     nimbus-scene anvil anvil.vdb
+//!
+//! or a scene drawn from a seed (`nimbus_bench::random`, issue #47): the density, and an
+//! `emission` grid beside it where the draw has emission (its flags on the first line); the
+//! camera line then has `--width` and `--height`, and a third line describes the draw.
+//!
+//!     nimbus-scene --random 20261207001 scene.vdb [--max-pixels 6144]
 
 use anyhow::{bail, Result};
 use clap::Parser;
 use nimbus_vdb::{GridClass, VdbFile, WriteOptions};
 
 #[derive(Parser, Debug)]
-#[command(name = "nimbus-scene", about = "Write an unseen test scene (anvil, forward, sheet) as a density VDB; print its flags")]
+#[command(name = "nimbus-scene", about = "Write an unseen test scene (anvil, forward, sheet, or --random SEED) as a density VDB; print its flags")]
 struct Args {
-    /// The scene: anvil, forward or sheet.
-    name: String,
+    /// The scene: anvil, forward or sheet (not with --random).
+    #[arg(required_unless_present = "random")]
+    name: Option<String>,
     /// The VDB to write.
-    output: std::path::PathBuf,
+    output: Option<std::path::PathBuf>,
+    /// Draw the scene from this seed instead; the positional argument is then the VDB.
+    #[arg(long, value_name = "SEED")]
+    random: Option<u64>,
+    /// With --random: most pixels in the image (the footprint drawn is kept; a smaller
+    /// budget sees a smaller part of the volume).
+    #[arg(long, default_value_t = nimbus_bench::random::MAX_PIXELS, requires = "random")]
+    max_pixels: u32,
 }
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let Some(scene) = nimbus_bench::scenes::scene(&args.name) else {
-        bail!("no scene '{}' (scenes: {})", args.name, nimbus_bench::scenes::NAMES.join(", "));
-    };
     let mut file = VdbFile::new();
-    file.insert_volume("density", &scene.density, GridClass::FogVolume)?;
-    file.write(&args.output, &WriteOptions::default())?;
-    println!("{}", scene.medium.join(" "));
-    println!("{}", scene.camera.join(" "));
+    let (output, lines) = match args.random {
+        Some(seed) => {
+            // With --random the one positional argument is the output.
+            let output = match (&args.name, &args.output) {
+                (Some(out), None) => std::path::PathBuf::from(out),
+                (None, Some(out)) => out.clone(),
+                _ => bail!("--random SEED takes one more argument, the VDB to write"),
+            };
+            let options = nimbus_bench::random::Options { max_pixels: args.max_pixels, ..Default::default() };
+            let r = nimbus_bench::random::scene(seed, options)?;
+            file.insert_volume("density", &r.scene.density, GridClass::FogVolume)?;
+            if let Some(emission) = &r.emission {
+                file.insert_volume(nimbus_bench::random::EMISSION_GRID, emission, GridClass::FogVolume)?;
+            }
+            (output, vec![r.scene.medium.join(" "), r.scene.camera.join(" "), r.draw.describe()])
+        }
+        None => {
+            let name = args.name.as_deref().unwrap_or_default();
+            let Some(output) = args.output else { bail!("nimbus-scene NAME OUT.vdb: no OUT.vdb") };
+            let Some(scene) = nimbus_bench::scenes::scene(name) else {
+                bail!("no scene '{name}' (scenes: {})", nimbus_bench::scenes::NAMES.join(", "));
+            };
+            file.insert_volume("density", &scene.density, GridClass::FogVolume)?;
+            (output, vec![scene.medium.join(" "), scene.camera.join(" ")])
+        }
+    };
+    file.write(&output, &WriteOptions::default())?;
+    for line in lines {
+        println!("{line}");
+    }
     Ok(())
 }
