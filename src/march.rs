@@ -9,6 +9,7 @@ use nimbus_cache::IlluminationCache;
 use nimbus_cli::{parse_rgb, read_vec3_grid, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, LightArgs, Log, MediumArgs, MotionArgs, Output, PipelineMeta, Quality, Stage, Velocity};
 use nimbus_march::{default_spp, default_step, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
+use nimbus_march::{verify_cpu, Verification, VerifyParams};
 
 /// `--view`: Blender's view transforms.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -78,6 +79,28 @@ pub struct RenderArgs {
     /// With --reference: most scattering events per path.
     #[arg(long, default_value_t = ReferenceParams::DEFAULT_MAX_DEPTH, requires = "reference", help_heading = "Quality")]
     max_depth: u32,
+    /// After the march, path-trace a sample of the image's 2x2 blocks with the reference
+    /// tracer (the same scene, the truth's own noise traced under a third of --verify-target
+    /// and taken out) and report the image's relative RMSE over the covered blocks and its
+    /// mean ratio, with ~95% intervals: on stderr and as the EXR header's nimbus:verify. On
+    /// the CPU whatever --device; costs about a reference of the sampled blocks at a few
+    /// thousand paths a pixel.
+    #[arg(long, help_heading = "Quality")]
+    verify: bool,
+    /// With --verify: how many 2x2 blocks (pixels with --verify-block 1) to path-trace, drawn
+    /// uniformly from those the volume covers (all of them where there are fewer).
+    #[arg(long, value_name = "N", default_value_t = VerifyParams::DEFAULT_SAMPLES, requires = "verify", help_heading = "Quality")]
+    verify_pixels: u32,
+    /// With --verify: the side of the blocks scored, 2 (as nimbus-compare scores) or 1.
+    #[arg(long, value_name = "PIXELS", default_value_t = VerifyParams::DEFAULT_BLOCK, requires = "verify", help_heading = "Quality")]
+    verify_block: u32,
+    /// With --verify: the relative RMSE to resolve; each block's truth is traced until its
+    /// noise is under a third of it (relative to the covered blocks' mean).
+    #[arg(long, value_name = "FRACTION", default_value_t = VerifyParams::DEFAULT_TARGET, requires = "verify", help_heading = "Quality")]
+    verify_target: f64,
+    /// With --verify: most paths per pixel the truth takes.
+    #[arg(long, value_name = "N", default_value_t = VerifyParams::DEFAULT_MAX_SPP, requires = "verify", help_heading = "Quality")]
+    verify_max_spp: u32,
     /// The lights, for --reference (the march reads them from the cache).
     #[command(flatten)]
     lights: LightArgs,
@@ -130,9 +153,17 @@ impl RenderArgs {
     /// traced; its metadata says what motion blur and emission it holds.
     pub fn render(&self, stage: &Stage, common: &CommonArgs) -> Result<Image, Failure> {
         let log = &stage.log;
+        if self.verify && self.reference {
+            return Err(Failure::usage("--verify checks the marched image against the reference tracer; it cannot be used with --reference"));
+        }
         let velocity = self.motion.resolve(&stage.file, log)?;
         let (mut image, emission) =
             if self.reference { self.reference(stage, common, velocity.as_ref())? } else { self.march(stage, common, velocity.as_ref())? };
+        if self.verify {
+            let v = self.verify(&image, stage, velocity.as_ref(), emission.as_ref())?;
+            image.metadata.push(("nimbus:verify".into(), v.attribute()));
+            log.note(format!("verify: {}", v.summary()));
+        }
         image.metadata.push(("nimbus:motion_blur".into(), velocity.as_ref().map_or("none".into(), |v| v.describe())));
         // What emission the image holds, as the pipeline records its parameters (design.md
         // section 6): `none`, or `nimbus_optics::Emission::describe`'s text.
@@ -189,6 +220,50 @@ impl RenderArgs {
         );
         bar.finish();
         Ok((image.map_err(|e| march_failure(e, "reference path tracer"))?, emission))
+    }
+
+    /// `--verify`: `image`'s error against the reference tracer over a sample of its blocks
+    /// (nimbus_march::verify_cpu), the scene as the march and `--reference` resolve it.
+    fn verify(&self, image: &Image, stage: &Stage, velocity: Option<&Velocity>, emission: Option<&EmissionGrids>) -> Result<Verification, Failure> {
+        let (density, meta, log) = (&stage.density, &stage.meta, &stage.log);
+        if self.offset_noise != 0.0 {
+            log.warn("--offset-noise moves the medium the march reads; --verify's truth is the density as it is, so its error includes what the noise changes");
+        }
+        let environment = self.environment.resolve(meta, log, None)?;
+        let params = ReferenceParams {
+            lights: self.lights.resolve(meta, log, None, environment.is_some())?,
+            environment,
+            environment_visible: self.background.is_none(),
+            medium: self.medium.resolve(meta, log, None)?,
+            camera: self.camera.resolve(meta, density.world_bounds(), log, None)?,
+            spp: 1,
+            max_depth: ReferenceParams::DEFAULT_MAX_DEPTH,
+            background: self.background.unwrap_or(Vec3::ZERO),
+            seed: self.seed.or(meta.seed()).unwrap_or(0),
+            aovs: false,
+        };
+        let opts = VerifyParams { samples: self.verify_pixels, block: self.verify_block, target: self.verify_target, max_spp: self.verify_max_spp, ..VerifyParams::default() };
+        opts.validate().map_err(Failure::usage)?;
+        let blur = velocity.map(Velocity::blur);
+        let field = emission.map(EmissionGrids::field);
+        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
+        // The GPU's reference renders whole images in pixel ranges; a sample of blocks is
+        // traced on the CPU whatever --device (design.md section 5).
+        let v = log.stage("verify", || verify_cpu(image, density, &params, fields, &opts), |r| match r {
+            Ok(v) => format!(
+                "{} blocks of {}x{} (on the CPU), {} paths, {}-{} a pixel{}; the truth's own noise {:.2}%",
+                v.drawn,
+                v.block,
+                v.block,
+                v.paths,
+                v.spp_range.0,
+                v.spp_range.1,
+                if v.capped > 0 { format!(", {} blocks stopped at --verify-max-spp", v.capped) } else { String::new() },
+                v.estimate.map_or(f64::NAN, |e| 100.0 * e.truth_noise)
+            ),
+            Err(_) => String::new(),
+        });
+        v.map_err(|e| march_failure(e, "verification"))
     }
 
     /// The marched image from the illumination cache.
