@@ -7,7 +7,7 @@
 //! `emission` grid beside it where the draw has emission (its flags on the first line); the
 //! camera line then has `--width` and `--height`, and a third line describes the draw.
 //!
-//!     nimbus-scene --random 20261207001 scene.vdb [--max-pixels 6144]
+//!     nimbus-scene --random 20261207001 scene.vdb [--max-pixels 6144] [--voxel-scale 0.1]
 
 use anyhow::{bail, Result};
 use clap::Parser;
@@ -28,6 +28,10 @@ struct Args {
     /// budget sees a smaller part of the volume).
     #[arg(long, default_value_t = nimbus_bench::random::MAX_PIXELS, requires = "random")]
     max_pixels: u32,
+    /// With --random: scales the drawn voxel count (the box's voxels; edges, medium, lights
+    /// and footprint as drawn), for quick runs.
+    #[arg(long, default_value_t = 1.0, requires = "random")]
+    voxel_scale: f64,
 }
 
 fn main() -> Result<()> {
@@ -41,7 +45,7 @@ fn main() -> Result<()> {
                 (None, Some(out)) => out.clone(),
                 _ => bail!("--random SEED takes one more argument, the VDB to write"),
             };
-            let options = nimbus_bench::random::Options { max_pixels: args.max_pixels, ..Default::default() };
+            let options = nimbus_bench::random::Options { max_pixels: args.max_pixels, voxel_scale: args.voxel_scale };
             let r = nimbus_bench::random::scene(seed, options)?;
             file.insert_volume("density", &r.scene.density, GridClass::FogVolume)?;
             if let Some(emission) = &r.emission {
