@@ -29,6 +29,9 @@ run "$rel/nimbus-bench" --bin "$rel"
 run scripts/bench_single.sh
 # The same on scenes made from formulas that the bundled two are not (issue #30).
 run scripts/bench_unseen.sh out/unseen
+# The defaults on 40 scenes drawn at random from the date's seeds, and the regression seeds
+# (crates/bench/regression-seeds.txt), against the reference (issue #47).
+run scripts/bench_random.sh out/random
 # A 24-frame sequence of the moving plume through nimbus-render, locally and on a one-node
 # Slurm cluster (as root), and frame-to-frame flicker (issue #20).
 run scripts/bench_sequence.sh out/bench/sequence

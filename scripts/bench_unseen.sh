@@ -65,8 +65,9 @@ if [ "${SINGLE:-1}" != 0 ]; then
 fi
 
 ref_spp=${REF_SPP:-4096}
-# "IMAGE: relative RMSE 0.0123, mean ratio 0.9990" -> "0.0123 0.9990"
-score() { "$bin/nimbus-compare" "$1" "$2" | sed -E 's/.*relative RMSE ([0-9.e+-]+), mean ratio ([0-9.e+-]+).*/\1 \2/'; }
+# score: "relative RMSE, mean ratio" of an image against a reference.
+# shellcheck source=scripts/bench_lib.sh
+. scripts/bench_lib.sh
 echo
 echo "| scene | Li_multiple lattice | chain CPU s | against the reference | less the reference's noise | reference's noise | mean ratio |"
 echo "|---|---|---|---|---|---|---|"
