@@ -120,7 +120,8 @@ for seed in $old $new; do
     echo "$seed $row_less $time ${single_err:--} ${#why[@]}" >> "$results"
     unset single_err
     if [ ${#why[@]} -gt 0 ] && ! echo "$old" | grep -qx "$seed"; then
-        echo "$seed  # $(IFS=';'; echo "${why[*]}") ($(date +%Y-%m-%d)): $description" >> "$regression"
+        reasons=$(printf '%s; ' "${why[@]}")
+        echo "$seed  # ${reasons%; } ($(date +%Y-%m-%d)): $description" >> "$regression"
     fi
 done
 
