@@ -67,12 +67,14 @@ pub struct BakeArgs {
     /// magnitude, where each collision also probes toward the lights]
     #[arg(long, value_name = "N", conflicts_with_all = ["radius", "gather_neighbours"], help_heading = "Quality")]
     paths: Option<u32>,
-    /// The relative noise the paths may leave in the image. After the first pass of paths the
-    /// bake predicts it from their measured spread and, where it is more, traces up to 15
-    /// times as many again (strong forward scattering needs them; a diffuse cloud does not);
-    /// 0 turns it off. [default: 0.02 without --paths, off with it; the draft preset 0.1, the
-    /// preview preset 0.04]
-    #[arg(long, value_name = "TOLERANCE", help_heading = "Quality")]
+    /// The relative error the image may have against the path-traced reference (its RMS over
+    /// its mean), a budget: a quarter of it is kept for what the bake does not estimate, the
+    /// lattices' estimated biases take their share, and the paths' noise gets the rest, in
+    /// quadrature (at least half of it). After the first pass of paths the bake predicts
+    /// their noise from their measured spread and, where it is more than their share, traces
+    /// up to 15 times as many again; 0 turns it off. [default: 0.02 without --paths, off with
+    /// it; the draft preset 0.1, the preview preset 0.04]
+    #[arg(long, visible_alias = "tolerance", value_name = "TOLERANCE", help_heading = "Quality")]
     path_tolerance: Option<f64>,
     /// Random seed of --paths. [default: what the input records, else 0]
     #[arg(long, help_heading = "Quality")]
@@ -253,12 +255,13 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
     }
     // The top-up stops at MAX_PATH_GROWTH times the first pass: say so where that left the
     // image noisier than asked (strong forward scattering can), rather than only under -v.
-    if let Some(tolerance) = params.path_tolerance {
+    if let Some(tolerance) = stats.path_noise_tolerance {
         if let Some(last) = noise_short_of(tolerance, stats.path_noise) {
             log.note(format!(
-                "the paths' noise in the image is predicted at {:.2}%, above --path-tolerance {:.2}%, after the most paths the bake adds ({MAX_PATH_GROWTH} times the first pass's); a larger --paths with --path-tolerance raises that limit",
+                "the paths' noise in the image is predicted at {:.2}%, above their share {:.2}% of --path-tolerance {:.2}%, after the most paths the bake adds ({MAX_PATH_GROWTH} times the first pass's); a larger --paths with --path-tolerance raises that limit",
                 100.0 * last,
-                100.0 * tolerance
+                100.0 * tolerance,
+                100.0 * params.path_tolerance.unwrap_or(f64::NAN)
             ));
         }
     }
@@ -270,7 +273,12 @@ fn summary(s: &BakeStats) -> String {
     format!(
         "baked {} cache voxels of {} candidates ({} out of view, {} empty, {} unseen by the camera's rays), {} photons gathered, {} paths traced{}, {} light table nodes{}{}; {}",
         s.baked, s.candidates, s.culled_view, s.culled_empty, s.culled_unseen, s.photons_gathered, s.paths,
-        s.path_noise.map_or(String::new(), |(first, last)| format!(" (their noise in the image predicted at {:.2}% after the first pass, {:.2}% after all)", 100.0 * first, 100.0 * last)),
+        s.path_noise.map_or(String::new(), |(first, last)| format!(
+            " (their noise in the image predicted at {:.2}% after the first pass, {:.2}% after all, held to {:.2}%: their share of the tolerance after the lattices' estimated biases and the margin)",
+            100.0 * first,
+            100.0 * last,
+            100.0 * s.path_noise_tolerance.unwrap_or(f64::NAN)
+        )),
         s.light_table_nodes,
         s.single_lattice.as_ref().map_or(String::new(), |l| format!(
             "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels)",
@@ -283,7 +291,16 @@ fn summary(s: &BakeStats) -> String {
 
 /// How Li_multiple's lattice was settled, for the -v line.
 fn multiple_lattice_summary(l: &MultipleLattice) -> String {
-    let bias = |b: &LatticeBias| format!("{:.2}% (standard error of its square {:.2}%^2)", 100.0 * b.relative(), 1e4 * b.standard_error);
+    let signed = |s: f64| 100.0 * s.signum() * s.abs().sqrt();
+    let bias = |b: &LatticeBias| {
+        format!(
+            "{:.2}% (standard error of its square {:.2}%^2; octants {:.2}%, Taylor {:.2}%)",
+            100.0 * b.relative(),
+            1e4 * b.standard_error,
+            signed(b.octants),
+            signed(b.taylor)
+        )
+    };
     if l.scale == l.first_scale {
         format!("; Li_multiple's lattice {} density voxels (its bias in the image estimated at {})", l.scale, bias(&l.bias))
     } else {

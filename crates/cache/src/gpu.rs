@@ -201,7 +201,7 @@ pub fn bake_gpu_emitting(
         match kernel {
             Kernel::Single => {}
             Kernel::Photons => stats.photons_gathered = used,
-            Kernel::Paths(..) => unreachable!("the paths run through trace_to_tolerance"),
+            Kernel::Paths(..) => unreachable!("the paths run through budget::trace_first and top_up"),
         }
         Ok(volume)
     };

@@ -69,7 +69,7 @@ mod multiple_lattice;
 mod plan;
 
 pub use bins::PhotonBins;
-pub use budget::{more_paths, noise_short_of, predicted_noise, second_pass_seed, single_levels, PathMoments, MAX_PATH_GROWTH, PATH_TOLERANCE};
+pub use budget::{more_paths, noise_short_of, paths_share, predicted_noise, second_pass_seed, single_levels, PathMoments, LEAST_PATHS_SHARE, MAX_PATH_GROWTH, PATH_TOLERANCE, UNESTIMATED_SHARE};
 pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
@@ -224,6 +224,9 @@ pub struct BakeStats {
     /// The relative noise the paths leave in the image, predicted after the first pass and
     /// after all (budget.rs), where [`CacheParams::path_tolerance`] asked for it.
     pub path_noise: Option<(f64, f64)>,
+    /// What the paths' noise was held to: their share of [`CacheParams::path_tolerance`]
+    /// after the lattices' estimated biases and the margin (budget.rs, [`paths_share`]).
+    pub path_noise_tolerance: Option<f64>,
     /// Nodes of the lights' tabled transmittance.
     pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
@@ -251,6 +254,15 @@ impl BakeStats {
         let r = f();
         self.stages.push((name, start.elapsed().as_millis() as u64));
         r
+    }
+
+    /// Adds `ms` to the stage `name`, where it is the last recorded, else records it (the
+    /// paths' first pass and top-up are one stage, whatever the lattice estimate between).
+    pub fn add_stage(&mut self, name: &'static str, ms: u64) {
+        match self.stages.last_mut() {
+            Some((last, t)) if *last == name => *t += ms,
+            _ => self.stages.push((name, ms)),
+        }
     }
 
     /// The stages as `name 0.123 s, ...`.

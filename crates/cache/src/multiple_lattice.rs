@@ -19,20 +19,40 @@
 //! mean level it tracked the bias measured against the path-traced reference within about a
 //! third, on lattices of 1 to 4 voxels.
 //!
+//! The octants see the gradient across a footprint, which the march's trilinear blend of
+//! neighbouring nodes mostly reproduces; what it does not is the second-order term and a
+//! gradient read off-centre. So a second estimate (issue #47), from the same halves, expands
+//! Li about the read x: node n holds `c_n = E_n[Li(y)]` over the reads y its paths start
+//! from (their centroid mu_n, their variance V_n per axis), so the blend misses
+//! `grad Li . (sum_n t_n mu_n - x) + 1/2 sum_axes Li''_a sum_n t_n (V_n,a + (mu_n,a - x_a)^2)`,
+//! t_n the trilinear weights; the slope and bend come from each half's first and second
+//! differences across nodes (centred, or one-sided at the lattice's edge), interpolated as the
+//! march reads. Where reads fill footprints evenly this is `Li''_a (1/12 + u(1-u)/2)` per
+//! axis (u the read's place between nodes); where the transmittance to the eye crowds them
+//! to one side of a footprint (a lit skin) the first term grows. Measured at 2 voxels
+//! against the bias the chain shows at 2 less at 1 (docs/benchmarks.md, "Li_multiple's
+//! lattice, measured by its own paths"): forward 2.96% (octants 3.16%, measured about 3.5%),
+//! sheet 0.60% (octants 1.08%, about 0.8%), anvil below 0 (octants below 0, under 0.6%),
+//! a sheared anvil 0.32% (octants below 0, about 0.6%). The bias taken is the larger of the
+//! two estimates, each with its own standard error.
+//!
 //! Where the estimate exceeds [`MULTIPLE_LATTICE_TOLERANCE`] by more than its standard error
 //! (from the spread of 8 x 8 tiles of the image: neighbouring rays read the same voxels),
 //! the bake traces Li_multiple again on a finer lattice: the bias goes about as the spacing
 //! (measured 6.9%, 3.2%, 1.8%, 1.0% at 4, 2, 1.5, 1 voxels), so the spacing is scaled to
 //! bring it to two thirds of the tolerance, at most halved per pass, and the new lattice's
 //! own estimate decides again, down to half of `cache_scale` ([`FINEST_BELOW_CACHE_SCALE`]).
-//! Each bake's paths are spent, not kept: a refining scene pays for every pass, a scene that
-//! does not refine pays only for the estimate (a march of the importance rays).
+//! Each bake's paths are spent, not kept: a refining scene pays for every first pass, a scene
+//! that does not refine pays only for the estimate (a march of the importance rays). The
+//! estimate is made from the first pass, before the paths are topped up to their share of
+//! the image's tolerance (budget.rs): a lattice that is refined is not topped up, and the
+//! settled lattice's estimated bias sets that share.
 
-use glam::{DVec3, Vec3};
+use glam::{DVec3, IVec3, Vec3};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::budget::{single_levels, trace_to_tolerance, PathMoments, TracedPaths};
+use crate::budget::{paths_share, single_levels, trace_first, PathMoments};
 use crate::importance::{importance_ray_spacing, octant, spread, ImportanceRays};
 use crate::{BakeStats, CacheParams, CachePlan, CameraImportance, PathPlan};
 
@@ -77,6 +97,10 @@ pub struct LatticeBias {
     pub standard_error: f64,
     /// The importance rays it was measured along.
     pub rays: usize,
+    /// The two estimates it is the larger of (squared, relative): the octants' and the
+    /// Taylor expansion's (module doc).
+    pub octants: f64,
+    pub taylor: f64,
 }
 
 impl LatticeBias {
@@ -114,9 +138,9 @@ pub fn refined_scale(scale: f64, floor: f64, bias: &LatticeBias, tolerance: f64)
     (finer < scale).then_some(finer)
 }
 
-/// The lattice bias of Li_multiple on `plan` from its paths (the module doc): `paths` and
-/// `more` the passes traced, `moments` their merged moments per voxel, `single` Li_single's
-/// level at the voxels (or empty), which counts toward the image's level.
+/// The lattice bias of Li_multiple on `plan` from its paths (the module doc): `paths` the
+/// first pass traced, `moments` its moments per voxel, `single` Li_single's level at the
+/// voxels (or empty), which counts toward the image's level.
 #[allow(clippy::too_many_arguments)]
 pub fn lattice_bias(
     plan: &CachePlan,
@@ -124,7 +148,6 @@ pub fn lattice_bias(
     majorant: &MajorantGrid,
     params: &CacheParams,
     paths: &PathPlan,
-    more: Option<&PathPlan>,
     moments: &[PathMoments],
     single: &[f32],
 ) -> LatticeBias {
@@ -135,38 +158,80 @@ pub fn lattice_bias(
         octant: [[f64; 8]; 2],
         level: f64,
         node: DVec3,
+        /// The centroid of the reads its paths start from, less the node, and their
+        /// variance, per lattice axis (lattice index units): the Taylor estimate's input.
+        centroid: DVec3,
+        spread: DVec3,
+        /// Each half's first and second differences along each lattice axis (centred where
+        /// both neighbours are baked, else one-sided; NaN where neither is).
+        slope: [DVec3; 2],
+        bend: [DVec3; 2],
     }
     let positions = plan.voxel_positions();
     let footprints: Vec<Footprint> = (0..moments.len())
         .into_par_iter()
         .map(|v| {
-            let mut n = paths.half_octant_counts(v);
-            if let Some(more) = more {
-                for (a, b) in n.iter_mut().zip(more.half_octant_counts(v)) {
-                    *a += b;
-                }
-            }
+            let n = paths.half_octant_counts(v);
             let sums = &moments[v].halves;
             let ratio = |s: f64, n: u32| if n > 0 { s / n as f64 } else { f64::NAN };
             let mean = [0, 1].map(|h| ratio((0..8).map(|o| sums[8 * h + o] as f64).sum(), (0..8).map(|o| n[8 * h + o]).sum()));
             let octant = [0, 1].map(|h| std::array::from_fn(|o| ratio(sums[8 * h + o] as f64, n[8 * h + o])));
             let level = moments[v].mean.element_sum() as f64 / 3.0 + single.get(v).copied().unwrap_or(0.0) as f64;
-            Footprint { mean, octant, level, node: plan.transform.to_index(positions[v]) }
+            let node = plan.transform.to_index(positions[v]);
+            let origins = paths.origins_of(v);
+            let m = origins.len().max(1) as f64;
+            let offsets = || origins.iter().map(|&x| plan.transform.to_index(x) - node);
+            let centroid = offsets().sum::<DVec3>() / m;
+            let spread = offsets().map(|d| (d - centroid) * (d - centroid)).sum::<DVec3>() / m;
+            Footprint { mean, octant, level, node, centroid, spread, slope: [DVec3::NAN; 2], bend: [DVec3::NAN; 2] }
         })
         .collect();
     let index = plan.voxel_index();
+    let differences: Vec<[[DVec3; 2]; 2]> = footprints
+        .par_iter()
+        .map(|f| {
+            let node = f.node.round().as_ivec3();
+            let mean = |ijk: IVec3, h: usize| index.get(ijk).map_or(f64::NAN, |u| footprints[u].mean[h]);
+            let axis = |h: usize, a: usize| {
+                // Centred where both neighbours are baked, else one-sided: the lattice's edge,
+                // the skin of the medium, is where a coarse lattice bends most.
+                let e = IVec3::AXES[a];
+                let (here, before, after) = (f.mean[h], mean(node - e, h), mean(node + e, h));
+                match (before.is_finite(), after.is_finite()) {
+                    (true, true) => (0.5 * (after - before), after - 2.0 * here + before),
+                    (false, true) => (after - here, here - 2.0 * after + mean(node + 2 * e, h)),
+                    (true, false) => (here - before, here - 2.0 * before + mean(node - 2 * e, h)),
+                    (false, false) => (f64::NAN, f64::NAN),
+                }
+            };
+            std::array::from_fn(|h| {
+                let d = [axis(h, 0), axis(h, 1), axis(h, 2)];
+                [DVec3::new(d[0].0, d[1].0, d[2].0), DVec3::new(d[0].1, d[1].1, d[2].1)]
+            })
+        })
+        .collect();
+    let mut footprints = footprints;
+    for (f, d) in footprints.iter_mut().zip(differences) {
+        f.slope = [d[0][0], d[1][0]];
+        f.bend = [d[0][1], d[1][1]];
+    }
+    let finite = |v: DVec3| DVec3::select(v.is_finite_mask(), v, DVec3::ZERO);
     let rays = ImportanceRays::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
     // Per ray: D_A D_B, the ray's level, whether it reads any voxel; summed per tile of the
     // image, as neighbouring rays read the same voxels and their products are not
     // independent: the standard error comes from the tiles' spread (a ratio estimator).
     let tiles = (0..rays.pixels())
         .into_par_iter()
-        .fold_with((vec![[0.0f64; 3]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
-            let (mut d, mut level) = ([0.0f64; 2], 0.0f64);
+        .fold_with((vec![[0.0f64; 4]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
+            // d: the octant misses per half; k: the Taylor estimate's per half.
+            let (mut d, mut k, mut level) = ([0.0f64; 2], [0.0f64; 2], 0.0f64);
             rays.march_pixel(p, |x, w| {
                 reads.clear();
                 let c = plan.transform.to_index(x);
                 spread(&index, c, w, &mut reads);
+                // At x, interpolated as the march reads: the slope and bend of each half, the
+                // reads' centroid and their second moment about x, per axis.
+                let (mut slope, mut bend, mut centroid, mut moment, mut weight) = ([DVec3::ZERO; 2], [DVec3::ZERO; 2], DVec3::ZERO, DVec3::ZERO, 0.0);
                 for &(v, t, _) in reads.iter() {
                     let f = &footprints[v as usize];
                     if !f.level.is_finite() {
@@ -179,6 +244,18 @@ pub fn lattice_bias(
                         if miss.is_finite() {
                             d[h] += t * miss;
                         }
+                        slope[h] += t * finite(f.slope[h]);
+                        bend[h] += t * finite(f.bend[h]);
+                    }
+                    let offset = f.node + f.centroid - c;
+                    centroid += t * offset;
+                    moment += t * (f.spread + offset * offset);
+                    weight += t;
+                }
+                if weight > 0.0 {
+                    let (centroid, moment) = (centroid / weight, moment / weight);
+                    for h in 0..2 {
+                        k[h] += weight * (slope[h] / weight).dot(centroid) + 0.5 * weight * (bend[h] / weight).dot(moment);
                     }
                 }
             });
@@ -186,19 +263,27 @@ pub fn lattice_bias(
             tile[0] += d[0] * d[1];
             tile[1] += level;
             tile[2] += (level > 0.0) as u8 as f64;
+            tile[3] += k[0] * k[1];
             (tiles, reads)
         })
         .map(|(tiles, _)| tiles)
-        .reduce(|| vec![[0.0f64; 3]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
+        .reduce(|| vec![[0.0f64; 4]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
     let total = |k: usize| tiles.iter().map(|t| t[k]).sum::<f64>();
     let (n, level) = (total(2), total(1) / total(2).max(1.0));
     if !(n > 0.0 && level > 0.0) {
         return LatticeBias::default();
     }
-    let mean = total(0) / n;
-    let variance: f64 = tiles.iter().map(|t| (t[0] - mean * t[2]).powi(2)).sum::<f64>() / (n * n);
     let level2 = level * level;
-    LatticeBias { squared: mean / level2, standard_error: variance.sqrt() / level2, rays: n as usize }
+    let estimate = |k: usize| {
+        let mean = total(k) / n;
+        let variance: f64 = tiles.iter().map(|t| (t[k] - mean * t[2]).powi(2)).sum::<f64>() / (n * n);
+        (mean / level2, variance.sqrt() / level2)
+    };
+    let (octants, taylor) = (estimate(0), estimate(3));
+    // The larger of the two, each with its own standard error: either can see a bias the
+    // other cannot (module doc).
+    let (squared, standard_error) = if taylor.0 - taylor.1 > octants.0 - octants.1 { taylor } else { octants };
+    LatticeBias { squared, standard_error, rays: n as usize, octants: octants.0, taylor: taylor.0 }
 }
 
 /// Li_multiple by paths on `first` (Li_multiple's plan), and where
@@ -217,39 +302,43 @@ pub(crate) fn bake_paths<E>(
     stats: &mut BakeStats,
     mut trace: impl FnMut(&str, &CachePlan, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
 ) -> Result<(Volume<Vec3>, u64), E> {
-    // One lattice's paths to tolerance, and their bias where it is asked for.
-    let mut pass = |voxels: &CachePlan, stats: &mut BakeStats| -> Result<(TracedPaths, Option<LatticeBias>), E> {
+    // Li_single's estimated bias, which the paths' share of the tolerance leaves room for.
+    let single_bias = stats.single_lattice.as_ref().map_or(0.0, |l| l.remaining(params.cache_scale));
+    let first_scale = first.transform.voxel_size().x / density.transform().voxel_size().x;
+    let floor = (params.cache_scale * FINEST_BELOW_CACHE_SCALE).max(FINEST_BELOW_RAY_SPACING * importance_ray_spacing(&params.camera, density));
+    // In hundredths of a voxel up, so that the lattice reads and records as a plain number.
+    let floor = (floor * 100.0).ceil() / 100.0;
+    let (mut finer_plan, mut scale, mut first_bias): (Option<CachePlan>, f64, Option<LatticeBias>) = (None, first_scale, None);
+    let mut counts = first.stats.clone();
+    loop {
+        let voxels = finer_plan.as_ref().unwrap_or(first);
         let paths = stats.time("importance", || CameraImportance::path_plan(voxels, density, majorant, params, per_voxel));
         stats.culled_unseen = paths.unseen();
         let wanted = params.path_tolerance.is_some() || params.multiple_tolerance.is_some();
         let levels = if wanted { single_levels(voxels, single) } else { Vec::new() };
-        let traced = trace_to_tolerance(&paths, &levels, params, stats, |what, p, seed| trace(what, voxels, p, seed))?;
-        let bias = params.multiple_tolerance.map(|_| {
-            stats.time("lattice bias", || lattice_bias(voxels, density, majorant, params, &paths, traced.more.as_ref(), &traced.moments, &levels))
-        });
-        Ok((traced, bias))
-    };
-    let (traced, bias) = pass(first, stats)?;
-    let (Some(tolerance), Some(bias)) = (params.multiple_tolerance, bias) else { return Ok(traced.volume(first)) };
-    let scale = first.transform.voxel_size().x / density.transform().voxel_size().x;
-    let mut settled = MultipleLattice { first_scale: scale, scale, first_bias: bias, bias };
-    let floor = (params.cache_scale * FINEST_BELOW_CACHE_SCALE).max(FINEST_BELOW_RAY_SPACING * importance_ray_spacing(&params.camera, density));
-    // In hundredths of a voxel up, so that the lattice reads and records as a plain number.
-    let floor = (floor * 100.0).ceil() / 100.0;
-    let mut volume = traced.volume(first);
-    drop(traced);
-    let mut counts = first.stats.clone();
-    while let Some(finer) = refined_scale(settled.scale, floor, &settled.bias, tolerance) {
-        let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
-        stats.replace_counts(&counts, &plan.stats);
-        let (traced, bias) = pass(&plan, stats)?;
-        settled.scale = finer;
-        settled.bias = bias.expect("the tolerance asks for the bias");
-        volume = traced.volume(&plan);
-        counts = plan.stats.clone();
+        let mut tracer = |what: &str, p: &PathPlan, seed: u64| trace(what, voxels, p, seed);
+        let pass = trace_first(&paths, params, stats, &mut tracer)?;
+        // The bias from the first pass alone (its halves' noise averages out of the
+        // estimate), so that a lattice that is refined is not topped up first.
+        let bias = params.multiple_tolerance.map(|_| stats.time("lattice bias", || lattice_bias(voxels, density, majorant, params, &paths, &pass.moments, &levels)));
+        if let (Some(tolerance), Some(b)) = (params.multiple_tolerance, bias) {
+            first_bias.get_or_insert(b);
+            if let Some(finer) = refined_scale(scale, floor, &b, tolerance) {
+                let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
+                stats.replace_counts(&counts, &plan.stats);
+                counts = plan.stats.clone();
+                scale = finer;
+                finer_plan = Some(plan);
+                continue;
+            }
+        }
+        let noise_tolerance = params.path_tolerance.map(|t| paths_share(t, &[bias.map_or(0.0, |b| b.relative()), single_bias]));
+        let traced = pass.top_up(&paths, &levels, noise_tolerance, params, stats, &mut tracer)?;
+        if let (Some(first_bias), Some(bias)) = (first_bias, bias) {
+            stats.multiple_lattice = Some(MultipleLattice { first_scale, scale, first_bias, bias });
+        }
+        return Ok(traced.volume(voxels));
     }
-    stats.multiple_lattice = Some(settled);
-    Ok(volume)
 }
 
 #[cfg(test)]
@@ -257,7 +346,7 @@ mod tests {
     use super::*;
 
     fn bias(relative: f64, standard_error: f64) -> LatticeBias {
-        LatticeBias { squared: relative.signum() * relative * relative, standard_error, rays: 100 }
+        LatticeBias { squared: relative.signum() * relative * relative, standard_error, rays: 100, ..Default::default() }
     }
 
     #[test]
