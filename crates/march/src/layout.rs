@@ -522,7 +522,7 @@ fn gather<T: Voxel>(volume: &Volume<T>, lo: IVec3, n: IVec3, out: &mut [T]) {
 /// points. `None` for any other lattice.
 fn coarsening(density: &DAffine3, cache_world_to_index: &DAffine3) -> Option<(DVec3, DVec3)> {
     let m = *cache_world_to_index * *density;
-    let mut scale = DVec3::ZERO;
+    let (mut scale, mut offset) = (DVec3::ZERO, DVec3::ZERO);
     for a in 0..3 {
         let col = m.matrix3.col(a);
         let s = col[a];
@@ -534,9 +534,14 @@ fn coarsening(density: &DAffine3, cache_world_to_index: &DAffine3) -> Option<(DV
         if !aligned || (shift - shift.round()).abs() > 1e-9 * shift.abs().max(1.0) {
             return None;
         }
-        scale[a] = s;
+        // Snapped to the lattice they are within rounding of: a rotated or sheared transform
+        // composes to a factor a few ulps off 1 and an offset a few ulps off a whole number,
+        // and resampling those counted one cache point too many per axis far from the origin
+        // (a panic on a generated scene, issue #47).
+        scale[a] = 1.0 / n;
+        offset[a] = shift.round() / n;
     }
-    Some((scale, m.translation))
+    Some((scale, offset))
 }
 
 /// The sum of `grids` (all on one lattice, scaled by `albedo`) trilinearly interpolated at
@@ -551,7 +556,11 @@ fn resample(grids: &[&Volume<Vec3>], albedo: Vec3, scale: DVec3, offset: DVec3, 
     let mut k0 = IVec3::ZERO;
     let mut n = IVec3::ZERO;
     for a in 0..3 {
-        let q = |j: usize| scale[a] * (origin[a] + j as i32) as f64 + offset[a];
+        // In whole numbers over the factor ([`coarsening`] snapped them), so that the floors
+        // are exact however far the brick lies from the origin.
+        let factor = (1.0 / scale[a]).round();
+        let shift = (offset[a] * factor).round();
+        let q = |j: usize| ((origin[a] + j as i32) as f64 + shift) / factor;
         k0[a] = q(0).floor() as i32;
         n[a] = q(EDGE - 1).floor() as i32 + 2 - k0[a];
         for j in 0..EDGE {
@@ -944,6 +953,16 @@ mod tests {
         assert!(coarsening(&d2w, &coarse(2.0, DVec3::splat(0.3)).world_to_index()).is_none(), "cache points between density points");
         assert!(coarsening(&d2w, &coarse(1.5, DVec3::ZERO).world_to_index()).is_none(), "not a whole factor");
         assert!(coarsening(&d2w, &coarse(0.5, DVec3::ZERO).world_to_index()).is_none(), "finer");
+        // A rotated, sheared lattice far from the origin and the cache on its own points: the
+        // composed map is a few ulps off the identity, and is snapped to it (a generated
+        // scene's march panicked on the unsnapped one, counting 11 cache points an axis).
+        let sheared = Transform::new(DAffine3::from_mat3_translation(
+            glam::DMat3::from_cols(DVec3::new(0.201, 0.03, -0.02), DVec3::new(-0.04, 0.148, 0.01), DVec3::new(0.015, -0.02, 0.092)),
+            DVec3::new(3.0e4, -4.6, 163.7),
+        ))
+        .unwrap();
+        let (scale, offset) = coarsening(&sheared.index_to_world(), &sheared.world_to_index()).unwrap();
+        assert_eq!((scale, offset), (DVec3::ONE, DVec3::ZERO));
         for (s, shift) in [(1.0, DVec3::ZERO), (2.0, DVec3::ZERO), (4.0, DVec3::new(-0.25, 0.5, 0.75)), (3.0, DVec3::ZERO)] {
             let ct = coarse(s, shift);
             let cache = ramp(ct);
