@@ -7,7 +7,7 @@ use clap::{Args, ValueEnum};
 use glam::Vec3;
 use nimbus_cache::IlluminationCache;
 use nimbus_cli::{parse_rgb, read_vec3_grid, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, LightArgs, Log, MediumArgs, MotionArgs, Output, PipelineMeta, Quality, Stage, Velocity};
-use nimbus_march::{default_spp, default_step, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
+use nimbus_march::{default_spp, default_step, step_subdivision, STEP_OPTICAL_DEPTH, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
 use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
 use nimbus_march::{verify_cpu, Verification, VerifyParams};
 
@@ -280,13 +280,24 @@ impl RenderArgs {
         let voxel = density.transform().voxel_size();
         let preset = Quality::settings_or_default(self.quality);
         let camera = self.camera.resolve(meta, density.world_bounds(), log, Some("the cache was baked for"))?;
+        let medium = self.medium.resolve(meta, log, Some("the cache was baked with"))?;
+        // The default step, cut where the medium is dense (nimbus_march::step_subdivision);
+        // an explicit --step is marched as given.
+        let step = self.step.unwrap_or(default_step(density.transform()) * preset.step_factor);
+        let subdivision = match self.step {
+            Some(_) => 1,
+            None => step_subdivision(step, medium.extinction, density_max(density)),
+        };
+        if subdivision > 1 {
+            log.verbose(format!("march step: {:.6}, a {subdivision}th of the default {step:.6}: the densest medium holds optical depth {STEP_OPTICAL_DEPTH} a step", step / subdivision as f64));
+        }
         let params = MarchParams {
             environment: self.environment.resolve(meta, log, Some("the cache was baked with"))?,
             environment_visible: self.background.is_none(),
-            medium: self.medium.resolve(meta, log, Some("the cache was baked with"))?,
+            medium,
             spp: self.spp.or(preset.spp).unwrap_or_else(|| default_spp(&camera, density)),
             camera,
-            step: self.step.unwrap_or(default_step(density.transform()) * preset.step_factor),
+            step: step / subdivision as f64,
             max_step_factor: self.max_step_factor.unwrap_or(MarchParams::DEFAULT_MAX_STEP_FACTOR),
             background: self.background.unwrap_or(Vec3::ZERO),
             offset_noise: self.offset_noise,
@@ -315,6 +326,11 @@ impl RenderArgs {
             .map_err(|e| march_failure(e, "GPU ray marcher"));
         Ok((image?, emission))
     }
+}
+
+/// The density's largest value (0 for an empty volume).
+fn density_max(density: &nimbus_volume::Volume<f32>) -> f32 {
+    density.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max)
 }
 
 fn march_failure(e: MarchError, what: &str) -> Failure {

@@ -113,7 +113,7 @@ pub use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 pub use gpu::{render_gpu, render_gpu_with, CacheLookup, GpuMarchOptions, MARCH_WGSL, NOISE_WGSL};
 pub use image::{Image, ImageError};
 pub use view::ViewTransform;
-pub use samples::{default_spp, default_step, MAX_DEFAULT_SAMPLES_PER_SIDE};
+pub use samples::{default_spp, default_step, step_subdivision, MAX_DEFAULT_SAMPLES_PER_SIDE, MAX_STEP_SUBDIVISION};
 pub use verify::{estimate, verify_cpu, BlockSample, Estimate, Verification, VerifyParams, VERIFY_SEED};
 pub use reference::{reference_tile_pixels, render_reference_cpu, render_reference_cpu_with, render_reference_gpu, render_reference_gpu_with, ReferenceParams, REFERENCE_WGSL};
 
