@@ -2,7 +2,7 @@
 //! input's metadata and the --quality preset; the photons it reads, the grids it writes.
 
 use clap::Args;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LatticeBias, LightLattice, MultipleLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, MULTIPLE_LATTICE_TOLERANCE, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LatticeBias, LightLattice, MultipleLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, MAX_REFINEMENT, MULTIPLE_LATTICE_TOLERANCE, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{CameraArgs, EmissionArgs, EmissionGrids, Failure, Quality, SceneArgs, Stage};
 use nimbus_gpu::ComputeDevice;
 use nimbus_photon::PhotonMap;
@@ -253,6 +253,12 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
             100.0 * params.multiple_tolerance.unwrap_or(0.0)
         ));
     }
+    if let Some(l) = stats.single_lattice.as_ref().filter(|l| l.direct) {
+        log.note(format!(
+            "Li_single's interpolation would miss by {:.1}% even on a lattice {MAX_REFINEMENT} times finer (the light's transmittance bends within it): vdbmarch will trace single scattering's shadow rays at its samples instead",
+            100.0 * l.estimate.element_sum() / (MAX_REFINEMENT * MAX_REFINEMENT) as f64
+        ));
+    }
     // The top-up stops at MAX_PATH_GROWTH times the first pass: say so where that left the
     // image noisier than asked (strong forward scattering can), rather than only under -v.
     if let Some(tolerance) = stats.path_noise_tolerance {
@@ -281,8 +287,9 @@ fn summary(s: &BakeStats) -> String {
         )),
         s.light_table_nodes,
         s.single_lattice.as_ref().map_or(String::new(), |l| format!(
-            "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels)",
-            l.scale.x, l.scale.y, l.scale.z, 100.0 * l.estimate.x, 100.0 * l.estimate.y, 100.0 * l.estimate.z, l.samples
+            "; Li_single's lattice {} x {} x {} density voxels (interpolation error estimated at {:.2}%, {:.2}%, {:.2}% per axis on the unrefined lattice, from {} voxels{})",
+            l.scale.x, l.scale.y, l.scale.z, 100.0 * l.estimate.x, 100.0 * l.estimate.y, 100.0 * l.estimate.z, l.samples,
+            if l.direct { "; no finer lattice would do: vdbmarch traces single scattering's shadow rays" } else { "" }
         )),
         s.multiple_lattice.as_ref().map_or(String::new(), multiple_lattice_summary),
         s.describe_stages()
@@ -350,6 +357,8 @@ pub fn record(params: &CacheParams, stats: &BakeStats, cache: &IlluminationCache
             Some(l) => format!("{}:{}:{}", l.scale.x, l.scale.y, l.scale.z),
             None => params.cache_scale.to_string(),
         }),
+        // Where no Li_single lattice would do, vdbmarch traces single scattering itself.
+        ("single_direct", stats.single_lattice.as_ref().is_some_and(|l| l.direct).to_string()),
         ("multiple_scale", stats.multiple_lattice.as_ref().map_or(params.multiple_scale(), |l| l.scale).to_string()),
         ("gather", match params.gather {
             Gather::Radius(r) => format!("radius:{r}"),

@@ -8,7 +8,7 @@ use glam::Vec3;
 use nimbus_cache::IlluminationCache;
 use nimbus_cli::{parse_rgb, read_vec3_grid, CameraArgs, CommonArgs, EmissionArgs, EmissionGrids, EnvironmentArgs, Failure, LightArgs, Log, MediumArgs, MotionArgs, Output, PipelineMeta, Quality, Stage, Velocity};
 use nimbus_march::{default_spp, default_step, step_subdivision, STEP_OPTICAL_DEPTH, reference_tile_pixels, Image, MarchError, MarchParams, ReferenceParams, ViewTransform};
-use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, MediumFields};
+use nimbus_march::{render_cpu_with, render_gpu_with, render_reference_cpu_with, render_reference_gpu_with, DirectSingle, MediumFields};
 use nimbus_march::{verify_cpu, Verification, VerifyParams};
 
 /// `--view`: Blender's view transforms.
@@ -32,6 +32,18 @@ impl From<View> for ViewTransform {
             View::Standard => ViewTransform::Standard,
         }
     }
+}
+
+/// `--single`: where the march takes single scattering from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SingleSource {
+    /// Shadow rays where vdbcache found no Li_single lattice would do (it records
+    /// `single_direct=true`), else the cache.
+    Auto,
+    /// The cache's Li_single, read by trilinear interpolation.
+    Cache,
+    /// A Simpson shadow ray toward each light at every sample (the CPU march).
+    Direct,
 }
 
 /// The PNG preview's flags.
@@ -136,6 +148,12 @@ pub struct RenderArgs {
     /// Feature size of the offset noise, world units. [default: four density voxels]
     #[arg(long, help_heading = "Medium")]
     noise_scale: Option<f64>,
+    /// Where single scattering comes from: the cache's Li_single, or shadow rays toward the
+    /// lights at every sample (exact, a shadow ray per sample and light; the CPU march), or
+    /// auto: shadow rays where vdbcache found that no Li_single lattice would do (a thin rim
+    /// lit from behind), else the cache.
+    #[arg(long, value_enum, default_value_t = SingleSource::Auto, help_heading = "Quality")]
+    single: SingleSource,
     /// Rays stop below this transmittance.
     #[arg(long, default_value_t = 1e-4, help_heading = "Quality")]
     min_transmittance: f64,
@@ -209,7 +227,7 @@ impl RenderArgs {
         let pixels = params.camera.width() as u64 * params.camera.height() as u64;
         let bar = log.progress("paths", pixels);
         let field = emission.as_ref().map(EmissionGrids::field);
-        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
+        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref(), ..MediumFields::default() };
         let image = log.stage(
             "path trace",
             || match device.gpu() {
@@ -246,7 +264,7 @@ impl RenderArgs {
         opts.validate().map_err(Failure::usage)?;
         let blur = velocity.map(Velocity::blur);
         let field = emission.map(EmissionGrids::field);
-        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
+        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref(), ..MediumFields::default() };
         // The GPU's reference renders whole images in pixel ranges; a sample of blocks is
         // traced on the CPU whatever --device (design.md section 5).
         let v = log.stage("verify", || verify_cpu(image, density, &params, fields, &opts), |r| match r {
@@ -313,11 +331,32 @@ impl RenderArgs {
         let blur = velocity.map(Velocity::blur);
         scattered_emission_note(meta, &cache, emission.as_ref(), &params, log);
         let field = emission.as_ref().map(EmissionGrids::field);
-        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref() };
+        let lights = match self.single {
+            SingleSource::Cache => None,
+            SingleSource::Auto if meta.tool_value("vdbcache", "single_direct").as_deref() != Some("true") => None,
+            // The lights the cache was baked with (a --sun here is the reference's).
+            _ => Some(meta.lights()?.unwrap_or_default()),
+        };
+        // vdbcache's Simpson step toward the lights, as a fraction of the voxel edge.
+        let shadow_step = meta.tool_value("vdbcache", "step").and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(1.0);
+        let direct = lights.as_ref().map(|lights| DirectSingle::new(density, lights, shadow_step));
+        if direct.is_some() {
+            log.verbose(format!(
+                "single scattering: shadow rays toward the lights at every sample ({}), in Simpson steps of {shadow_step} voxel",
+                if self.single == SingleSource::Direct { "--single direct" } else { "the cache records that no Li_single lattice would do" }
+            ));
+        }
+        let fields = MediumFields { emission: field.as_ref(), motion: blur.as_ref(), direct_single: direct.as_ref() };
+        let gpu = device.gpu().filter(|_| {
+            if direct.is_some() {
+                log.note("single scattering by shadow rays at every sample runs on the CPU march: the march takes the CPU");
+            }
+            direct.is_none()
+        });
         let image = log
             .stage(
                 "march",
-                || match device.gpu() {
+                || match gpu {
                     Some(ctx) => render_gpu_with(ctx, density, &cache, &params, fields, &Default::default()),
                     None => render_cpu_with(density, &cache, &params, fields),
                 },

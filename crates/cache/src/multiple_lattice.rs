@@ -303,7 +303,7 @@ pub(crate) fn bake_paths<E>(
     mut trace: impl FnMut(&str, &CachePlan, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
 ) -> Result<(Volume<Vec3>, u64), E> {
     // Li_single's estimated bias, which the paths' share of the tolerance leaves room for.
-    let single_bias = stats.single_lattice.as_ref().map_or(0.0, |l| l.remaining(params.cache_scale));
+    let single_bias = stats.single_lattice.as_ref().map_or(0.0, |l| l.image_error(params.cache_scale));
     let first_scale = first.transform.voxel_size().x / density.transform().voxel_size().x;
     let floor = (params.cache_scale * FINEST_BELOW_CACHE_SCALE).max(FINEST_BELOW_RAY_SPACING * importance_ray_spacing(&params.camera, density));
     // In hundredths of a voxel up, so that the lattice reads and records as a plain number.

@@ -14,7 +14,7 @@ use crate::offsets::Offsets;
 #[cfg(target_arch = "x86_64")]
 use crate::simd::Fused;
 use crate::simd::{Arith, Unfused, LANES, OUTSIDE};
-use crate::{assemble, Groups, Image, MarchError, MarchParams, MediumFields, NoiseEval, GROUP_DOMAIN};
+use crate::{assemble, DirectSingle, Groups, Image, MarchError, MarchParams, MediumFields, NoiseEval, GROUP_DOMAIN};
 use nimbus_tracking::{EmissionField, Motion, MotionBlur};
 
 /// Random-number domain of camera samples.
@@ -51,7 +51,7 @@ pub fn march_ray(
     xi: f64,
     u: f64,
 ) -> RayResult {
-    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None, None)
+    march_ray_with(density, majorant, cache, params, origin, dir, xi, u, None, None, None, None)
 }
 
 /// [`march_ray`] with what the medium holds beyond its density. `emission`: each sample
@@ -77,6 +77,7 @@ pub(crate) fn march_ray_with(
     emission: Option<&EmissionField>,
     motion: Option<Motion>,
     offsets: Option<&Offsets>,
+    direct: Option<&DirectSingle>,
 ) -> RayResult {
     let transform = density.transform();
     let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
@@ -104,7 +105,9 @@ pub(crate) fn march_ray_with(
         if let Some(e) = emission {
             r.emission += e.at(x) * (tr * absorbed / sigma_t) as f32;
         }
-        if let Some(li) = &cache.li_single {
+        if let Some(direct) = direct {
+            r.single += weight * albedo * direct.li(density, &params.medium, x, -dir.as_vec3(), params.min_transmittance);
+        } else if let Some(li) = &cache.li_single {
             r.single += weight * albedo * li.sample_world(x);
         }
         if let Some(li) = &cache.li_multiple {
@@ -298,14 +301,14 @@ fn render_layout<T: DensityPoint>(density: &Volume<f32>, cache: &IlluminationCac
 /// the medium as it is then, over the majorant dilated by how far it moves. With neither it
 /// is [`render_cpu`].
 pub fn render_cpu_with(density: &Volume<f32>, cache: &IlluminationCache, params: &MarchParams, fields: MediumFields) -> Result<Image, MarchError> {
-    let MediumFields { emission, motion } = fields;
+    let MediumFields { emission, motion, direct_single } = fields;
     let emission = emission.filter(|e| e.params.is_active());
-    if emission.is_none() && motion.is_none() {
+    if emission.is_none() && motion.is_none() && direct_single.is_none() {
         return render_cpu(density, cache, params);
     }
     params.validate()?;
     let (majorant, offsets) = march_grids(density, params, motion);
-    let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied(), offsets: offsets.as_ref() });
+    let pixels = render_tiles(params, &Extras { density, majorant: &majorant, cache, params, emission, motion: motion.copied(), offsets: offsets.as_ref(), direct_single });
     Ok(assemble(params, &pixels))
 }
 
@@ -318,12 +321,13 @@ struct Extras<'a> {
     emission: Option<&'a EmissionField<'a>>,
     motion: Option<MotionBlur<'a>>,
     offsets: Option<&'a Offsets>,
+    direct_single: Option<&'a DirectSingle<'a>>,
 }
 
 impl Marcher for Extras<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, shutter: f64) -> RayResult {
         let motion = self.motion.map(|m| m.at(shutter));
-        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion, self.offsets)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, self.emission, motion, self.offsets, self.direct_single)
     }
 }
 
@@ -356,7 +360,7 @@ struct Plain<'a> {
 
 impl Marcher for Plain<'_> {
     fn march<A: Arith>(&self, _: A, origin: DVec3, dir: DVec3, xi: f64, u: f64, _: f64) -> RayResult {
-        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, None, None, self.offsets)
+        march_ray_with(self.density, self.majorant, self.cache, self.params, origin, dir, xi, u, None, None, self.offsets, None)
     }
 }
 
@@ -799,7 +803,7 @@ pub(crate) mod tests {
         // One ray through march_ray_with itself, and without emission nothing.
         let p = MarchParams { medium, step: 0.05, background: Vec3::ZERO, ..params(slab_camera()) };
         let majorant = march_majorant(&slab, &p, None);
-        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None, None);
+        let r = march_ray_with(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5, Some(&field), None, None, None);
         assert!(((r.emission - expect) / expect).abs().max_element() < 2e-3, "{} vs {expect}", r.emission);
         let r = march_ray(&slab, &majorant, &cache, &p, DVec3::new(0.01, 0.02, 3.0), DVec3::NEG_Z, 0.3, 0.5);
         assert_eq!(r.emission, Vec3::ZERO);

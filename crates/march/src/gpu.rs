@@ -154,7 +154,11 @@ pub fn render_gpu_with(
     fields: MediumFields,
     options: &GpuMarchOptions,
 ) -> Result<Image, MarchError> {
-    let MediumFields { emission, motion } = fields;
+    let MediumFields { emission, motion, direct_single } = fields;
+    if direct_single.is_some() {
+        // The shadow rays per sample are the CPU march's (vdbmarch takes the CPU for them).
+        return Err(MarchError::Param("single scattering by shadow rays at each sample runs on the CPU march".into()));
+    }
     params.validate()?;
     let (majorant, offsets) = crate::cpu::march_grids(density, params, motion);
     if ctx.loop_cap().is_some() {

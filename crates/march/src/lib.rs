@@ -126,6 +126,40 @@ pub struct MediumFields<'a> {
     pub emission: Option<&'a EmissionField<'a>>,
     /// Eulerian motion blur: the velocity grid and the shutter.
     pub motion: Option<&'a MotionBlur<'a>>,
+    /// Single scattering by shadow rays at each sample instead of the cache's Li_single
+    /// (the CPU march only: [`DirectSingle`]).
+    pub direct_single: Option<&'a DirectSingle<'a>>,
+}
+
+/// Single scattering evaluated at each march sample (issue #47): `sum over lights
+/// p E T_light(x)` by a Simpson shadow ray toward each light through the trilinear density
+/// (`nimbus_cache::li_single` with no light tables, what vdbcache bakes at its nodes with
+/// `--shadows rays`), in place of the cache's Li_single where no lattice of it would do
+/// (`nimbus_cache::SingleLattice::direct`: the sun's transmittance bending within a quarter
+/// voxel at a rim lit from behind). Its cost is a shadow ray per sample and light.
+pub struct DirectSingle<'a> {
+    pub lights: &'a [nimbus_optics::Light],
+    /// The density's majorant, which the shadow rays skip empty space by.
+    pub majorant: MajorantGrid,
+    /// Simpson step toward the lights, world units.
+    pub step: f64,
+    tables: nimbus_tracking::LightDepths,
+}
+
+impl<'a> DirectSingle<'a> {
+    /// For `lights` over `density`, shadow rays in Simpson steps of `step_fraction` of the
+    /// smallest voxel edge (vdbcache's `--step`, recorded in its `step`).
+    pub fn new(density: &Volume<f32>, lights: &'a [nimbus_optics::Light], step_fraction: f64) -> DirectSingle<'a> {
+        let step = step_fraction * density.transform().voxel_size().min_element();
+        DirectSingle { lights, majorant: MajorantGrid::build(density), step, tables: nimbus_tracking::LightDepths { per_light: lights.iter().map(|_| None).collect() } }
+    }
+
+    /// Li_single at `x` toward `w_out` for `medium`'s optics, transmittance below `cutoff`
+    /// counting as none.
+    pub fn li(&self, density: &Volume<f32>, optics: &Medium, x: DVec3, w_out: Vec3, cutoff: f64) -> Vec3 {
+        let medium = nimbus_tracking::DensityMedium { density, majorant: &self.majorant, extinction: optics.extinction, motion: None };
+        nimbus_cache::li_single(medium, optics, self.lights, &self.tables, x, w_out, self.step, cutoff)
+    }
 }
 
 /// The image from per-pixel ray results (pixel 0 top-left, rows top to bottom): what every
@@ -150,8 +184,9 @@ pub(crate) fn visible_map(visible: Option<&Environment>) -> Option<&Environment>
     visible.filter(|e| matches!(e, Environment::Map { .. }))
 }
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use nimbus_optics::{Camera, Environment, Medium};
+use nimbus_volume::{MajorantGrid, Volume};
 
 /// Everything a render depends on; the CPU and GPU backends read the same struct.
 #[derive(Clone, Debug)]

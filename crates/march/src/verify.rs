@@ -267,7 +267,7 @@ pub fn verify_cpu(image: &Image, density: &Volume<f32>, params: &ReferenceParams
     let chosen = choose(candidates, opts.samples as usize, params.seed);
     let render: Vec<DVec3> = chosen.iter().map(|&i| pixels_of(i).map(|p| image.rgba[p as usize].truncate().as_dvec3()).sum::<DVec3>() * per_block).collect();
 
-    let MediumFields { emission, motion } = fields;
+    let MediumFields { emission, motion, .. } = fields;
     let majorant = reference_majorant(density, &params, motion);
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };
     let background = crate::constant_background(params.background, params.visible_environment()).as_dvec3();

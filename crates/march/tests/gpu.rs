@@ -406,8 +406,8 @@ fn motion_blur_renders_alike() {
     }
     let blur = nimbus_march::MotionBlur { velocity: &velocity, shutter: 0.2 };
     p.spp = 4;
-    let cpu = nimbus_march::render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }).unwrap();
-    let gpu = nimbus_march::render_gpu_with(ctx, &v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, &EXACT).unwrap();
+    let cpu = nimbus_march::render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }).unwrap();
+    let gpu = nimbus_march::render_gpu_with(ctx, &v, &cache, &p, MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }, &EXACT).unwrap();
     let sharp = nimbus_march::render_cpu_with(&v, &cache, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }).unwrap();
     let brightest = cpu.rgba.iter().map(|c| c.truncate().max_element()).fold(0.0, f32::max);
     let worst = cpu.rgba.iter().zip(&gpu.rgba).map(|(c, g)| rel(g.truncate(), c.truncate(), 1e-3 * brightest)).fold(0.0f32, f32::max);

@@ -102,7 +102,7 @@ fn a_translating_ball_blurs_as_the_average_of_its_sub_frames_in_the_march() {
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let cache = nimbus_cache::IlluminationCache::default();
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
-    let blurred = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&blur) }).unwrap();
+    let blurred = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }).unwrap();
     let sub_frames = average(64, |seed, t| {
         let moved = ball_at(t);
         let field = EmissionField { grid: Some(&moved), temperature: None, params: &emission };
@@ -133,7 +133,7 @@ fn a_translating_ball_blurs_as_the_average_of_its_sub_frames_in_the_reference() 
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let params = reference_params;
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
-    let blurred = render_reference_cpu_with(&frame, &params(512), MediumFields { emission: Some(&field), motion: Some(&blur) }, &|_| {}).unwrap();
+    let blurred = render_reference_cpu_with(&frame, &params(512), MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }, &|_| {}).unwrap();
     let sub_frames = average(32, |seed, t| {
         let moved = ball_at(t);
         let field = EmissionField { grid: Some(&moved), temperature: None, params: &emission };
@@ -167,8 +167,8 @@ fn the_gpu_reference_blurs_as_the_cpu_reference() {
     let blur = MotionBlur { velocity: &v, shutter: SHUTTER };
     let field = EmissionField { grid: Some(&frame), temperature: None, params: &emission };
     let p = reference_params(64);
-    let cpu = render_reference_cpu_with(&frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, &|_| {}).unwrap();
-    let gpu = nimbus_march::render_reference_gpu_with(ctx, &frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur) }, 4096, &|_| {}).unwrap();
+    let cpu = render_reference_cpu_with(&frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }, &|_| {}).unwrap();
+    let gpu = nimbus_march::render_reference_gpu_with(ctx, &frame, &p, MediumFields { emission: Some(&field), motion: Some(&blur), ..MediumFields::default() }, 4096, &|_| {}).unwrap();
     let sharp = nimbus_march::render_reference_gpu_with(ctx, &frame, &p, MediumFields { emission: Some(&field), ..MediumFields::default() }, 4096, &|_| {}).unwrap();
     let (err, unblurred) = (profile_rmse(&gpu, &cpu), profile_rmse(&sharp, &cpu));
     eprintln!("reference, GPU against CPU with motion blur: column profile {err:.4} (per pixel {:.4}); the GPU's sharp frame {unblurred:.4}",

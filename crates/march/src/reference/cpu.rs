@@ -86,7 +86,7 @@ pub fn render_reference_cpu_with(
     fields: MediumFields,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Image, MarchError> {
-    let MediumFields { emission, motion } = fields;
+    let MediumFields { emission, motion, .. } = fields;
     params.validate()?;
     let majorant = super::reference_majorant(density, params, motion);
     let medium = DensityMedium { motion: None, density, majorant: &majorant, extinction: params.medium.extinction };

@@ -64,7 +64,7 @@ pub fn render_reference_gpu_with(
     max_tile_pixels: u64,
     progress: &dyn Fn(u64),
 ) -> Result<Image, MarchError> {
-    let MediumFields { emission, motion } = fields;
+    let MediumFields { emission, motion, .. } = fields;
     params.validate()?;
     let camera = &params.camera;
     let pixel_count = camera.width() as u64 * camera.height() as u64;
