@@ -208,19 +208,7 @@ impl RenderArgs {
             }
         }
         let (emission, _) = self.emission.resolve_over(file, meta, log)?;
-        let environment = self.environment.resolve(meta, log, None)?;
-        let params = ReferenceParams {
-            lights: self.lights.resolve(meta, log, None, environment.is_some())?,
-            environment,
-            environment_visible: self.background.is_none(),
-            medium: self.medium.resolve(meta, log, None)?,
-            camera: self.camera.resolve(meta, density.world_bounds(), log, None)?,
-            spp: self.spp.unwrap_or(1),
-            max_depth: self.max_depth,
-            background: self.background.unwrap_or(Vec3::ZERO),
-            seed: self.seed.or(meta.seed()).unwrap_or(0),
-            aovs: self.aovs,
-        };
+        let params = ReferenceParams { spp: self.spp.unwrap_or(1), max_depth: self.max_depth, aovs: self.aovs, ..self.reference_scene(stage)? };
         params.validate().map_err(Failure::usage)?;
         let device = common.compute_device(log)?;
         let blur = velocity.map(Velocity::blur);
@@ -240,15 +228,13 @@ impl RenderArgs {
         Ok((image.map_err(|e| march_failure(e, "reference path tracer"))?, emission))
     }
 
-    /// `--verify`: `image`'s error against the reference tracer over a sample of its blocks
-    /// (nimbus_march::verify_cpu), the scene as the march and `--reference` resolve it.
-    fn verify(&self, image: &Image, stage: &Stage, velocity: Option<&Velocity>, emission: Option<&EmissionGrids>) -> Result<Verification, Failure> {
+    /// The scene the reference tracer renders, `--reference`'s and `--verify`'s truth: medium,
+    /// lights, environment and camera from the flags over the file's record; one path a
+    /// pixel, the default depth, no layers.
+    fn reference_scene(&self, stage: &Stage) -> Result<ReferenceParams, Failure> {
         let (density, meta, log) = (&stage.density, &stage.meta, &stage.log);
-        if self.offset_noise != 0.0 {
-            log.warn("--offset-noise moves the medium the march reads; --verify's truth is the density as it is, so its error includes what the noise changes");
-        }
         let environment = self.environment.resolve(meta, log, None)?;
-        let params = ReferenceParams {
+        Ok(ReferenceParams {
             lights: self.lights.resolve(meta, log, None, environment.is_some())?,
             environment,
             environment_visible: self.background.is_none(),
@@ -259,7 +245,17 @@ impl RenderArgs {
             background: self.background.unwrap_or(Vec3::ZERO),
             seed: self.seed.or(meta.seed()).unwrap_or(0),
             aovs: false,
-        };
+        })
+    }
+
+    /// `--verify`: `image`'s error against the reference tracer over a sample of its blocks
+    /// (nimbus_march::verify_cpu), the scene as the march and `--reference` resolve it.
+    fn verify(&self, image: &Image, stage: &Stage, velocity: Option<&Velocity>, emission: Option<&EmissionGrids>) -> Result<Verification, Failure> {
+        let (density, log) = (&stage.density, &stage.log);
+        if self.offset_noise != 0.0 {
+            log.warn("--offset-noise moves the medium the march reads; --verify's truth is the density as it is, so its error includes what the noise changes");
+        }
+        let params = self.reference_scene(stage)?;
         let opts = VerifyParams { samples: self.verify_pixels, block: self.verify_block, target: self.verify_target, max_spp: self.verify_max_spp, ..VerifyParams::default() };
         opts.validate().map_err(Failure::usage)?;
         let blur = velocity.map(Velocity::blur);

@@ -632,8 +632,8 @@ fn nearest_dense(density: &Volume<f32>, centre: DVec3, level: f64) -> Option<IVe
     best.map(|(_, ijk)| ijk)
 }
 
-/// The volume over index box `lo..=hi` with `f(ijk)` where positive.
-fn fill(transform: Transform, lo: IVec3, hi: IVec3, f: impl Fn(IVec3) -> f64 + Sync) -> Volume<f32> {
+/// The volume over index box `lo..=hi` with `f(ijk)` where positive and finite.
+pub(crate) fn fill(transform: Transform, lo: IVec3, hi: IVec3, f: impl Fn(IVec3) -> f64 + Sync) -> Volume<f32> {
     let b0 = lo.div_euclid(IVec3::splat(8)) * 8;
     let mut origins = Vec::new();
     for z in (b0.z..=hi.z).step_by(8) {

@@ -60,36 +60,7 @@ fn lumps(p: DVec3, frequency: f64) -> f64 {
 
 /// The volume over index box `lo..=hi` with `f(world)` where positive.
 fn fill(transform: Transform, lo: IVec3, hi: IVec3, f: impl Fn(DVec3) -> f64 + Sync) -> Volume<f32> {
-    let mut origins = Vec::new();
-    let b0 = lo.div_euclid(IVec3::splat(8)) * 8;
-    let mut z = b0.z;
-    while z <= hi.z {
-        let mut y = b0.y;
-        while y <= hi.y {
-            let mut x = b0.x;
-            while x <= hi.x {
-                origins.push(IVec3::new(x, y, z));
-                x += 8;
-            }
-            y += 8;
-        }
-        z += 8;
-    }
-    Volume::from_brick_fn(transform, 0.0, &origins, |origin, values| {
-        let mut mask: nimbus_volume::BrickMask = [0; 8];
-        for (i, v) in values.iter_mut().enumerate() {
-            let ijk = origin + nimbus_volume::brick_local(i);
-            if ijk.cmplt(lo).any() || ijk.cmpgt(hi).any() {
-                continue;
-            }
-            let d = f(transform.to_world(ijk.as_dvec3()));
-            if d > 0.0 {
-                *v = d as f32;
-                mask[i >> 6] |= 1 << (i & 63);
-            }
-        }
-        mask
-    })
+    crate::random::fill(transform, lo, hi, |ijk| f(transform.to_world(ijk.as_dvec3())))
 }
 
 fn anvil() -> Scene {
