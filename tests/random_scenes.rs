@@ -142,7 +142,7 @@ fn a_rim_no_lattice_serves_is_marched_by_shadow_rays() {
     let (auto, log) = march(&[], "auto.exr");
     assert!(log.contains("single scattering: shadow rays toward the lights at every sample"), "{log}");
     let (direct, _) = march(&["--single", "direct"], "direct.exr");
-    let (cached, log) = march(&["--single", "cache"], "cache.exr");
+    let (_, log) = march(&["--single", "cache"], "cache.exr");
     assert!(!log.contains("shadow rays"), "{log}");
     assert!(auto == direct, "auto takes the shadow rays the cache asks for");
     let (a, c) = (read_rgba(&dir.join("auto.exr")), read_rgba(&dir.join("cache.exr")));

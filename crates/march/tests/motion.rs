@@ -121,7 +121,7 @@ fn a_translating_ball_blurs_as_the_average_of_its_sub_frames_in_the_march() {
     assert_eq!(again.rgba, sharp.rgba);
     // A zero velocity blurs nothing.
     let still = Volume::new(Transform::uniform(VOXEL, DVec3::ZERO), Vec3::ZERO);
-    let none = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&MotionBlur { velocity: &still, shutter: SHUTTER }) }).unwrap();
+    let none = render_cpu_with(&frame, &cache, &march_params(256), MediumFields { emission: Some(&field), motion: Some(&MotionBlur { velocity: &still, shutter: SHUTTER }), ..MediumFields::default() }).unwrap();
     assert_eq!(none.rgba, sharp.rgba);
 }
 
