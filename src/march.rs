@@ -333,12 +333,10 @@ impl RenderArgs {
             // The lights the cache was baked with (a --sun here is the reference's).
             _ => Some(meta.lights()?.unwrap_or_default()),
         };
-        // vdbcache's Simpson step toward the lights, as a fraction of the voxel edge.
-        let shadow_step = meta.tool_value("vdbcache", "step").and_then(|s| s.parse::<f64>().ok()).filter(|s| *s > 0.0).unwrap_or(1.0);
-        let direct = lights.as_ref().map(|lights| DirectSingle::new(density, lights, shadow_step));
+        let direct = lights.as_ref().map(|lights| DirectSingle::new(density, lights, DirectSingle::STEP));
         if direct.is_some() {
             log.verbose(format!(
-                "single scattering: shadow rays toward the lights at every sample ({}), in Simpson steps of {shadow_step} voxel",
+                "single scattering: shadow rays toward the lights at every sample ({})",
                 if self.single == SingleSource::Direct { "--single direct" } else { "the cache records that no Li_single lattice would do" }
             ));
         }

@@ -308,7 +308,7 @@ fn a_path_tolerance_out_of_reach_is_said() {
         String::from_utf8_lossy(&out.stderr).into_owned()
     };
     let said = bake(&["--path-tolerance", "0.0001"]);
-    assert!(said.contains("above --path-tolerance 0.01%") && said.contains("16 times the first pass"), "{said}");
+    assert!(said.contains("of --path-tolerance 0.01%") && said.contains("16 times the first pass"), "{said}");
     assert!(!bake(&["--path-tolerance", "0.0001", "-q"]).contains("path-tolerance"), "-q keeps it quiet");
     let met = bake(&["--path-tolerance", "1"]);
     assert!(!met.contains("path-tolerance"), "{met}");

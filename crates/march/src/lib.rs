@@ -147,8 +147,14 @@ pub struct DirectSingle<'a> {
 }
 
 impl<'a> DirectSingle<'a> {
+    /// The shadow rays' Simpson step in voxel edges: one. The panels split at voxel
+    /// boundaries, within which the trilinear density along a line is a cubic, which
+    /// Simpson's rule integrates exactly: a finer step (a tiny `vdbcache --step`) would only
+    /// cost time, a shadow ray at every sample.
+    pub const STEP: f64 = 1.0;
+
     /// For `lights` over `density`, shadow rays in Simpson steps of `step_fraction` of the
-    /// smallest voxel edge (vdbcache's `--step`, recorded in its `step`).
+    /// smallest voxel edge.
     pub fn new(density: &Volume<f32>, lights: &'a [nimbus_optics::Light], step_fraction: f64) -> DirectSingle<'a> {
         let step = step_fraction * density.transform().voxel_size().min_element();
         DirectSingle { lights, majorant: MajorantGrid::build(density), step, tables: nimbus_tracking::LightDepths { per_light: lights.iter().map(|_| None).collect() } }
