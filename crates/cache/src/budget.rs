@@ -117,11 +117,27 @@ pub fn single_levels(plan: &CachePlan, single: Option<&Volume<Vec3>>) -> Vec<f32
 /// The second pass's paths per voxel for a predicted noise `noise` against `tolerance`:
 /// none where the first pass meets it.
 pub fn more_paths(paths: &PathPlan, noise: f64, tolerance: f64) -> Option<Vec<u32>> {
+    extra_paths(&paths.counts, &paths.counts, noise, tolerance)
+}
+
+/// The next pass's paths per voxel for voxels holding `counts` paths (`first` of them the
+/// first pass's) at a predicted noise `noise` against `tolerance`: each voxel's count grown
+/// by the squared ratio, up to [`MAX_PATH_GROWTH`] times its first pass; none where the paths
+/// so far meet it (or no voxel may grow).
+fn extra_paths(counts: &[u32], first: &[u32], noise: f64, tolerance: f64) -> Option<Vec<u32>> {
     if !(noise > tolerance && tolerance > 0.0) {
         return None;
     }
-    let growth = wanted_growth(noise, tolerance).min(MAX_PATH_GROWTH) - 1.0;
-    Some(paths.counts.iter().map(|&n| (n as f64 * growth).ceil().min(u32::MAX as f64) as u32).collect())
+    let growth = wanted_growth(noise, tolerance);
+    let extra: Vec<u32> = counts
+        .iter()
+        .zip(first)
+        .map(|(&n, &f)| {
+            let wanted = (n as f64 * growth).min(f as f64 * MAX_PATH_GROWTH).ceil();
+            (wanted - n as f64).clamp(0.0, u32::MAX as f64) as u32
+        })
+        .collect();
+    extra.iter().any(|&e| e > 0).then_some(extra)
 }
 
 /// The paths in all, as a multiple of the first pass's, that a first pass of predicted noise
@@ -144,69 +160,74 @@ pub fn second_pass_seed(seed: u64) -> u64 {
     seed ^ 0x5345_434f_4e44_0000 // "SECOND"
 }
 
-/// What [`FirstPass::top_up`] traced: each voxel's moments over both passes.
-pub(crate) struct TracedPaths {
+/// The paths stage both backends share, in passes so that the lattice's bias can be
+/// estimated between them (multiple_lattice.rs): [`trace_first`] traces `plan`'s paths by
+/// `trace(progress label, plan, seed)`; each [`Passes::top_up`] then adds a pass where the
+/// predicted noise exceeds the tolerance it is given, merged in (at most [`MAX_PATH_GROWTH`]
+/// times the first pass in all). `single` is Li_single's level at the voxels
+/// ([`single_levels`], or empty). Records the paths traced, the noise predicted and the
+/// stage's time in `stats`.
+pub(crate) struct Passes {
     pub moments: Vec<PathMoments>,
+    /// Paths per voxel so far, and the plans of the passes after the first.
+    counts: Vec<u32>,
+    pub more: Vec<PathPlan>,
 }
 
-impl TracedPaths {
+/// [`Passes`]' first.
+pub(crate) fn trace_first<E>(plan: &PathPlan, params: &CacheParams, stats: &mut BakeStats, trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>) -> Result<Passes, E> {
+    let started = std::time::Instant::now();
+    let moments = trace("paths", plan, params.seed)?;
+    stats.add_stage("paths", started.elapsed().as_millis() as u64);
+    stats.paths += plan.total();
+    Ok(Passes { moments, counts: plan.counts.clone(), more: Vec::new() })
+}
+
+/// The seed of the pass after `passes` earlier top-ups: each its own streams.
+fn top_up_seed(seed: u64, passes: usize) -> u64 {
+    match passes {
+        0 => second_pass_seed(seed),
+        n => second_pass_seed(seed) ^ ((n as u64) << 8) ^ 0x5448_4952_4400_0000, // "THIRD"
+    }
+}
+
+impl Passes {
+    /// Another pass where the noise predicted from the paths so far exceeds
+    /// `noise_tolerance` (the module doc), merged in.
+    pub(crate) fn top_up<E>(
+        &mut self,
+        plan: &PathPlan,
+        single: &[f32],
+        noise_tolerance: f64,
+        params: &CacheParams,
+        stats: &mut BakeStats,
+        trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
+    ) -> Result<(), E> {
+        let started = std::time::Instant::now();
+        stats.path_noise_tolerance = Some(noise_tolerance);
+        let noise = predicted_noise(plan, &self.counts, &self.moments, single);
+        let first = stats.path_noise.map_or(noise, |(first, _)| first);
+        stats.path_noise = Some((first, noise));
+        if let Some(extra) = extra_paths(&self.counts, &plan.counts, noise, noise_tolerance) {
+            let more = plan.more(extra);
+            let again = trace("more paths", &more, top_up_seed(params.seed, self.more.len()))?;
+            for (v, (m, s)) in self.moments.iter_mut().zip(&again).enumerate() {
+                *m = m.merged(self.counts[v], *s, more.counts[v]);
+                self.counts[v] += more.counts[v];
+            }
+            stats.path_noise = Some((first, predicted_noise(plan, &self.counts, &self.moments, single)));
+            stats.paths += more.total();
+            self.more.push(more);
+        }
+        stats.add_stage("paths", started.elapsed().as_millis() as u64);
+        Ok(())
+    }
+
     /// Li_multiple on `voxels` (the moments' means), and its count of non-finite values
     /// (stored as zero).
     pub fn volume(&self, voxels: &CachePlan) -> (Volume<Vec3>, u64) {
         let values: Vec<Vec3> = self.moments.iter().map(|m| m.mean).collect();
         voxels.volume_of(&values)
-    }
-}
-
-/// The paths stage both backends share, in two steps so that the lattice's bias can be
-/// estimated between them (multiple_lattice.rs): [`trace_first`] traces `plan`'s paths by
-/// `trace(progress label, plan, seed)`; [`FirstPass::top_up`] then adds a second pass where
-/// the predicted noise exceeds the paths' share of the tolerance, merged in. `single` is
-/// Li_single's level at the voxels ([`single_levels`], or empty). Records the paths traced,
-/// the noise predicted and the stage's time in `stats`.
-pub(crate) struct FirstPass {
-    pub moments: Vec<PathMoments>,
-}
-
-/// [`FirstPass`]'s paths.
-pub(crate) fn trace_first<E>(plan: &PathPlan, params: &CacheParams, stats: &mut BakeStats, trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>) -> Result<FirstPass, E> {
-    let started = std::time::Instant::now();
-    let moments = trace("paths", plan, params.seed)?;
-    stats.add_stage("paths", started.elapsed().as_millis() as u64);
-    stats.paths += plan.total();
-    Ok(FirstPass { moments })
-}
-
-impl FirstPass {
-    /// The second pass where `noise_tolerance` asks for it (the module doc), merged in.
-    pub(crate) fn top_up<E>(
-        self,
-        plan: &PathPlan,
-        single: &[f32],
-        noise_tolerance: Option<f64>,
-        params: &CacheParams,
-        stats: &mut BakeStats,
-        trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
-    ) -> Result<TracedPaths, E> {
-        let mut moments = self.moments;
-        let started = std::time::Instant::now();
-        stats.path_noise_tolerance = noise_tolerance;
-        if let Some(tolerance) = noise_tolerance {
-            let noise = predicted_noise(plan, &plan.counts, &moments, single);
-            stats.path_noise = Some((noise, noise));
-            if let Some(extra) = more_paths(plan, noise, tolerance) {
-                let more = plan.more(extra);
-                let again = trace("more paths", &more, second_pass_seed(params.seed))?;
-                for (v, (m, s)) in moments.iter_mut().zip(&again).enumerate() {
-                    *m = m.merged(plan.counts[v], *s, more.counts[v]);
-                }
-                let counts: Vec<u32> = plan.counts.iter().zip(&more.counts).map(|(a, b)| a + b).collect();
-                stats.path_noise = Some((noise, predicted_noise(plan, &counts, &moments, single)));
-                stats.paths += more.total();
-            }
-        }
-        stats.add_stage("paths", started.elapsed().as_millis() as u64);
-        Ok(TracedPaths { moments })
     }
 }
 
