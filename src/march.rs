@@ -300,7 +300,7 @@ impl RenderArgs {
         let step = self.step.unwrap_or(default_step(density.transform()) * preset.step_factor);
         let subdivision = match self.step {
             Some(_) => 1,
-            None => step_subdivision(step, medium.extinction, density_max(density)),
+            None => step_subdivision(step, medium.extinction, density.peak().max(0.0)),
         };
         if subdivision > 1 {
             log.verbose(format!("march step: {:.6}, a {subdivision}th of the default {step:.6}: the densest medium holds optical depth {STEP_OPTICAL_DEPTH} a step", step / subdivision as f64));
@@ -333,7 +333,7 @@ impl RenderArgs {
             // The lights the cache was baked with (a --sun here is the reference's).
             _ => Some(meta.lights()?.unwrap_or_default()),
         };
-        let direct = lights.as_ref().map(|lights| DirectSingle::new(density, lights, DirectSingle::STEP));
+        let direct = lights.as_ref().map(|lights| DirectSingle::new(density, lights));
         if direct.is_some() {
             log.verbose(format!(
                 "single scattering: shadow rays toward the lights at every sample ({})",
@@ -359,11 +359,6 @@ impl RenderArgs {
             .map_err(|e| march_failure(e, "GPU ray marcher"));
         Ok((image?, emission))
     }
-}
-
-/// The density's largest value (0 for an empty volume).
-fn density_max(density: &nimbus_volume::Volume<f32>) -> f32 {
-    density.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max)
 }
 
 fn march_failure(e: MarchError, what: &str) -> Failure {

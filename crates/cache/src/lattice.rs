@@ -68,6 +68,16 @@ impl SingleLattice {
         let r = DVec3::splat(requested) / self.scale;
         (self.estimate / (r * r)).element_sum()
     }
+
+    /// The error Li_single's lattice leaves in the image, estimated: none where the march
+    /// evaluates single scattering itself ([`SingleLattice::direct`]).
+    pub fn image_error(&self, requested: f64) -> f64 {
+        if self.direct {
+            0.0
+        } else {
+            self.remaining(requested)
+        }
+    }
 }
 
 /// Li_single's lattice for `params`: `params.cache_scale` on every axis, each axis halved
@@ -106,17 +116,6 @@ pub fn choose_single_lattice(medium: DensityMedium, params: &CacheParams, depths
     SingleLattice { scale: DVec3::splat(base) / refinement, estimate, samples: samples.len(), direct: false }
 }
 
-/// The error Li_single's lattice leaves in the image, estimated: none where the march
-/// evaluates single scattering itself ([`SingleLattice::direct`]).
-impl SingleLattice {
-    pub fn image_error(&self, requested: f64) -> f64 {
-        if self.direct {
-            0.0
-        } else {
-            self.remaining(requested)
-        }
-    }
-}
 
 /// Index coordinates of at most `most` voxels holding density, evenly spread over them in
 /// brick order (deterministic).

@@ -99,7 +99,7 @@ fn grid_max(file: &VdbFile, name: &str) -> Result<Option<(Volume<f32>, f32)>, Fa
         return Ok(None);
     }
     let (_, v) = read_density(file, Some(name))?;
-    let max = v.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max);
+    let max = v.peak().max(0.0);
     Ok((max > 0.0).then_some((v, max)))
 }
 

@@ -153,10 +153,9 @@ impl<'a> DirectSingle<'a> {
     /// cost time, a shadow ray at every sample.
     pub const STEP: f64 = 1.0;
 
-    /// For `lights` over `density`, shadow rays in Simpson steps of `step_fraction` of the
-    /// smallest voxel edge.
-    pub fn new(density: &Volume<f32>, lights: &'a [nimbus_optics::Light], step_fraction: f64) -> DirectSingle<'a> {
-        let step = step_fraction * density.transform().voxel_size().min_element();
+    /// For `lights` over `density`, shadow rays in Simpson steps of [`DirectSingle::STEP`].
+    pub fn new(density: &Volume<f32>, lights: &'a [nimbus_optics::Light]) -> DirectSingle<'a> {
+        let step = Self::STEP * density.transform().voxel_size().min_element();
         DirectSingle { lights, majorant: MajorantGrid::build(density), step, tables: nimbus_tracking::LightDepths { per_light: lights.iter().map(|_| None).collect() } }
     }
 

@@ -241,7 +241,7 @@ fn dense_media_are_marched_in_steps_of_bounded_optical_depth() {
         let sun = nimbus_optics::Light::parse_sun("dir=0.3,0.5,-0.8,irradiance=2").unwrap();
         let base = default_step(density.transform());
         let (cache, march) = single_scattering_chain(&density, medium, sun, &cam, base);
-        let max = density.bricks().map(|b| b.values.iter().copied().fold(0.0f32, f32::max)).fold(0.0f32, f32::max);
+        let max = density.peak();
         let k = step_subdivision(base, medium.extinction, max);
         assert_eq!(k > 1, dense, "peak {peak}: subdivision {k}");
         let plain = render_cpu(&density, &cache, &march).unwrap();

@@ -84,7 +84,7 @@ fn single_scattering_by_shadow_rays_at_each_sample_matches_the_brute_force() {
         let medium = Medium { extinction, albedo: Vec3::new(0.9, 0.8, 0.7), g: 0.4 };
         let (cache, march) = common::single_scattering_chain(&density, medium, sun, &camera, VOXEL / 4.0);
         let lights = [sun];
-        let direct = DirectSingle::new(&density, &lights, 1.0);
+        let direct = DirectSingle::new(&density, &lights);
         let fields = MediumFields { direct_single: Some(&direct), ..MediumFields::default() };
         let by_rays = render_cpu_with(&density, &cache, &MarchParams { ..march.clone() }, fields).unwrap();
         let from_cache = render_cpu(&density, &cache, &march).unwrap();

@@ -81,7 +81,7 @@ impl MajorantGrid {
     /// and plume (alternating pairs of runs; 0-3% less CPU time), photons 0-6% less;
     /// two-voxel cells traced photons 1.4-1.6x slower.
     pub fn for_tracking(volume: &Volume<f32>, extinction: f32) -> MajorantGrid {
-        let peak = volume.bricks().flat_map(|b| b.values.iter().copied()).fold(volume.background(), f32::max) as f64;
+        let peak = volume.peak() as f64;
         let edge = volume.transform().voxel_size().max_element();
         let depth = |log2: u32| peak * extinction.max(0.0) as f64 * edge * (1u32 << log2) as f64;
         let mut log2 = TRACKING_CELL_LOG2;

@@ -196,6 +196,13 @@ fn node_slot(ijk: IVec3) -> usize {
     ((b.x << (2 * NODE_LOG2)) | (b.y << NODE_LOG2) | b.z) as usize
 }
 
+impl Volume<f32> {
+    /// The largest value the volume holds: its bricks' values and its background.
+    pub fn peak(&self) -> f32 {
+        self.bricks().flat_map(|b| b.values.iter().copied()).fold(self.background(), f32::max)
+    }
+}
+
 impl<T: Voxel> Volume<T> {
     pub fn new(transform: Transform, background: T) -> Self {
         Volume {
