@@ -64,16 +64,15 @@ for seed in $old $new; do
     medium=$(echo "$flags" | sed -n 1p)
     camera=$(echo "$flags" | sed -n 2p)
     description=$(echo "$flags" | sed -n 3p | sed -E 's/^seed [0-9]+: //')
-    # The emission flags go to vdbmarch too: they travel in the cache's record, and given again
-    # they mean the same (before the record carried them, vdbmarch lost them).
-    emission=$(echo "$medium" | grep -oE -- '--emission-[a-z]+ [^ ]+' | tr '\n' ' ' || true)
+    # Every flag is given once, to vdbcache, as a user pipes the chain: the medium, lights,
+    # emission and camera reach vdbmarch in the cache's record (tests/flags.rs).
     why=()
     err=- less=- noise=- ratio=- single=- time=-
     # shellcheck disable=SC2086
     if timed "$bin/vdbcache" "$dir/scene.vdb" $medium $camera -q -o "$dir/chain.vdb"; then
         c1=$cpu
         # shellcheck disable=SC2086
-        if timed "$bin/vdbmarch" "$dir/chain.vdb" $emission -q -o "$dir/chain.exr"; then
+        if timed "$bin/vdbmarch" "$dir/chain.vdb" -q -o "$dir/chain.exr"; then
             time=$(awk -v a="$c1" -v b="$cpu" 'BEGIN { printf "%.1f", a + b }')
         fi
     fi
@@ -82,8 +81,8 @@ for seed in $old $new; do
     else
         reference=$dir/reference-$ref_spp.exr
         # shellcheck disable=SC2086
-        if [ -f "$reference" ] || { timed "$bin/vdbmarch" "$dir/chain.vdb" $emission --reference --spp "$ref_spp" --seed 101 -q -o "$reference.tmp.exr" &&
-            timed "$bin/vdbmarch" "$dir/chain.vdb" $emission --reference --spp $((ref_spp / 4)) --seed 102 -q -o "${reference%.exr}-quarter.exr" &&
+        if [ -f "$reference" ] || { timed "$bin/vdbmarch" "$dir/chain.vdb" --reference --spp "$ref_spp" --seed 101 -q -o "$reference.tmp.exr" &&
+            timed "$bin/vdbmarch" "$dir/chain.vdb" --reference --spp $((ref_spp / 4)) --seed 102 -q -o "${reference%.exr}-quarter.exr" &&
             mv "$reference.tmp.exr" "$reference"; }; then
             read -r err ratio < <(score "$reference" "$dir/chain.exr")
             read -r quarter _ < <(score "$reference" "${reference%.exr}-quarter.exr")
