@@ -2,7 +2,7 @@
 //! input's metadata and the --quality preset; the photons it reads, the grids it writes.
 
 use clap::Args;
-use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LatticeBias, LightLattice, MultipleLattice, MultipleEstimator, ShadowMode, MAX_PATH_GROWTH, MAX_REFINEMENT, MULTIPLE_LATTICE_TOLERANCE, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
+use nimbus_cache::{bake_cpu_emitting, bake_gpu_emitting, BakeStats, CacheError, CacheParams, Gather, IlluminationCache, LatticeBias, LightLattice, MultipleLattice, MultipleEstimator, ShadowMode, MAX_REFINEMENT, MULTIPLE_LATTICE_TOLERANCE, noise_short_of, PATH_TOLERANCE, SINGLE_LATTICE_TOLERANCE};
 use nimbus_cli::{CameraArgs, EmissionArgs, EmissionGrids, Failure, Quality, SceneArgs, Stage};
 use nimbus_gpu::ComputeDevice;
 use nimbus_photon::PhotonMap;
@@ -259,15 +259,16 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
             100.0 * l.estimate.element_sum() / (MAX_REFINEMENT * MAX_REFINEMENT) as f64
         ));
     }
-    // The top-up stops at MAX_PATH_GROWTH times the first pass: say so where that left the
+    // The top-up stops at a multiple of the first pass: say so where that left the
     // image noisier than asked (strong forward scattering can), rather than only under -v.
     if let Some(tolerance) = stats.path_noise_tolerance {
-        if let Some(last) = noise_short_of(tolerance, stats.path_noise) {
+        if let Some(last) = noise_short_of(tolerance, stats.path_noise, stats.path_growth_cap) {
             log.note(format!(
-                "the paths' noise in the image is predicted at {:.2}%, above their share {:.2}% of --path-tolerance {:.2}%, after the most paths the bake adds ({MAX_PATH_GROWTH} times the first pass's); a larger --paths with --path-tolerance raises that limit",
+                "the paths' noise in the image is predicted at {:.2}%, above their share {:.2}% of --path-tolerance {:.2}%, after the most paths the bake adds ({} times the first pass's); a larger --paths with --path-tolerance raises that limit",
                 100.0 * last,
                 100.0 * tolerance,
-                100.0 * params.path_tolerance.unwrap_or(f64::NAN)
+                100.0 * params.path_tolerance.unwrap_or(f64::NAN),
+                stats.path_growth_cap
             ));
         }
     }

@@ -117,14 +117,15 @@ pub fn single_levels(plan: &CachePlan, single: Option<&Volume<Vec3>>) -> Vec<f32
 /// The second pass's paths per voxel for a predicted noise `noise` against `tolerance`:
 /// none where the first pass meets it.
 pub fn more_paths(paths: &PathPlan, noise: f64, tolerance: f64) -> Option<Vec<u32>> {
-    extra_paths(&paths.counts, &paths.counts, noise, tolerance)
+    extra_paths(&paths.counts, &paths.counts, noise, tolerance, MAX_PATH_GROWTH)
 }
 
 /// The next pass's paths per voxel for voxels holding `counts` paths (`first` of them the
 /// first pass's) at a predicted noise `noise` against `tolerance`: each voxel's count grown
-/// by the squared ratio, up to [`MAX_PATH_GROWTH`] times its first pass; none where the paths
-/// so far meet it (or no voxel may grow).
-fn extra_paths(counts: &[u32], first: &[u32], noise: f64, tolerance: f64) -> Option<Vec<u32>> {
+/// by the squared ratio, up to `cap` times its first pass ([`MAX_PATH_GROWTH`], more where
+/// the first pass was cut: [`Passes::growth_cap`]); none where the paths so far meet it (or
+/// no voxel may grow).
+fn extra_paths(counts: &[u32], first: &[u32], noise: f64, tolerance: f64, cap: f64) -> Option<Vec<u32>> {
     if !(noise > tolerance && tolerance > 0.0) {
         return None;
     }
@@ -133,7 +134,7 @@ fn extra_paths(counts: &[u32], first: &[u32], noise: f64, tolerance: f64) -> Opt
         .iter()
         .zip(first)
         .map(|(&n, &f)| {
-            let wanted = (n as f64 * growth).min(f as f64 * MAX_PATH_GROWTH).ceil();
+            let wanted = (n as f64 * growth).min(f as f64 * cap).ceil();
             (wanted - n as f64).clamp(0.0, u32::MAX as f64) as u32
         })
         .collect();
@@ -146,13 +147,14 @@ fn wanted_growth(noise: f64, tolerance: f64) -> f64 {
     (noise / tolerance).powi(2)
 }
 
-/// The noise the paths were left at where [`MAX_PATH_GROWTH`] stopped the second pass short of
-/// `tolerance` (`path_noise` as [`BakeStats::path_noise`]: first pass, final); None where the
-/// tolerance was met or the cap not reached (a fresh estimate after an uncapped second pass
-/// may land a hair above the tolerance: that is not a shortfall).
-pub fn noise_short_of(tolerance: f64, path_noise: Option<(f64, f64)>) -> Option<f64> {
+/// The noise the paths were left at where the growth cap (`cap` times the first pass,
+/// [`BakeStats::path_growth_cap`]) stopped the top-ups short of `tolerance` (`path_noise` as
+/// [`BakeStats::path_noise`]: first pass, final); None where the tolerance was met or the cap
+/// not reached (a fresh estimate after an uncapped second pass may land a hair above the
+/// tolerance: that is not a shortfall).
+pub fn noise_short_of(tolerance: f64, path_noise: Option<(f64, f64)>, cap: f64) -> Option<f64> {
     let (first, last) = path_noise?;
-    (tolerance > 0.0 && wanted_growth(first, tolerance) > MAX_PATH_GROWTH && last > tolerance).then_some(last)
+    (tolerance > 0.0 && wanted_growth(first, tolerance) > cap && last > tolerance).then_some(last)
 }
 
 /// The second pass's seed: its own streams, so its paths are independent of the first's.
@@ -172,15 +174,26 @@ pub(crate) struct Passes {
     /// Paths per voxel so far, and the plans of the passes after the first.
     counts: Vec<u32>,
     pub more: Vec<PathPlan>,
+    /// Most the top-ups grow a voxel's first pass: [`MAX_PATH_GROWTH`], times what the first
+    /// pass was cut by on a refined lattice (multiple_lattice.rs), so a voxel may reach the
+    /// same paths it could on the first lattice.
+    growth_cap: f64,
 }
 
 /// [`Passes`]' first.
-pub(crate) fn trace_first<E>(plan: &PathPlan, params: &CacheParams, stats: &mut BakeStats, trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>) -> Result<Passes, E> {
+pub(crate) fn trace_first<E>(
+    plan: &PathPlan,
+    growth_cap: f64,
+    params: &CacheParams,
+    stats: &mut BakeStats,
+    trace: &mut impl FnMut(&str, &PathPlan, u64) -> Result<Vec<PathMoments>, E>,
+) -> Result<Passes, E> {
     let started = std::time::Instant::now();
     let moments = trace("paths", plan, params.seed)?;
     stats.add_stage("paths", started.elapsed().as_millis() as u64);
     stats.paths += plan.total();
-    Ok(Passes { moments, counts: plan.counts.clone(), more: Vec::new() })
+    stats.path_growth_cap = growth_cap;
+    Ok(Passes { moments, counts: plan.counts.clone(), more: Vec::new(), growth_cap })
 }
 
 /// The seed of the pass after `passes` earlier top-ups: each its own streams.
@@ -208,7 +221,7 @@ impl Passes {
         let noise = predicted_noise(plan, &self.counts, &self.moments, single);
         let first = stats.path_noise.map_or(noise, |(first, _)| first);
         stats.path_noise = Some((first, noise));
-        if let Some(extra) = extra_paths(&self.counts, &plan.counts, noise, noise_tolerance) {
+        if let Some(extra) = extra_paths(&self.counts, &plan.counts, noise, noise_tolerance, self.growth_cap) {
             let more = plan.more(extra);
             let again = trace("more paths", &more, top_up_seed(params.seed, self.more.len()))?;
             for (v, (m, s)) in self.moments.iter_mut().zip(&again).enumerate() {
@@ -291,10 +304,12 @@ mod tests {
     #[test]
     fn a_shortfall_is_the_noise_the_cap_left_above_the_tolerance() {
         // Ten times the tolerance asks for 100x the paths: the cap (16x) leaves 2.5x.
-        assert_eq!(noise_short_of(0.02, Some((0.2, 0.05))), Some(0.05));
-        assert_eq!(noise_short_of(0.02, Some((0.2, 0.019))), None, "the cap was enough");
+        assert_eq!(noise_short_of(0.02, Some((0.2, 0.05)), MAX_PATH_GROWTH), Some(0.05));
+        assert_eq!(noise_short_of(0.02, Some((0.2, 0.019)), MAX_PATH_GROWTH), None, "the cap was enough");
         // Twice the tolerance asks for 4x: no cap, so a final 0.0201 is the estimate's wobble.
-        assert_eq!(noise_short_of(0.02, Some((0.04, 0.0201))), None);
-        assert_eq!(noise_short_of(0.02, None), None, "no tolerance asked for, nothing predicted");
+        assert_eq!(noise_short_of(0.02, Some((0.04, 0.0201)), MAX_PATH_GROWTH), None);
+        assert_eq!(noise_short_of(0.02, None, MAX_PATH_GROWTH), None, "no tolerance asked for, nothing predicted");
+        // A cut first pass may grow further: 100x within a cap of 128x is no shortfall.
+        assert_eq!(noise_short_of(0.02, Some((0.2, 0.0201)), 128.0), None);
     }
 }

@@ -29,12 +29,53 @@ use crate::{CacheParams, CachePlan};
 /// terms under 2^-40 (derivatives under 1e-6) are too small to earn a path anyway.
 const G_FIXED_ONE: f64 = (1u64 << 40) as f64;
 
-/// At most this many camera rays estimate the importance: one through each pixel's centre
-/// (where `vdbmarch` looks at one sample per pixel) while the image is small, through every
-/// s-th pixel's each way beyond that. G_v is a smooth function of the image, and only its
-/// proportions matter; the paths' origins lie along these rays. (2 x 2 rays per pixel cost
-/// four times as much and bought nothing measurable on the bundled scenes.)
+/// At most this many camera rays estimate the importance: through the march's default
+/// samples of each pixel ([`pixel_samples_per_side`]) while the image is small, then fewer a
+/// pixel, then through every s-th pixel's centre each way. G_v is a smooth function of the
+/// image, and only its proportions matter; but the paths' origins lie along these rays, and
+/// Li_multiple's lattice bias is estimated along them, so they must read the volume where the
+/// march does. One ray at the centre of pixels 2.5 voxels wide, which the march reads at 4 x 4
+/// samples, left voxels between the rays with paths from their node and a bias the estimate
+/// could not see (`nimbus-scene --random 20261207044`: 5.3% off the reference, darker as the
+/// lattice was refined; issue #47). Where pixels are narrower than a quarter voxel (the
+/// bundled scenes, the Cloud1-class frame) that is one ray a pixel, as it always was.
 pub const IMPORTANCE_RAYS: usize = 1 << 16;
+
+/// Most samples per pixel side [`pixel_samples_per_side`] takes (64 samples a pixel). The
+/// march's cost does not grow with the footprint beyond a quarter voxel: the pixels that
+/// cover the volume fall as the footprint's square and the samples grow as it, so any frame
+/// costs at most what the volume costs at 4 x 4 samples a voxel, and the cap binds only at
+/// footprints of 2 voxels and more. There 4 x 4 samples, 0.62 voxels apart on pixels 2.5
+/// voxels wide (`nimbus-scene --random 20261207044`), left 1.3% of the chain's 2.1% against
+/// the reference (1.6% at 8 x 8).
+pub const MAX_SAMPLES_PER_PIXEL_SIDE: u32 = 8;
+
+/// How many samples the march takes per pixel side by default for `camera` over `density`
+/// (`vdbmarch`'s `--spp` is its square): n x n stratified samples, n enough that a pixel's
+/// samples lie at most a quarter of a density voxel apart at the distance of the volume's
+/// centre (n = ceil(4 x pixel footprint / thinnest voxel width), 1 to
+/// [`MAX_SAMPLES_PER_PIXEL_SIDE`]). The pixel is a box filter and its n x n samples a
+/// quadrature of it, whose error goes as the square of their spacing over the density's
+/// detail, the voxel: a ball of particles each about a voxel wide, pixels 0.77 voxels wide,
+/// is 1.2% off the path-traced reference at 2 x 2 (samples 0.38 voxels apart, the old rule's
+/// choice), 0.55% at 3 x 3, 0.36% at 4 x 4 (0.19 apart, this rule's; docs/benchmarks.md,
+/// "Dense media"); half a voxel apart had been measured only where the cap decides (the
+/// bundled plume at 128 x 72: 2.2% at one sample, 1.3% at 16). Where pixels are a quarter of
+/// a voxel or narrower one sample is all it takes (the Cloud1-class scene at 1024 x 576, the
+/// bundled cloud at 960 x 540: one). The bake's importance rays read each pixel at the same
+/// samples ([`IMPORTANCE_RAYS`]).
+pub fn pixel_samples_per_side(camera: &Camera, density: &Volume<f32>) -> u32 {
+    let Some((lo, hi)) = density.world_bounds() else { return 1 };
+    let distance = (0.5 * (lo + hi) - camera.eye()).length();
+    let footprint = camera.pixel_width_at(distance);
+    let voxel = density.transform().voxel_widths().min_element();
+    let n = (4.0 * footprint / voxel).ceil();
+    if n.is_finite() {
+        (n as u32).clamp(1, MAX_SAMPLES_PER_PIXEL_SIDE)
+    } else {
+        1
+    }
+}
 
 /// Random-number domain of the path origins' draws ("CAOR").
 const ORIGINS_DOMAIN: u32 = 0x4341_4f52;
@@ -141,6 +182,8 @@ pub(crate) struct ImportanceRays<'a> {
     min_transmittance: f64,
     /// Pixels per ray, each way.
     stride: usize,
+    /// Rays per pixel, each way, where `stride` is 1: the march's samples of the pixel.
+    sub: usize,
     /// Pixels with rays per row and column.
     sw: usize,
     sh: usize,
@@ -154,13 +197,23 @@ pub(crate) fn importance_stride(camera: &Camera) -> usize {
     (pixels / IMPORTANCE_RAYS as f64).sqrt().ceil().max(1.0) as usize
 }
 
+/// Importance rays per pixel side: the march's default samples
+/// ([`pixel_samples_per_side`]) while all of them fit within [`IMPORTANCE_RAYS`], as many as
+/// do beyond that, one where the rays are strided.
+pub(crate) fn importance_rays_per_pixel_side(camera: &Camera, density: &Volume<f32>) -> usize {
+    let pixels = camera.width() as usize * camera.height() as usize;
+    let fit = ((IMPORTANCE_RAYS / pixels.max(1)) as f64).sqrt().floor().max(1.0) as usize;
+    (pixel_samples_per_side(camera, density) as usize).min(fit)
+}
+
 /// How far apart the importance rays pass at the volume's centre, in the density's thinnest
 /// voxel widths: a path-traced lattice finer than this has voxels no importance ray reads,
 /// which get their paths from the node alone and not from where the image reads them.
 pub(crate) fn importance_ray_spacing(camera: &Camera, density: &Volume<f32>) -> f64 {
     let Some((lo, hi)) = density.world_bounds() else { return 0.0 };
     let distance = (0.5 * (lo + hi) - camera.eye()).length();
-    let spacing = camera.pixel_width_at(distance) * importance_stride(camera) as f64 / density.transform().voxel_widths().min_element();
+    let pitch = importance_stride(camera) as f64 / importance_rays_per_pixel_side(camera, density) as f64;
+    let spacing = camera.pixel_width_at(distance) * pitch / density.transform().voxel_widths().min_element();
     if spacing.is_finite() { spacing } else { 0.0 }
 }
 
@@ -175,6 +228,7 @@ impl<'a> ImportanceRays<'a> {
             extinction: extinction as f64,
             min_transmittance,
             stride,
+            sub: if stride == 1 { importance_rays_per_pixel_side(camera, density) } else { 1 },
             sw: w.div_ceil(stride),
             sh: h.div_ceil(stride),
             step: 0.5 * plan.transform.voxel_size().min_element(),
@@ -190,15 +244,26 @@ impl<'a> ImportanceRays<'a> {
         (p % self.sw) * k / self.sw + k * ((p / self.sw) * k / self.sh)
     }
 
-    /// Marches pixel `p`'s ray as `vdbmarch` does (step: half the plan's voxel edge) and
+    /// Marches pixel `p`'s rays as `vdbmarch` does (step: half the plan's voxel edge) and
     /// calls `f(x, w)` at each sample, w its weight in the pixel's value,
-    /// `T (1 - exp(-sigma_t dt))`.
+    /// `T (1 - exp(-sigma_t dt))` over the pixel's rays ([`ImportanceRays::sub`] squared,
+    /// through the centres of the strata the march jitters its samples in).
     pub(crate) fn march_pixel(&self, p: usize, mut f: impl FnMut(DVec3, f64)) {
         let (px, py) = ((p % self.sw * self.stride) as f64, (p / self.sw * self.stride) as f64);
-        let (stride, step) = (self.stride, self.step);
+        let sub = self.sub;
+        // Through the centre of the pixel (or of the stride's block), or of each stratum.
+        let pitch = self.stride as f64 / sub as f64;
+        let share = 1.0 / (sub * sub) as f64;
+        for s in 0..sub * sub {
+            let (jx, jy) = ((s % sub) as f64 + 0.5, (s / sub) as f64 + 0.5);
+            self.march_ray(px + jx * pitch, py + jy * pitch, |x, w| f(x, share * w));
+        }
+    }
+
+    fn march_ray(&self, px: f64, py: f64, mut f: impl FnMut(DVec3, f64)) {
+        let step = self.step;
         let transform = self.density.transform();
-        // Through the centre of the pixel, or of the stride's block.
-        let (origin, dir) = self.camera.ray(px + 0.5 * stride as f64, py + 0.5 * stride as f64);
+        let (origin, dir) = self.camera.ray(px, py);
         let (o, d) = (transform.to_index(origin), transform.dir_to_index(dir));
         let mut tr = 1.0f64;
         for seg in self.majorant.walk(o, d, 0.0, f64::INFINITY) {

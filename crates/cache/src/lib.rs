@@ -72,7 +72,7 @@ pub use bins::PhotonBins;
 pub use budget::{more_paths, noise_short_of, paths_share, predicted_noise, second_pass_seed, single_levels, PathMoments, LEAST_PATHS_SHARE, MAX_PATH_GROWTH, PATH_TOLERANCE, UNESTIMATED_SHARE};
 pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple_paths, li_single, mean_density_in_ball, toward_eye, transmittance_grids, EMPTY_BALL_FRACTION};
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
-pub use importance::{CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL};
+pub use importance::{pixel_samples_per_side, CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL, MAX_SAMPLES_PER_PIXEL_SIDE};
 pub use lattice::{choose_single_lattice, SingleLattice, LATTICE_SAMPLES, MAX_REFINEMENT, SINGLE_LATTICE_TOLERANCE};
 pub use multiple_lattice::{lattice_bias, refined_scale, LatticeBias, MultipleLattice, MULTIPLE_LATTICE_TOLERANCE};
 pub use plan::{cache_transform, CachePlan};
@@ -227,6 +227,9 @@ pub struct BakeStats {
     /// What the paths' noise was held to: their share of [`CacheParams::path_tolerance`]
     /// after the lattices' estimated biases and the margin (budget.rs, [`paths_share`]).
     pub path_noise_tolerance: Option<f64>,
+    /// Most the top-ups could grow the settled lattice's first pass (budget.rs: 
+    /// [`MAX_PATH_GROWTH`], more on a refined lattice whose first pass was cut).
+    pub path_growth_cap: f64,
     /// Nodes of the lights' tabled transmittance.
     pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.

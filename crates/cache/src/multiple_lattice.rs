@@ -54,7 +54,7 @@ use glam::{DVec3, IVec3, Vec3};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
-use crate::budget::{paths_share, single_levels, trace_first, PathMoments};
+use crate::budget::{paths_share, single_levels, trace_first, PathMoments, MAX_PATH_GROWTH};
 use crate::importance::{importance_ray_spacing, octant, spread, ImportanceRays};
 use crate::{BakeStats, CacheParams, CachePlan, CameraImportance, PathPlan};
 
@@ -89,6 +89,26 @@ const FINEST_BELOW_CACHE_SCALE: f64 = 0.5;
 /// 0.997-0.998; 1.0: 1.003; 0.65 at 64 x 48 is also where the chain is nearest the reference
 /// (1.56%, against 1.99% at 1.0).
 const FINEST_BELOW_RAY_SPACING: f64 = 2.0 / 3.0;
+
+/// Least paths per voxel a refined lattice's first pass takes ([`refined_paths_per_voxel`]):
+/// two halves of eight octants, which the bias estimate is made from.
+const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 16;
+
+/// The first pass's paths per voxel on a lattice refined by `refinement` (the coarser
+/// spacing over the finer) from one that took `per_voxel`: `per_voxel / refinement^1.5`, at
+/// least [`LEAST_REFINED_PATHS_PER_VOXEL`] (and at most `per_voxel`). A pixel's noise goes as
+/// one over the root of the paths among the nodes it reads; refining multiplies the nodes by
+/// `refinement^3`, and the nodes a pixel reads by between 1 (a thin lit skin read at one
+/// node) and the same (a footprint several nodes wide each way and deep), so the paths for
+/// equal noise grow by between 1 and `refinement^3`: the first pass takes the geometric
+/// middle, and the top-ups (whose cap grows by the cut, [`crate::budget::Passes`]) the rest.
+/// Keeping the first lattice's paths per voxel had traced 65 a voxel on a lattice refined from
+/// 2 voxels to half of one, 22M paths for 0.27% of noise where 1.8% was asked
+/// (`nimbus-scene --random 20261207044`).
+pub fn refined_paths_per_voxel(per_voxel: u32, refinement: f64) -> u32 {
+    let cut = (per_voxel as f64 / refinement.max(1.0).powf(1.5)).round() as u32;
+    cut.max(LEAST_REFINED_PATHS_PER_VOXEL).min(per_voxel)
+}
 
 /// The estimated bias of Li_multiple's lattice in the image.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -318,15 +338,17 @@ pub(crate) fn bake_paths<E>(
     let floor = (floor * 100.0).ceil() / 100.0;
     let (mut finer_plan, mut scale, mut first_bias): (Option<CachePlan>, f64, Option<LatticeBias>) = (None, first_scale, None);
     let mut counts = first.stats.clone();
+    // The first pass's paths per voxel on this lattice, and how far its top-ups may grow it.
+    let (mut pass_per_voxel, mut growth_cap) = (per_voxel, MAX_PATH_GROWTH);
     loop {
         let voxels = finer_plan.as_ref().unwrap_or(first);
-        let paths = stats.time("importance", || CameraImportance::path_plan(voxels, density, majorant, params, per_voxel));
+        let paths = stats.time("importance", || CameraImportance::path_plan(voxels, density, majorant, params, pass_per_voxel));
         stats.culled_unseen = paths.unseen();
         let wanted = params.path_tolerance.is_some() || params.multiple_tolerance.is_some();
         let levels = if wanted { single_levels(voxels, single) } else { Vec::new() };
         let mut tracer = |what: &str, p: &PathPlan, seed: u64| trace(what, voxels, p, seed);
         stats.path_noise = None;
-        let mut passes = trace_first(&paths, params, stats, &mut tracer)?;
+        let mut passes = trace_first(&paths, growth_cap, params, stats, &mut tracer)?;
         // Topped up first to what Li_single and the margin leave, as if the lattice had no
         // bias: the bias estimate needs the paths (with the first pass's alone, its halves'
         // directions share one rotation of the R2 sequence per voxel, and the estimate came
@@ -341,6 +363,8 @@ pub(crate) fn bake_paths<E>(
                 let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
                 stats.replace_counts(&counts, &plan.stats);
                 counts = plan.stats.clone();
+                pass_per_voxel = refined_paths_per_voxel(per_voxel, first_scale / finer);
+                growth_cap = MAX_PATH_GROWTH * per_voxel as f64 / pass_per_voxel as f64;
                 scale = finer;
                 finer_plan = Some(plan);
                 continue;
@@ -381,6 +405,14 @@ mod tests {
         assert_eq!(refined_scale(2.0, 0.5, &bias(0.018, 0.0), 0.015), Some(1.0));
         // 1.6% at 3: wanted 1.875, quarters 1.75.
         assert_eq!(refined_scale(3.0, 1.0, &bias(0.016, 0.0), 0.015), Some(1.75));
+    }
+
+    #[test]
+    fn a_refined_lattice_first_pass_is_cut_by_the_refinement_to_the_power_one_and_a_half() {
+        assert_eq!(refined_paths_per_voxel(64, 1.0), 64);
+        assert_eq!(refined_paths_per_voxel(64, 2.0), 23, "64 / 2^1.5");
+        assert_eq!(refined_paths_per_voxel(64, 4.0), 16, "8, held to the two halves' octants");
+        assert_eq!(refined_paths_per_voxel(8, 2.0), 8, "never more than the first lattice's");
     }
 
     #[test]

@@ -42,28 +42,14 @@ pub fn step_subdivision(step: f64, extinction: f32, density_max: f32) -> u32 {
     }
 }
 
-/// Most samples per pixel side [`default_spp`] takes (16 samples a pixel).
-pub const MAX_DEFAULT_SAMPLES_PER_SIDE: u32 = 4;
+pub use nimbus_cache::MAX_SAMPLES_PER_PIXEL_SIDE as MAX_DEFAULT_SAMPLES_PER_SIDE;
 
-/// The default samples per pixel for `camera` over `density`: n x n stratified samples, n
-/// enough that a pixel's samples lie at most a quarter of a density voxel apart at the
-/// distance of the volume's centre (n = ceil(4 x pixel footprint / thinnest voxel width), 1
-/// to [`MAX_DEFAULT_SAMPLES_PER_SIDE`]). The pixel is a box filter and its n x n samples a
-/// quadrature of it, whose error goes as the square of their spacing over the density's
-/// detail, the voxel: a ball of particles each about a voxel wide, pixels 0.77 voxels wide,
-/// is 1.2% off the path-traced reference at 2 x 2 (samples 0.38 voxels apart, the old rule's
-/// choice), 0.55% at 3 x 3, 0.36% at 4 x 4 (0.19 apart, this rule's; docs/benchmarks.md,
-/// "Dense media"); half a voxel apart had been
-/// measured only where the cap decides (the bundled plume at 128 x 72: 2.2% at one sample,
-/// 1.3% at 16). Where pixels are a quarter of a voxel or narrower one sample is all it
-/// takes (the Cloud1-class scene at 1024 x 576, the bundled cloud at 960 x 540: one).
+/// The default samples per pixel for `camera` over `density`: n x n stratified samples,
+/// [`nimbus_cache::pixel_samples_per_side`] (the rule and its measurements are there: the
+/// cache's importance rays read the pixel at the same samples, so the bake spends its paths
+/// where the march will read).
 pub fn default_spp(camera: &Camera, density: &Volume<f32>) -> u32 {
-    let Some((lo, hi)) = density.world_bounds() else { return 1 };
-    let distance = (0.5 * (lo + hi) - camera.eye()).length();
-    let footprint = camera.pixel_width_at(distance);
-    let voxel = density.transform().voxel_widths().min_element();
-    let n = (4.0 * footprint / voxel).ceil();
-    let n = if n.is_finite() { (n as u32).clamp(1, MAX_DEFAULT_SAMPLES_PER_SIDE) } else { 1 };
+    let n = nimbus_cache::pixel_samples_per_side(camera, density);
     n * n
 }
 
@@ -93,8 +79,9 @@ mod tests {
         assert_eq!(default_spp(&camera(1024), &v), 1, "pixels a fourteenth of a voxel");
         assert_eq!(default_spp(&camera(256), &v), 4, "0.28 voxels: 2 x 2");
         assert_eq!(default_spp(&camera(128), &v), 9, "pixels 0.57 voxels wide: 3 x 3");
-        assert_eq!(default_spp(&camera(64), &v), 16, "1.14 voxels: 4 x 4");
-        assert_eq!(default_spp(&camera(8), &v), 16, "at most 4 x 4");
+        assert_eq!(default_spp(&camera(64), &v), 25, "1.14 voxels: 5 x 5");
+        assert_eq!(default_spp(&camera(32), &v), 64, "2.28 voxels: 8 x 8");
+        assert_eq!(default_spp(&camera(8), &v), 64, "at most 8 x 8");
         assert_eq!(default_spp(&camera(128), &Volume::new(Transform::uniform(1.0, DVec3::ZERO), 0.0)), 1, "an empty volume");
     }
 }
