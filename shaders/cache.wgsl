@@ -96,7 +96,7 @@ struct PathHalves {
 const GATHER_NEAREST: u32 = 0u;
 const GATHER_RADIUS: u32 = 1u;
 
-@group(1) @binding(0) var<uniform> params: CacheUniforms;
+@group(1) @binding(0) var<storage, read> params: CacheUniforms;
 @group(1) @binding(1) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(2) var<storage, read> lights: array<Light>;
 @group(1) @binding(3) var<storage, read> points: array<vec4<f32>>;

@@ -69,7 +69,7 @@ struct DensityUniforms {
     ici_h: array<vec4<f32>, 2>,
 }
 
-@group(0) @binding(0) var<uniform> u: DensityUniforms;
+@group(0) @binding(0) var<storage, read> u: DensityUniforms;
 // Index-space position in xyz, mass in w; sorted by cell.
 @group(0) @binding(1) var<storage, read> particles: array<vec4<f32>>;
 // Cell c's particles are cell_start[c] .. cell_start[c + 1].

@@ -32,12 +32,12 @@ struct EmissionInfo {
 @group(EMISSION_GROUP) @binding(0) var emission_grid_atlas: texture_3d<f32>;
 @group(EMISSION_GROUP) @binding(1) var emission_grid_table: texture_3d<u32>;
 @group(EMISSION_GROUP) @binding(2) var emission_grid_sampler: sampler;
-@group(EMISSION_GROUP) @binding(3) var<uniform> emission_grid_info: VolumeInfo;
+@group(EMISSION_GROUP) @binding(3) var<storage, read> emission_grid_info: VolumeInfo;
 @group(EMISSION_GROUP) @binding(4) var emission_temperature_atlas: texture_3d<f32>;
 @group(EMISSION_GROUP) @binding(5) var emission_temperature_table: texture_3d<u32>;
 @group(EMISSION_GROUP) @binding(6) var emission_temperature_sampler: sampler;
-@group(EMISSION_GROUP) @binding(7) var<uniform> emission_temperature_info: VolumeInfo;
-@group(EMISSION_GROUP) @binding(8) var<uniform> emission_info: EmissionInfo;
+@group(EMISSION_GROUP) @binding(7) var<storage, read> emission_temperature_info: VolumeInfo;
+@group(EMISSION_GROUP) @binding(8) var<storage, read> emission_info: EmissionInfo;
 @group(EMISSION_GROUP) @binding(9) var<storage, read> emission_blackbody: array<vec4<f32>>;
 
 const EMISSION_GRID_TERM: u32 = 1u;

@@ -74,12 +74,12 @@ const FLAG_MULTIPLE: u32 = 2u;
 @group(1) @binding(0) var single_atlas: texture_3d<f32>;
 @group(1) @binding(1) var single_table: texture_3d<u32>;
 @group(1) @binding(2) var single_sampler: sampler;
-@group(1) @binding(3) var<uniform> single_info: VolumeInfo;
+@group(1) @binding(3) var<storage, read> single_info: VolumeInfo;
 @group(1) @binding(4) var multiple_atlas: texture_3d<f32>;
 @group(1) @binding(5) var multiple_table: texture_3d<u32>;
 @group(1) @binding(6) var multiple_sampler: sampler;
-@group(1) @binding(7) var<uniform> multiple_info: VolumeInfo;
-@group(1) @binding(8) var<uniform> params: MarchUniforms;
+@group(1) @binding(7) var<storage, read> multiple_info: VolumeInfo;
+@group(1) @binding(8) var<storage, read> params: MarchUniforms;
 // Per majorant cell its step factor (MarchParams::step_factor), 0 where empty.
 @group(1) @binding(9) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(10) var<storage, read_write> pixels: array<PixelOut>;

@@ -12,7 +12,7 @@
 @group(MOTION_GROUP) @binding(0) var velocity_atlas: texture_3d<f32>;
 @group(MOTION_GROUP) @binding(1) var velocity_table: texture_3d<u32>;
 @group(MOTION_GROUP) @binding(2) var velocity_sampler: sampler;
-@group(MOTION_GROUP) @binding(3) var<uniform> velocity_info: VolumeInfo;
+@group(MOTION_GROUP) @binding(3) var<storage, read> velocity_info: VolumeInfo;
 
 // nimbus_tracking::GpuMotionInfo.
 struct MotionInfo {
@@ -25,7 +25,7 @@ struct MotionInfo {
     _pad1: f32,
     _pad2: f32,
 }
-@group(MOTION_GROUP) @binding(4) var<uniform> motion_info: MotionInfo;
+@group(MOTION_GROUP) @binding(4) var<storage, read> motion_info: MotionInfo;
 
 // The stream a sample's time is drawn from (nimbus_march::MOTION_DOMAIN), so the sample's
 // other draws are the same with and without blur.

@@ -48,7 +48,7 @@ struct LightColumn {
     nodes: u32,
 }
 
-@group(1) @binding(0) var<uniform> rays: LightRays;
+@group(1) @binding(0) var<storage, read> rays: LightRays;
 @group(1) @binding(1) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(2) var<storage, read> columns: array<LightColumn>;
 

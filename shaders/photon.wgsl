@@ -78,7 +78,7 @@ const END_ESCAPED: u32 = 0u;
 const END_ABSORBED: u32 = 1u;
 const END_TRUNCATED: u32 = 2u;
 
-@group(1) @binding(0) var<uniform> params: PhotonUniforms;
+@group(1) @binding(0) var<storage, read> params: PhotonUniforms;
 @group(1) @binding(1) var<storage, read> lights: array<PhotonLight>;
 @group(1) @binding(2) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(3) var<storage, read_write> records: array<PhotonRecord>;

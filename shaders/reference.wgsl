@@ -55,7 +55,7 @@ struct PixelOut {
 
 const REFERENCE_DOMAIN: u32 = 0x52454650u;
 
-@group(1) @binding(0) var<uniform> params: ReferenceUniforms;
+@group(1) @binding(0) var<storage, read> params: ReferenceUniforms;
 @group(1) @binding(1) var<storage, read> lights: array<Light>;
 @group(1) @binding(2) var<storage, read> majorant_values: array<f32>;
 @group(1) @binding(3) var<storage, read_write> pixels: array<PixelOut>;

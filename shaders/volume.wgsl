@@ -53,7 +53,7 @@ const VOLUME_SLOT_PRESENT: u32 = 0x80000000u;
 @group(0) @binding(0) var volume_atlas: texture_3d<f32>;
 @group(0) @binding(1) var volume_table: texture_3d<u32>;
 @group(0) @binding(2) var volume_sampler: sampler;
-@group(0) @binding(3) var<uniform> volume_info: VolumeInfo;
+@group(0) @binding(3) var<storage, read> volume_info: VolumeInfo;
 
 // Atlas texel of the lowest corner of `cell`, or x = -1 when the cell's brick has no slot.
 fn volume_locate(table: texture_3d<u32>, info: VolumeInfo, cell: vec3<i32>) -> vec3<i32> {

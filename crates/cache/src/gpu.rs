@@ -6,10 +6,10 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, params_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuLight, GpuMedium};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{light_tables_wgsl, majorant_buffer, medium_stage, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL};
+use nimbus_tracking::{light_tables_wgsl, long_path_loop_iterations, majorant_buffer, medium_stage, DensityMedium, EmissionField, GpuEmission, GpuLightTables, GpuMajorantInfo, PATH_WGSL};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
@@ -33,8 +33,6 @@ const WORKGROUP_SIZE: u32 = 64;
 /// the lights' tables).
 const EMISSION_GROUP: u32 = 3;
 
-/// Voxels per dispatch: bounds how long one submission runs (drivers reset long ones).
-const CHUNK: u64 = 1 << 15;
 /// Group 1 binding of the [`LoopGuard`] flag (after the 11 buffers).
 const GUARD_BINDING: u32 = 12;
 
@@ -234,8 +232,8 @@ enum Kernel<'a> {
     Single,
     /// Li_multiple from the photons (`bake_multiple`).
     Photons,
-    /// Li_multiple by the plan's paths (`seed_paths`, then `bake_paths` in passes of
-    /// [`PATHS_PER_DISPATCH`]).
+    /// Li_multiple by the plan's paths (`seed_paths`, then `bake_paths` in passes of as many
+    /// paths as the adapter's [`nimbus_gpu::DispatchSizing`] allows).
     Paths(&'a PathPlan, u64),
 }
 
@@ -249,10 +247,6 @@ impl Kernel<'_> {
         }
     }
 }
-
-/// Paths per voxel per `bake_paths` dispatch: as the reference's samples per dispatch, few
-/// enough that lavapipe's loop limit (see cache.wgsl) is far off for ordinary media.
-const PATHS_PER_DISPATCH: u32 = 4;
 
 /// Bytes of one WGSL `Rng` in a storage array (vec2, vec4, vec4, u32; 16-byte aligned).
 const GPU_RNG_BYTES: u64 = 64;
@@ -271,8 +265,9 @@ struct GpuBaker<'a> {
     buffers: [wgpu::Buffer; 3],
     /// The environment the paths gather (Environment::gpu_words).
     environment: wgpu::Buffer,
-    /// The paths' majorant (MajorantGrid::for_tracking), where paths are traced.
-    tracking: Option<(wgpu::Buffer, GpuMajorantInfo)>,
+    /// The paths' majorant (MajorantGrid::for_tracking), where paths are traced, and the
+    /// loop iterations of a long path through it (nimbus_tracking::long_path_loop_iterations).
+    tracking: Option<(wgpu::Buffer, GpuMajorantInfo, u64)>,
     /// The lights' tables at group 2.
     tables_layout: wgpu::BindGroupLayout,
     tables_group: wgpu::BindGroup,
@@ -302,7 +297,7 @@ impl<'a> GpuBaker<'a> {
         let layout = ctx.bind_group_layout(
             "cache",
             &[
-                uniform_entry(0),
+                params_entry(0),
                 storage_entry(1, true),
                 storage_entry(2, true),
                 storage_entry(3, true),
@@ -366,13 +361,15 @@ impl<'a> GpuBaker<'a> {
             seed: split_u64(params.seed),
             max_depth: PATH_MAX_DEPTH,
             first_path: 0,
-            path_count: PATHS_PER_DISPATCH,
+            path_count: 0,
             _pad: [0; 5],
         };
         let tracking = match params.estimator {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, emission.is_some()) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
-                Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background())))
+                let edge = density.transform().voxel_size().max_element();
+                let longest = long_path_loop_iterations(&grid, edge, &params.medium, params.lights.len(), params.environment.is_some(), PATH_MAX_DEPTH);
+                Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background()), longest))
             }
             _ => None,
         };
@@ -397,8 +394,8 @@ impl<'a> GpuBaker<'a> {
         })
     }
 
-    /// Runs `kernel` over the voxels at `positions`, in dispatches of at most [`CHUNK`]
-    /// voxels (and [`PATHS_PER_DISPATCH`] paths), and reads back.
+    /// Runs `kernel` over the voxels at `positions`, in dispatches of as many voxels and
+    /// paths as the adapter's [`nimbus_gpu::DispatchSizing`] allows, and reads back.
     /// The voxels' results, and for the paths their halves (else empty).
     fn run(&self, kernel: Kernel<'_>, positions: &[DVec3]) -> Result<(Vec<GpuOut>, Vec<GpuHalves>), GpuError> {
         let ctx = self.ctx;
@@ -429,25 +426,32 @@ impl<'a> GpuBaker<'a> {
         let halves = ctx.storage_buffer_zeroed("cache path halves", halves_size)?;
         // (entry, first path) in order; the same voxels' state passes between them in `out`
         // and the Rng buffer.
+        let sizing = ctx.dispatch;
+        let chunk = match kernel {
+            Kernel::Paths(..) => sizing.items,
+            _ => nimbus_progress::step_size(voxels, sizing.items, u64::from(WORKGROUP_SIZE)),
+        };
+        let mut per_dispatch = 1;
         let (passes, rng_bytes, uniforms, majorant, work, remedy): (Vec<(&str, u32)>, u64, GpuCacheParams, &wgpu::Buffer, &str, &str) = match kernel {
             Kernel::Single => (vec![("bake_single", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's shadow rays", "or a longer --step"),
             Kernel::Photons => (vec![("bake_multiple", 0)], GPU_RNG_BYTES, self.uniforms, &self.majorant, "a cache voxel's photon search", "or fewer --gather-neighbours"),
             Kernel::Paths(paths, seed) => {
                 assert_eq!(paths.counts.len() as u64, voxels, "one path count per voxel");
-                let (buffer, grid) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
+                let (buffer, grid, longest) = self.tracking.as_ref().expect("the tracking majorant is uploaded where paths are traced");
                 let most = paths.counts.iter().copied().max().unwrap_or(0);
-                let passes = std::iter::once(("seed_paths", 0)).chain((0..most).step_by(PATHS_PER_DISPATCH as usize).map(|p| ("bake_paths", p))).collect();
-                let uniforms = GpuCacheParams { grid: *grid, seed: split_u64(seed), ..self.uniforms };
+                per_dispatch = sizing.repeats(chunk.min(voxels), *longest);
+                let passes = std::iter::once(("seed_paths", 0)).chain((0..most).step_by(per_dispatch as usize).map(|p| ("bake_paths", p))).collect();
+                let uniforms = GpuCacheParams { grid: *grid, seed: split_u64(seed), path_count: per_dispatch, ..self.uniforms };
                 (passes, voxels * GPU_RNG_BYTES, uniforms, buffer, "a cache voxel's paths", "or a longer --step")
             }
         };
         let rngs = ctx.storage_buffer_zeroed("cache path rngs", rng_bytes)?;
         // Progress in the CPU's units: voxels, or for the paths the paths traced (up to
-        // PATHS_PER_DISPATCH a voxel a `bake_paths` pass).
+        // `per_dispatch` a voxel a `bake_paths` pass).
         let done = |entry: &str, first_path: u32, range: std::ops::Range<usize>| -> u64 {
             match kernel {
                 Kernel::Paths(paths, _) if entry == "bake_paths" => {
-                    paths.counts[range].iter().map(|&c| u64::from(c.saturating_sub(first_path).min(PATHS_PER_DISPATCH))).sum()
+                    paths.counts[range].iter().map(|&c| u64::from(c.saturating_sub(first_path).min(per_dispatch))).sum()
                 }
                 Kernel::Paths(..) => 0,
                 _ => range.len() as u64,
@@ -463,10 +467,6 @@ impl<'a> GpuBaker<'a> {
         // smaller dispatches.
         let every = total.div_ceil(nimbus_progress::STEPS).max(1);
         let mut pending = 0;
-        let chunk = match kernel {
-            Kernel::Paths(..) => CHUNK,
-            _ => nimbus_progress::step_size(voxels, CHUNK, u64::from(WORKGROUP_SIZE)),
-        };
         // A paths pass need not visit chunks whose voxels have all run out of paths: the
         // passes run to the largest count, which one voxel the camera reads closely can set.
         let chunk_most: Vec<u32> = match kernel {
@@ -487,13 +487,13 @@ impl<'a> GpuBaker<'a> {
                     continue;
                 }
                 let dispatch = GpuCacheParams { first: first as u32, count: count as u32, first_path, ..uniforms };
-                let uniform_buffer = ctx.uniform_buffer("cache params", &dispatch)?;
+                let params_buffer = ctx.params_buffer("cache params", &dispatch)?;
                 let [lights, starts, sorted] = &self.buffers;
                 let group = self.guard.buffer_bind_group(
                     ctx,
                     "cache",
                     &self.layout,
-                    &[&uniform_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment, &halves],
+                    &[&params_buffer, majorant, lights, &points, starts, sorted, &out, &rngs, &path_first, &path_origins, &self.environment, &halves],
                 )?;
                 ctx.dispatch_1d(entry, pipeline, &[&self.volume_group, &group, &self.tables_group, &self.emission_group], count, WORKGROUP_SIZE)?;
                 pending += done(entry, first_path, first as usize..(first + count) as usize);

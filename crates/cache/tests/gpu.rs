@@ -329,6 +329,31 @@ fn path_traced_multiple_scattering_agrees_with_the_cpu_in_distribution() {
     assert!((same_other as f64) < 0.5 * lit_other as f64, "seed 6 agrees with seed 5 at {same_other} of {lit_other} lit voxels");
 }
 
+/// The dispatch sizes of both kinds of adapter (nimbus_gpu::DispatchSizing) on this one: a
+/// voxel's paths in one dispatch (the hardware's sizes) or one a dispatch (a software
+/// adapter's, at its least) are the same paths, from the same stream, summed in the same
+/// order: the same values, and the CPU's in distribution.
+#[test]
+fn the_paths_are_the_same_whatever_the_dispatch_sizes() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    // A thin medium: its paths are short enough that all of a voxel's run whole in one
+    // dispatch on a software adapter too.
+    let thin = paths_only(&v, 5);
+    let p = CacheParams { medium: Medium { extinction: 0.5, ..thin.medium }, ..thin };
+    let none = PhotonMap::default();
+    let hardware = ctx.with_dispatch(nimbus_gpu::DispatchSizing::HARDWARE);
+    let one_a_pass = ctx.with_dispatch(nimbus_gpu::DispatchSizing { max_repeats: 1, ..nimbus_gpu::DispatchSizing::SOFTWARE });
+    let (all, all_stats) = bake_gpu(&hardware, &v, &none, &p).unwrap();
+    let (each, each_stats) = bake_gpu(&one_a_pass, &v, &none, &p).unwrap();
+    assert_eq!(all_stats.paths, each_stats.paths);
+    let (all, each) = (all.li_multiple.unwrap(), each.li_multiple.unwrap());
+    let (worst, peak, n) = compare(&all, &each);
+    assert!(n > 500 && worst == 0.0, "{n} voxels differ by up to {worst} (peak {peak}) between the dispatch sizes");
+    let (cpu, _) = bake_cpu(&v, &none, &p).unwrap();
+    assert_same_in_distribution(&cpu.li_multiple.unwrap(), &all, "paths at the hardware's sizes");
+}
+
 /// The top-up (budget.rs) on both backends: the GPU's paths report their mean squares as the
 /// CPU's do, so both predict the same noise, trace a second pass of about the same size from
 /// the second pass's streams, and agree in distribution after it.
@@ -477,9 +502,11 @@ fn li_multiple_takes_its_own_lattice_on_the_gpu_as_on_the_cpu() {
 
 /// Paths of 512 collisions each (albedo 1, so roulette never ends them, in a cube 300 mean
 /// free paths across, which they never leave), with shadow rays toward six suns at every
-/// collision: more loop iterations per SIMD group than a software adapter (llvmpipe: 65535)
-/// runs whole, even at one path per voxel. A software adapter must refuse; any other must
-/// trace the CPU's count of paths.
+/// collision: at the hardware's dispatch sizes (as many paths a dispatch as the work allows)
+/// more loop iterations per SIMD group than a software adapter (llvmpipe: 65535) runs whole.
+/// A software adapter must refuse them; any other must trace the CPU's count of paths. At a
+/// software adapter's own sizes (one path a dispatch, nothing being absorbed) it bakes them
+/// as the CPU does.
 #[test]
 fn paths_longer_than_a_software_adapter_runs_are_refused() {
     let Some(ctx) = nimbus_gpu::test_context() else { return };
@@ -502,18 +529,21 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         ..params(&v)
     };
     let none = PhotonMap::default();
-    match bake_gpu(ctx, &v, &none, &p) {
+    let (cpu, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
+    match bake_gpu(&ctx.with_dispatch(nimbus_gpu::DispatchSizing::HARDWARE), &v, &none, &p) {
         Err(e) if ctx.loop_cap().is_some() => {
             let e = e.to_string();
             assert!(e.contains("paths") && e.contains("65535") && e.contains("--device cpu"), "{e}");
         }
         Err(e) => panic!("a hardware adapter should bake it: {e}"),
         Ok((_, gpu_stats)) => {
-            let (_, cpu_stats) = bake_cpu(&v, &none, &p).unwrap();
             assert_eq!(gpu_stats.paths, cpu_stats.paths);
             assert!(ctx.loop_cap().is_none(), "a software adapter should refuse");
         }
     }
+    let (gpu, gpu_stats) = bake_gpu(ctx, &v, &none, &p).unwrap();
+    assert_eq!(gpu_stats.paths, cpu_stats.paths);
+    assert_same_in_distribution(&cpu.li_multiple.unwrap(), &gpu.li_multiple.unwrap(), "paths one a dispatch");
 }
 
 /// The medium's emission gathered by the paths on both backends (path.wgsl's collision

@@ -15,7 +15,7 @@
 //! other passes see one chunk), so the lengths come back to the host between the passes.
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError};
+use nimbus_gpu::{storage_entry, params_entry, GpuContext, GpuError};
 use nimbus_volume::BRICK_VOXELS;
 
 use crate::params::Method;
@@ -153,7 +153,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let chunk_voxels = (chunk_bricks.min(prep.bricks.len()) * BRICK_VOXELS) as u64;
 
     let uniforms = density_uniforms(prep, pp, method);
-    let uniform_buffer = ctx.uniform_buffer("density params", &uniforms)?;
+    let params_buffer = ctx.params_buffer("density params", &uniforms)?;
     let particle_buffer = particle_buffer(ctx, prep)?;
     let cell_buffer = ctx.storage_buffer("density cells", &prep.cells.start)?;
     let brick_buffer = brick_buffer(ctx, &prep.bricks)?;
@@ -165,7 +165,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let layout = ctx.bind_group_layout(
         "density",
         &[
-            uniform_entry(0),
+            params_entry(0),
             storage_entry(1, true),
             storage_entry(2, true),
             storage_entry(3, true),
@@ -178,7 +178,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
     let group = ctx.buffer_bind_group(
         "density",
         &layout,
-        &[&uniform_buffer, &particle_buffer, &cell_buffer, &brick_buffer, &n0, &h, &rho, &used],
+        &[&params_buffer, &particle_buffer, &cell_buffer, &brick_buffer, &n0, &h, &rho, &used],
     )?;
     let source = density_source()?;
     let pipelines = passes(method)
@@ -208,7 +208,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
         let mut chunk_uniforms = uniforms;
         chunk_uniforms.first_brick = (chunk * chunk_bricks) as u32;
         chunk_uniforms.voxel_count = (bricks * BRICK_VOXELS) as u32;
-        ctx.queue.write_buffer(&uniform_buffer, 0, bytemuck::bytes_of(&chunk_uniforms));
+        ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&chunk_uniforms));
         for (entry, pipeline) in pipelines {
             ctx.dispatch_1d(entry, pipeline, &[&group], (bricks * BRICK_VOXELS) as u64, WORKGROUP_SIZE)?;
         }
@@ -262,7 +262,7 @@ pub(crate) fn estimate_bricks(ctx: &GpuContext, prep: &Prepared, method: Method,
             lengths = kept.into_iter().flat_map(|b| b.map_or([0.0; BRICK_VOXELS], |b| *b)).collect();
         }
         if conserve_mass {
-            let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &uniform_buffer, &particle_buffer, &lengths)?;
+            let sums = kernel_sums(ctx, prep, pp, &source, uniforms, &params_buffer, &particle_buffer, &lengths)?;
             let masses = crate::normalised_masses(prep, pp, &sums);
             let particles: Vec<[f32; 4]> = prep.positions.iter().zip(&masses).map(|(p, &m)| [p.x, p.y, p.z, m]).collect();
             ctx.queue.write_buffer(&particle_buffer, 0, bytemuck::cast_slice(&particles));
@@ -300,7 +300,7 @@ fn kernel_sums(
     pp: &PointParams,
     source: &str,
     mut uniforms: GpuDensityParams,
-    uniform_buffer: &wgpu::Buffer,
+    params_buffer: &wgpu::Buffer,
     particle_buffer: &wgpu::Buffer,
     lengths: &[f32],
 ) -> Result<Vec<f64>, GpuError> {
@@ -320,15 +320,15 @@ fn kernel_sums(
     let length_buffer = ctx.storage_buffer("density lengths", lengths)?;
     let slot_buffer = ctx.storage_buffer("density brick slots", &slots)?;
     let sum_buffer = ctx.storage_buffer_zeroed("density kernel sums", prep.positions.len() as u64 * 4)?;
-    let particle_layout = ctx.bind_group_layout("density mass particles", &[uniform_entry(0), storage_entry(1, true)])?;
+    let particle_layout = ctx.bind_group_layout("density mass particles", &[params_entry(0), storage_entry(1, true)])?;
     let mass_layout = ctx.bind_group_layout("density mass", &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false)])?;
-    let particle_group = ctx.buffer_bind_group("density mass particles", &particle_layout, &[uniform_buffer, particle_buffer])?;
+    let particle_group = ctx.buffer_bind_group("density mass particles", &particle_layout, &[params_buffer, particle_buffer])?;
     let mass_group = ctx.buffer_bind_group("density mass", &mass_layout, &[&length_buffer, &slot_buffer, &sum_buffer])?;
     let pipeline = ctx.compute_pipeline("mass", source, "mass", &[&particle_layout, &mass_layout])?;
     uniforms.plane_count = planes;
     for first in (0..side).step_by(planes as usize) {
         uniforms.plane_first = first;
-        ctx.queue.write_buffer(uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+        ctx.queue.write_buffer(params_buffer, 0, bytemuck::bytes_of(&uniforms));
         ctx.dispatch_1d("mass", &pipeline, &[&particle_group, &mass_group], prep.positions.len() as u64, WORKGROUP_SIZE)?;
     }
     Ok(ctx.read_buffer::<f32>(&sum_buffer)?.into_iter().map(f64::from).collect())
@@ -345,7 +345,7 @@ const ATTRIBUTE_GROUP: usize = 8;
 pub(crate) struct AttributePass<'a> {
     ctx: &'a GpuContext,
     uniforms: GpuDensityParams,
-    uniform_buffer: wgpu::Buffer,
+    params_buffer: wgpu::Buffer,
     particle_buffer: wgpu::Buffer,
     cell_buffer: wgpu::Buffer,
     value_buffer: wgpu::Buffer,
@@ -373,7 +373,7 @@ impl<'a> AttributePass<'a> {
         }
         let mut uniforms = density_uniforms(prep, pp, Method::Usl);
         uniforms.attribute_stride = (stride / 4) as u32;
-        let layout = ctx.bind_group_layout("density attributes particles", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, true)])?;
+        let layout = ctx.bind_group_layout("density attributes particles", &[params_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, true)])?;
         let attribute_layout = ctx.bind_group_layout("density attributes", &[storage_entry(3, true), storage_entry(4, true), storage_entry(5, false)])?;
         let source = density_source()?;
         let limits = ctx.limits();
@@ -382,7 +382,7 @@ impl<'a> AttributePass<'a> {
         Ok(AttributePass {
             ctx,
             uniforms,
-            uniform_buffer: ctx.uniform_buffer("density attribute params", &uniforms)?,
+            params_buffer: ctx.params_buffer("density attribute params", &uniforms)?,
             particle_buffer: particle_buffer(ctx, prep)?,
             cell_buffer: ctx.storage_buffer("density cells", &prep.cells.start)?,
             value_buffer: ctx.storage_buffer("density attribute values", &padded)?,
@@ -413,7 +413,7 @@ impl<'a> AttributePass<'a> {
             let brick_buffer = brick_buffer(ctx, &origins)?;
             let length_buffer = ctx.storage_buffer("density attribute lengths", &lengths)?;
             let sum_buffer = ctx.storage_buffer_zeroed("density attribute sums", (voxels * ATTRIBUTE_GROUP * 4) as u64)?;
-            let group = ctx.buffer_bind_group("density attributes particles", &self.layout, &[&self.uniform_buffer, &self.particle_buffer, &self.cell_buffer, &brick_buffer])?;
+            let group = ctx.buffer_bind_group("density attributes particles", &self.layout, &[&self.params_buffer, &self.particle_buffer, &self.cell_buffer, &brick_buffer])?;
             let entries: Vec<wgpu::BindGroupEntry> = [&self.value_buffer, &length_buffer, &sum_buffer]
                 .iter()
                 .zip(3..)
@@ -424,7 +424,7 @@ impl<'a> AttributePass<'a> {
                 let mut uniforms = self.uniforms;
                 uniforms.voxel_count = voxels as u32;
                 uniforms.attribute_group = g as u32;
-                ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+                ctx.queue.write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&uniforms));
                 ctx.dispatch_1d("attributes", &self.pipeline, &[&group, &attribute_group], voxels as u64, WORKGROUP_SIZE)?;
                 let sums: Vec<f32> = ctx.read_buffer(&sum_buffer)?;
                 for (b, brick) in out[chunk * self.chunk_bricks..][..slice.len()].iter_mut().enumerate() {

@@ -8,6 +8,7 @@ use bytemuck::Pod;
 use wgpu::util::DeviceExt;
 
 use crate::device::{is_hardware, GpuOptions};
+use crate::dispatch::{DispatchClass, DispatchSizing};
 use crate::GpuError;
 
 /// What `-v` prints about the adapter in use.
@@ -41,6 +42,8 @@ pub struct GpuContext {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub info: AdapterSummary,
+    /// How much one dispatch of a long-loop kernel takes here (crate::dispatch).
+    pub dispatch: DispatchSizing,
     /// First error raised outside any error scope: wgpu's default handler would panic, so
     /// it is parked here and returned by the next scoped operation.
     uncaptured: Arc<Mutex<Option<String>>>,
@@ -71,13 +74,19 @@ impl GpuContext {
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&desc))
             .map_err(|source| GpuError::RequestDevice { adapter: info.name.clone(), source })?;
+        let dispatch = DispatchClass::from_env()?.map_or_else(|| DispatchSizing::for_device_type(raw.device_type), DispatchClass::sizing);
         let uncaptured = Arc::new(Mutex::new(None));
         let slot = Arc::clone(&uncaptured);
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
             let mut slot = slot.lock().unwrap_or_else(|p| p.into_inner());
             slot.get_or_insert_with(|| e.to_string());
         }));
-        Ok(GpuContext { instance, adapter, device, queue, info, uncaptured })
+        Ok(GpuContext { instance, adapter, device, queue, info, dispatch, uncaptured })
+    }
+
+    /// This context with other dispatch sizes (tests: the hardware sizes on lavapipe).
+    pub fn with_dispatch(&self, dispatch: DispatchSizing) -> Self {
+        GpuContext { dispatch, ..self.clone() }
     }
 
     pub fn limits(&self) -> wgpu::Limits {
@@ -150,13 +159,22 @@ impl GpuContext {
         })
     }
 
-    /// A uniform buffer holding `value`; update it later with `queue.write_buffer`.
-    pub fn uniform_buffer<T: Pod>(&self, label: &str, value: &T) -> Result<wgpu::Buffer, GpuError> {
+    /// A stage's parameters: a buffer holding `value`, bound read-only at a
+    /// [`params_entry`] (`var<storage, read>` in WGSL); update it later with
+    /// `queue.write_buffer`.
+    ///
+    /// Not a uniform buffer: lavapipe (Mesa 22.3) inlines the uniform values a shader
+    /// branches or loops on and compiles the whole pipeline again at every dispatch that
+    /// binds it, keeping each compiled shader; per-dispatch values (a chunk's first voxel,
+    /// a pass's first path) then cost 70-130 ms and about 10 MB of host memory a dispatch
+    /// (docs/benchmarks.md, issue #49). Storage buffers are never inlined. design.md
+    /// section 1.
+    pub fn params_buffer<T: Pod>(&self, label: &str, value: &T) -> Result<wgpu::Buffer, GpuError> {
         self.scoped(label, || {
             self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
                 contents: bytemuck::bytes_of(value),
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             })
         })
     }
@@ -327,9 +345,10 @@ pub fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntr
     buffer_entry(binding, wgpu::BufferBindingType::Storage { read_only })
 }
 
-/// Layout entry for a uniform buffer visible to compute shaders.
-pub fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    buffer_entry(binding, wgpu::BufferBindingType::Uniform)
+/// Layout entry for a stage's parameters ([`GpuContext::params_buffer`]): a read-only
+/// storage buffer, never a uniform one.
+pub fn params_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    storage_entry(binding, true)
 }
 
 fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {

@@ -26,7 +26,7 @@
 //! # Helpers
 //!
 //! [`GpuContext`] wraps buffer creation ([`GpuContext::storage_buffer`],
-//! [`GpuContext::uniform_buffer`]), read-back ([`GpuContext::read_buffer`]), pipelines from
+//! [`GpuContext::params_buffer`]), read-back ([`GpuContext::read_buffer`]), pipelines from
 //! WGSL ([`GpuContext::compute_pipeline`]) and dispatch of 1D workloads of any size
 //! ([`GpuContext::dispatch_1d`], split over a 3D grid of workgroups; the shader side is
 //! `dispatch_linear_index`). All of them run inside wgpu error scopes
@@ -66,6 +66,7 @@
 mod compose;
 mod context;
 mod device;
+mod dispatch;
 mod error;
 mod loop_cap;
 mod sampler;
@@ -73,8 +74,9 @@ mod volume;
 pub mod wgsl_layout;
 
 pub use compose::{ComposeError, ShaderComposer};
-pub use context::{split_workgroups, storage_entry, uniform_entry, AdapterSummary, GpuContext};
+pub use context::{split_workgroups, storage_entry, params_entry, AdapterSummary, GpuContext};
 pub use device::{is_hardware, pick_adapter, wgpu_instances_created, ComputeDevice, CpuReason, DeviceChoice, GpuOptions};
+pub use dispatch::{DispatchClass, DispatchSizing};
 pub use error::GpuError;
 pub use loop_cap::{LoopGuard, SOFTWARE_LOOP_CAP};
 pub use sampler::{PointSampler, SampleMode};

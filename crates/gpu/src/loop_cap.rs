@@ -39,7 +39,7 @@ pub const SOFTWARE_LOOP_CAP: u64 = 65_535;
 
 /// What an a priori bound may reach: the cap less a margin for the loops it does not count
 /// (the cell loops around density's particle loop, the DDA around a march step).
-const SOFTWARE_LOOP_BUDGET: u64 = 50_000;
+pub(crate) const SOFTWARE_LOOP_BUDGET: u64 = 50_000;
 
 impl GpuContext {
     /// The loop iterations per SIMD group this adapter runs before it silently ends loops:

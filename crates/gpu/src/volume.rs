@@ -60,7 +60,7 @@ impl Default for GpuVolumeOptions {
     }
 }
 
-/// The `VolumeInfo` uniform of `volume.wgsl`, field for field.
+/// The `VolumeInfo` parameters of `volume.wgsl`, field for field.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct VolumeInfo {
@@ -169,7 +169,7 @@ impl GpuVolume {
             index_max: index_max.to_array(),
             ..bytemuck::Zeroable::zeroed()
         };
-        let info_buffer = ctx.uniform_buffer("volume info", &info)?;
+        let info_buffer = ctx.params_buffer("volume info", &info)?;
         let texel_bytes = (T::CHANNELS * 4) as u64;
         let stats = AtlasStats {
             bricks: volume.brick_count(),
@@ -257,7 +257,7 @@ impl GpuVolume {
             entry(
                 3,
                 wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
+                    ty: wgpu::BufferBindingType::Storage { read_only: true },
                     has_dynamic_offset: false,
                     min_binding_size: wgpu::BufferSize::new(size_of::<VolumeInfo>() as u64),
                 },

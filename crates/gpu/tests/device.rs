@@ -107,8 +107,8 @@ fn buffers_round_trip() {
     let data: Vec<[f32; 3]> = (0..1000).map(|i| [i as f32, -(i as f32), 0.5]).collect();
     let buffer = ctx.storage_buffer("round trip", &data).unwrap();
     assert_eq!(ctx.read_buffer::<[f32; 3]>(&buffer).unwrap(), data);
-    let uniform = ctx.uniform_buffer("uniform", &[1u32, 2, 3, 4]).unwrap();
-    assert_eq!(uniform.size(), 16);
+    let params = ctx.params_buffer("params", &[1u32, 2, 3, 4]).unwrap();
+    assert_eq!(ctx.read_buffer::<u32>(&params).unwrap(), [1, 2, 3, 4]);
 }
 
 #[test]

@@ -174,7 +174,7 @@ fn a_second_volume_binds_anywhere_and_world_positions_stay_precise() {
         "@group(1) @binding(0) var second_atlas: texture_3d<f32>;
          @group(1) @binding(1) var second_table: texture_3d<u32>;
          @group(1) @binding(2) var second_sampler: sampler;
-         @group(1) @binding(3) var<uniform> second_info: VolumeInfo;
+         @group(1) @binding(3) var<storage, read> second_info: VolumeInfo;
          @group(1) @binding(4) var<storage, read> points: array<vec4<f32>>;
          @group(1) @binding(5) var<storage, read_write> out: array<vec4<f32>>;
          @compute @workgroup_size(64)

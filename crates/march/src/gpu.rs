@@ -3,7 +3,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, IVec3, Vec3, Vec4};
 use nimbus_cache::IlluminationCache;
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
+use nimbus_gpu::{storage_entry, params_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuMedium};
 use nimbus_tracking::{medium_stage, EmissionField, GpuEmission, GpuMajorantInfo, GpuMotion, MotionBlur};
 use nimbus_volume::{MajorantGrid, Volume};
@@ -215,7 +215,7 @@ fn march_pixels(
     let volume_layout = GpuVolume::bind_group_layout(ctx)?;
     let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
     entries.extend(GpuVolume::layout_entries(4, filterable));
-    entries.extend([uniform_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
+    entries.extend([params_entry(8), storage_entry(9, true), storage_entry(10, false), storage_entry(11, true), storage_entry(12, true), storage_entry(13, true)]);
     let layout = ctx.bind_group_layout("march", &entries)?;
     let filtered = options.cache_lookup == CacheLookup::Filtered;
     let source = march_source(filterable, filtered)?;
@@ -281,11 +281,11 @@ fn march_pixels(
     let tiles = PixelTiles { pipeline: &pipeline, volume_group: &volume_group, later_groups: &[&emission_group, &motion_group], pixel_count, max_tile_pixels };
     tiles.run(ctx, 1, &|n| task.advance(n), |first, count, _, out| {
         let tile_uniforms = GpuMarchParams { first_pixel: first, tile_pixels: count, ..uniforms };
-        let uniform_buffer = ctx.uniform_buffer("march params", &tile_uniforms)?;
+        let params_buffer = ctx.params_buffer("march params", &tile_uniforms)?;
         let mut group_entries = single.bind_group_entries(0).to_vec();
         group_entries.extend(multiple.bind_group_entries(4));
         group_entries.extend([
-            wgpu::BindGroupEntry { binding: 8, resource: uniform_buffer.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 8, resource: params_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 9, resource: majorant_buffer.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 10, resource: out.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 11, resource: behind.as_entire_binding() },

@@ -5,7 +5,7 @@
 //! Skips loudly when the machine has no adapter at all (CI has lavapipe, so there it runs).
 
 use glam::{DVec3, Vec2, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext};
+use nimbus_gpu::{storage_entry, params_entry, GpuContext};
 use nimbus_optics::{Camera, GpuCamera, GpuLight, GpuMedium, HenyeyGreenstein, Light, Medium, Rng, OPTICS_WGSL};
 
 fn gpu() -> Option<&'static GpuContext> {
@@ -31,9 +31,9 @@ const GS = array<f32, 8>(-0.999, -0.9, -0.5, 0.0, 0.3, 0.5, 0.99, 0.999);
 @group(0) @binding(2) var<storage, read_write> words: array<u32>;
 // per item: (w_out, pdf), (u, eval, sigma_t), (sigma_s, 0), (to_light, distance), (irradiance, 0), (camera dir, 0)
 @group(0) @binding(3) var<storage, read_write> floats: array<vec4<f32>>;
-@group(0) @binding(4) var<uniform> medium: Medium;
-@group(0) @binding(5) var<uniform> light: Light;
-@group(0) @binding(6) var<uniform> camera: Camera;
+@group(0) @binding(4) var<storage, read> medium: Medium;
+@group(0) @binding(5) var<storage, read> light: Light;
+@group(0) @binding(6) var<storage, read> camera: Camera;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -109,7 +109,7 @@ fn wgsl_optics_match_the_cpu() {
     let layout = ctx
         .bind_group_layout(
             "optics test",
-            &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false), storage_entry(3, false), uniform_entry(4), uniform_entry(5), uniform_entry(6)],
+            &[storage_entry(0, true), storage_entry(1, true), storage_entry(2, false), storage_entry(3, false), params_entry(4), params_entry(5), params_entry(6)],
         )
         .unwrap();
     let source = format!("{OPTICS_WGSL}\n{KERNEL}");
@@ -119,9 +119,9 @@ fn wgsl_optics_match_the_cpu() {
         ctx.storage_buffer("points", &points).unwrap(),
         ctx.storage_buffer_zeroed("words", (N * WORDS * 4) as u64).unwrap(),
         ctx.storage_buffer_zeroed("floats", (N * 6 * 16) as u64).unwrap(),
-        ctx.uniform_buffer("medium", &GpuMedium::from(&medium)).unwrap(),
-        ctx.uniform_buffer("light", &GpuLight::new(&light, origin)).unwrap(),
-        ctx.uniform_buffer("camera", &GpuCamera::new(&camera, origin)).unwrap(),
+        ctx.params_buffer("medium", &GpuMedium::from(&medium)).unwrap(),
+        ctx.params_buffer("light", &GpuLight::new(&light, origin)).unwrap(),
+        ctx.params_buffer("camera", &GpuCamera::new(&camera, origin)).unwrap(),
     ];
     let group = ctx.buffer_bind_group("optics test", &layout, &buffers.iter().collect::<Vec<_>>()).unwrap();
     ctx.dispatch("optics test", &pipeline, &[&group], [N / 64, 1, 1]).unwrap();

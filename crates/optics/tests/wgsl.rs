@@ -15,9 +15,9 @@ fn compile(source: &str) -> naga::Module {
 /// A kernel using every function, with the structs bound as uniforms (the validator checks
 /// uniform layout rules) and in storage, so nothing is dead code.
 const USE_EVERYTHING: &str = r#"
-@group(0) @binding(0) var<uniform> u_medium: Medium;
-@group(0) @binding(1) var<uniform> u_light: Light;
-@group(0) @binding(2) var<uniform> u_camera: Camera;
+@group(0) @binding(0) var<storage, read> u_medium: Medium;
+@group(0) @binding(1) var<storage, read> u_light: Light;
+@group(0) @binding(2) var<storage, read> u_camera: Camera;
 @group(0) @binding(3) var<storage, read> s_lights: array<Light>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
 

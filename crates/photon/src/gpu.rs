@@ -5,7 +5,7 @@ use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Vec3};
-use nimbus_gpu::{storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, params_entry, wgpu, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuMedium};
 use nimbus_tracking::{majorant_buffer, medium_stage, EmissionField, GpuEmission, GpuMajorantInfo};
 use nimbus_volume::Volume;
@@ -88,7 +88,7 @@ struct GpuTracer<'a> {
     layout: wgpu::BindGroupLayout,
     volume_group: wgpu::BindGroup,
     uniforms: GpuPhotonParams,
-    uniform_buffer: wgpu::Buffer,
+    params_buffer: wgpu::Buffer,
     lights: wgpu::Buffer,
     emission_cells: wgpu::Buffer,
     /// The medium's emitting cells (MediumEmission::gpu_cells; one dummy where none).
@@ -126,7 +126,7 @@ impl<'a> GpuTracer<'a> {
         let layout = ctx.bind_group_layout(
             "photon",
             &[
-                uniform_entry(0),
+                params_entry(0),
                 storage_entry(1, true),
                 storage_entry(2, true),
                 storage_entry(3, false),
@@ -233,7 +233,7 @@ impl<'a> GpuTracer<'a> {
             layout,
             volume_group,
             uniforms,
-            uniform_buffer: ctx.uniform_buffer("photon params", &uniforms)?,
+            params_buffer: ctx.params_buffer("photon params", &uniforms)?,
             lights: ctx.storage_buffer("photon lights", &lights)?,
             emission_cells: ctx.storage_buffer("photon emission cells", &cells)?,
             medium_cells: ctx.storage_buffer("photon medium cells", &medium_cells)?,
@@ -268,9 +268,9 @@ impl<'a> GpuTracer<'a> {
         self.uniforms.first_index = split_u64(first);
         self.uniforms.count = count as u32;
         self.uniforms.capacity = (records.size() / RECORD_BYTES) as u32;
-        ctx.queue.write_buffer(&self.uniform_buffer, 0, bytemuck::bytes_of(&self.uniforms));
+        ctx.queue.write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.uniforms));
         ctx.queue.write_buffer(&self.counter, 0, bytemuck::bytes_of(&0u32));
-        let buffers = [&self.uniform_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells, &self.environment];
+        let buffers = [&self.params_buffer, &self.lights, &self.majorant, records, &self.counter, &self.paths, &self.emission_cells, &self.environment];
         let mut entries: Vec<wgpu::BindGroupEntry> =
             buffers.iter().enumerate().map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() }).collect();
         entries.push(self.guard.bind_group_entry());

@@ -9,7 +9,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DAffine3, DMat4, DVec3, IVec3};
 use nimbus_gpu::wgsl_layout::HostStruct;
-use nimbus_gpu::{host_layout, storage_entry, uniform_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard, ShaderComposer};
+use nimbus_gpu::{host_layout, storage_entry, params_entry, wgpu, GpuContext, GpuError, GpuVolume, LoopGuard, ShaderComposer};
 use nimbus_optics::{blackbody_table, GpuEmissionInfo, Light, ENVIRONMENT_WGSL, OPTICS_WGSL};
 use nimbus_volume::{MajorantGrid, BRICK_LOG2, BRICK_VOXELS};
 
@@ -168,7 +168,7 @@ impl GpuLightTables {
         let volume_layout = GpuVolume::bind_group_layout(ctx)?;
         let volume_group = density.bind_group(ctx, &volume_layout)?;
         let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
-        let layout = ctx.bind_group_layout("light rays", &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
+        let layout = ctx.bind_group_layout("light rays", &[params_entry(0), storage_entry(1, true), storage_entry(2, true), guard.layout_entry()])?;
         let tables_layout = Self::layout(ctx)?;
         let tables_group = tables.bind_group(ctx, &tables_layout)?;
         let source = light_rays_source(ctx.float32_filterable(), guard.enabled())?;
@@ -210,8 +210,8 @@ impl GpuLightTables {
             while first < rays {
                 let count = (rays - first).min(RAYS_PER_DISPATCH);
                 let dispatch = GpuLightRays { first_ray: first as u32, ray_count: count as u32, ..uniforms };
-                let uniform_buffer = ctx.uniform_buffer("light rays", &dispatch)?;
-                let group = guard.buffer_bind_group(ctx, "light rays", &layout, &[&uniform_buffer, &majorant, &columns_buffer])?;
+                let params_buffer = ctx.params_buffer("light rays", &dispatch)?;
+                let group = guard.buffer_bind_group(ctx, "light rays", &layout, &[&params_buffer, &majorant, &columns_buffer])?;
                 ctx.dispatch_1d("light rays", &pipeline, &[&volume_group, &group, &tables_group], count, COLUMN_RAYS as u32)?;
                 first += count;
             }
@@ -438,7 +438,7 @@ impl GpuEmission {
         Ok(GpuEmission {
             grid: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.grid), origin)?,
             temperature: GpuVolume::upload_or_empty(ctx, field.and_then(|f| f.temperature), origin)?,
-            info: ctx.uniform_buffer("emission info", &info)?,
+            info: ctx.params_buffer("emission info", &info)?,
             table: ctx.storage_buffer("blackbody table", &texels)?,
             active: info.flags != 0,
         })
@@ -454,7 +454,7 @@ impl GpuEmission {
         let filterable = ctx.float32_filterable();
         let mut entries = GpuVolume::layout_entries(0, filterable).to_vec();
         entries.extend(GpuVolume::layout_entries(4, filterable));
-        entries.extend([uniform_entry(8), storage_entry(9, true)]);
+        entries.extend([params_entry(8), storage_entry(9, true)]);
         ctx.bind_group_layout("emission", &entries)
     }
 
@@ -525,14 +525,14 @@ impl GpuMotion {
         };
         Ok(GpuMotion {
             velocity: GpuVolume::upload_or_empty(ctx, motion.map(|m| m.velocity), origin)?,
-            info: ctx.uniform_buffer("motion info", &info)?,
+            info: ctx.params_buffer("motion info", &info)?,
         })
     }
 
     /// The layout of the group [`tracking_wgsl_moving`] declares.
     pub fn layout(ctx: &GpuContext) -> Result<wgpu::BindGroupLayout, GpuError> {
         let mut entries = GpuVolume::layout_entries(0, ctx.float32_filterable()).to_vec();
-        entries.push(uniform_entry(4));
+        entries.push(params_entry(4));
         ctx.bind_group_layout("motion", &entries)
     }
 
@@ -550,7 +550,7 @@ mod motion_tests {
     fn the_moving_tracking_replaces_the_static_medium() {
         let moving = super::tracking_wgsl_moving(3);
         assert!(!moving.contains("// MOTION BEGIN") && !moving.contains("return x;\n}\n\nfn motion_back_index(p: vec3<f32>) -> vec3<f32> {\n    return p;"));
-        assert!(moving.contains("@group(3) @binding(4) var<uniform> motion_info: MotionInfo;"));
+        assert!(moving.contains("@group(3) @binding(4) var<storage, read> motion_info: MotionInfo;"));
         assert_eq!(moving.matches("fn motion_back(").count(), 1);
         assert_eq!(moving.matches("fn track_sigma_t(").count(), 1);
         assert_eq!(std::mem::size_of::<super::GpuMotionInfo>(), 80);

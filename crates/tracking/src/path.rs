@@ -12,6 +12,26 @@ pub const ROULETTE_FROM_DEPTH: u32 = 3;
 /// Ratio-tracking estimates below this go to Russian roulette (kept unbiased).
 pub const RATIO_ROULETTE: f64 = 0.05;
 
+/// Loop iterations a long path of [`trace_path`] (path.wgsl) takes on the GPU, through the
+/// tracking majorant `grid` over voxels of `voxel_edge`: how many paths one dispatch may run
+/// on a software adapter (nimbus_gpu::DispatchSizing::repeats). Not a strict bound (a path's
+/// length is random), but each factor is taken at its long end: a flight crosses the whole
+/// grid (every cell plane once, each cell at the peak's optical depth), the path lives to
+/// Russian roulette's mean past ROULETTE_FROM_DEPTH at the largest albedo (to `max_depth`
+/// where nothing is absorbed), and each collision adds a probe flight where the phase
+/// function is peaked, an environment flight and a pass over the lights. The loop guard
+/// reports a dispatch this underestimates.
+pub fn long_path_loop_iterations(grid: &nimbus_volume::MajorantGrid, voxel_edge: f64, medium: &Medium, light_count: usize, environment: bool, max_depth: u32) -> u64 {
+    let planes = f64::from(grid.dims().element_sum()) + 1.0;
+    let cell_depth = f64::from(grid.max().max(0.0)) * f64::from(medium.extinction.max(0.0)) * voxel_edge * f64::from(grid.cell_size()) * 3f64.sqrt();
+    let flight = planes * (1.0 + cell_depth) + 1.0;
+    let absorbed = 1.0 - f64::from(medium.albedo.max_element()).min(1.0);
+    let collisions = if absorbed > 0.0 { f64::from(ROULETTE_FROM_DEPTH) + (1.0 / absorbed).ceil() } else { f64::INFINITY }.min(f64::from(max_depth));
+    let flights = 1.0 + f64::from(u8::from(medium.g.abs() >= PROBE_FROM_G)) + f64::from(u8::from(environment));
+    let per_collision = flight * flights + light_count as f64 + 1.0;
+    (collisions * per_collision).min(u64::MAX as f64) as u64
+}
+
 /// One path's light, split by the collision it was scattered at: the first (`single`) and
 /// every later one (`multiple`), and the medium's own emission (`emission`, from every
 /// collision).

@@ -1,7 +1,7 @@
 //! The reference path tracer on the GPU: one invocation per pixel (`shaders/reference.wgsl`).
 
 use bytemuck::{Pod, Zeroable};
-use nimbus_gpu::{storage_entry, uniform_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
+use nimbus_gpu::{storage_entry, params_entry, GpuContext, GpuError, GpuVolume, GpuVolumeOptions, LoopGuard};
 use nimbus_optics::{split_u64, Environment, GpuCamera, GpuLight, GpuMedium};
 use nimbus_tracking::{majorant_buffer, medium_stage, GpuEmission, GpuMajorantInfo, GpuMotion, NO_LIGHT_TABLES_WGSL, PATH_WGSL};
 use nimbus_volume::Volume;
@@ -77,7 +77,7 @@ pub fn render_reference_gpu_with(
     let guard = LoopGuard::new(ctx, GUARD_BINDING)?;
     let layout = ctx.bind_group_layout(
         "reference",
-        &[uniform_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
+        &[params_entry(0), storage_entry(1, true), storage_entry(2, true), storage_entry(3, false), storage_entry(4, true), guard.layout_entry()],
     )?;
     // The reference ratio-tracks every shadow ray (Shadowing::RatioTracked): no light tables.
     let source = reference_source(ctx.float32_filterable(), guard.enabled())?;
@@ -118,8 +118,8 @@ pub fn render_reference_gpu_with(
     let passes = params.spp.div_ceil(SAMPLES_PER_DISPATCH);
     let pixels = tiles.run(ctx, passes, progress, |first, count, pass, out| {
         let tile = GpuReferenceParams { first_pixel: first, tile_pixels: count, first_sample: pass * SAMPLES_PER_DISPATCH, ..uniforms };
-        let uniform_buffer = ctx.uniform_buffer("reference params", &tile)?;
-        guard.buffer_bind_group(ctx, "reference", &layout, &[&uniform_buffer, &light_buffer, &majorant_buffer, out, &environment])
+        let params_buffer = ctx.params_buffer("reference params", &tile)?;
+        guard.buffer_bind_group(ctx, "reference", &layout, &[&params_buffer, &light_buffer, &majorant_buffer, out, &environment])
     })?;
     guard.check(ctx, "a pixel's paths", "")?;
     let background = crate::constant_background(params.background, params.visible_environment());
