@@ -7,7 +7,7 @@ CARGO ?= cargo
 RELEASE := --release --locked
 TEST_PROFILE := --profile ci --locked
 
-.PHONY: all deps build test demo bench clean
+.PHONY: all deps build test demo bench dist clean
 
 all: build
 
@@ -17,7 +17,9 @@ deps:
 build: deps
 	$(CARGO) build $(RELEASE) --workspace --bins
 
+# The binaries first: `cargo test` links only the root package's (tests/dist.rs packs them all).
 test: deps
+	$(CARGO) build $(TEST_PROFILE) --workspace --bins --examples
 	$(CARGO) test $(TEST_PROFILE) --workspace --no-fail-fast
 
 demo: build
@@ -26,6 +28,11 @@ demo: build
 bench: build
 	scripts/bench.sh
 
+# dist/nimbus-VERSION-linux-x86_64.tar.xz: the tools and the libraries they need (scripts/dist.sh).
+dist: build
+	$(CARGO) build $(RELEASE) -p nimbus-density --example gen_particles
+	scripts/dist.sh target/release dist
+
 clean:
 	$(CARGO) clean
-	rm -rf out
+	rm -rf out dist

@@ -8,6 +8,7 @@ packages=(
   libopenvdb-tools python3-openvdb openexr   # independent readers the tests check our files with
   fonts-dejavu-core                          # the font nimbus-bench labels its plot with
   g++ pkg-config make
+  patchelf binutils xz-utils                 # make dist (scripts/dist.sh) and the test that unpacks it
   slurm-wlm munge                            # the one-node render farm tests/farm.rs starts (issue #20)
   python3 python3-venv                       # the venv openjd-cli (PyPI) is installed into, below
 )
