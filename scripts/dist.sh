@@ -140,7 +140,7 @@ build_system=$(. /etc/os-release 2>/dev/null && echo "${PRETTY_NAME:-unknown}")
 
 cp "$root/README.md" "$release/README.md"
 cp -r "$root/data" "$release/data"
-cp "$root/scripts/demo.sh" "$root/scripts/demo_scenes.sh" "$release/scripts/"
+cp "$root/scripts/demo.sh" "$root/scripts/demo_scenes.sh" "$root/scripts/bench_gpu.sh" "$release/scripts/"
 cat >"$release/INSTALL" <<EOF
 nimbus $version for Linux x86-64, built on $build_system.
 
