@@ -20,9 +20,9 @@
 # The rpath is the executables' DT_RPATH, not DT_RUNPATH: ld.so applies an executable's
 # DT_RPATH to its libraries' dependencies too (libopenvdb's blosc, log4cplus, ...) and to what
 # it dlopens, so the libraries ship as Debian built them. Giving each library a RUNPATH of
-# $ORIGIN instead would have patchelf move libopenvdb's 26 MB of dynamic symbols to grow
-# .dynstr, a copy that made it 80 MB instead of 57. The price: LD_LIBRARY_PATH cannot
-# override lib/.
+# $ORIGIN instead would have patchelf move libopenvdb's 22.5 MB .dynstr (its dynamic symbols'
+# names) to grow it, a copy that made it 80 MB instead of 57. The price: LD_LIBRARY_PATH
+# cannot override lib/.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 
