@@ -64,8 +64,15 @@ fn main() -> Result<()> {
         }
     };
     file.write(&output, &WriteOptions::default())?;
+    // A reader that takes only the lines it needs (`| head -2`) closes the pipe early: that
+    // is its choice, not an error of ours, and println! would panic on it.
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
     for line in lines {
-        println!("{line}");
+        match writeln!(out, "{line}") {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => break,
+            other => other?,
+        }
     }
     Ok(())
 }
