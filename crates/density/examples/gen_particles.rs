@@ -4,7 +4,7 @@
 //!
 //!     cargo run --release -p nimbus-density --example gen_particles -- SCENE OUT.ply [N] [SEED] [TRUTH.npy]
 //!
-//! SCENE is knots, shell, cloud1, plume or smoke; N overrides the particle count. The grid is the one
+//! SCENE is knots, shell, cloud1, plume, smoke or cumulus; N overrides the particle count. The grid is the one
 //! `particles2vdb --voxel-size V [--bounds ...]` builds with the scene's suggested voxel size
 //! (and bounds, where the scene has them) and the default method: printed on stderr.
 
@@ -33,7 +33,7 @@ fn write_npy(path: &str, shape: [usize; 3], values: &[f64]) -> std::io::Result<(
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (Some(name), Some(out)) = (args.first(), args.get(1)) else {
-        return Err("usage: gen_particles SCENE OUT.ply [N] [SEED] [TRUTH.npy]   (SCENE: knots, shell, cloud1, plume, smoke)".into());
+        return Err("usage: gen_particles SCENE OUT.ply [N] [SEED] [TRUTH.npy]   (SCENE: knots, shell, cloud1, plume, smoke, cumulus)".into());
     };
     let mut scene = Scene::by_name(name).ok_or_else(|| format!("unknown scene {name}"))?;
     if let Some(n) = args.get(2) {

@@ -67,6 +67,9 @@ pub enum Component {
     /// Spherical shell with a Gaussian radial profile exp(-(r-radius)^2 / (2 width^2)),
     /// truncated at |r - radius| = 6 width; empty (a cavity) inside.
     Shell { centre: DVec3, radius: f64, width: f64 },
+    /// Uniform density in an axis-aligned ellipsoid, cut off below the plane z = `floor` (a
+    /// cumulus puff at its condensation level: the flat base).
+    Puff { centre: DVec3, radii: DVec3, floor: f64 },
 }
 
 impl Component {
@@ -83,6 +86,13 @@ impl Component {
                     0.0
                 } else {
                     (-0.5 * t * t).exp() / shell_norm(radius, width)
+                }
+            }
+            Component::Puff { centre, radii, floor } => {
+                if p.z < floor || ((p - centre) / radii).length_squared() > 1.0 {
+                    0.0
+                } else {
+                    1.0 / puff_volume(radii, (floor - centre.z) / radii.z)
                 }
             }
         }
@@ -106,8 +116,24 @@ impl Component {
                 };
                 centre + r * rng.unit_vector()
             }
+            Component::Puff { centre, radii, floor } => loop {
+                // Rejection from the bounding box: a puff's centre is above its floor, so
+                // at least a quarter of the draws are kept.
+                let u = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0 - 1.0;
+                let p = centre + radii * u;
+                if u.length_squared() <= 1.0 && p.z >= floor {
+                    break p;
+                }
+            },
         }
     }
+}
+
+/// Volume of the ellipsoid of `radii` above the plane at `t` of its z radius from its centre
+/// (t <= -1: all of it): abc times the unit ball's volume above z = t, pi (2/3 - t + t^3/3).
+fn puff_volume(radii: DVec3, t: f64) -> f64 {
+    let t = t.clamp(-1.0, 1.0);
+    radii.element_product() * PI * (2.0 / 3.0 - t + t * t * t / 3.0)
 }
 
 /// integral over space of exp(-(r-R)^2/(2w^2)) on |r-R| <= 6w, r >= 0 (Simpson in r).
@@ -279,6 +305,66 @@ impl Scene {
         }
     }
 
+    /// A cumulus (the demo's first picture): a cauliflower of overlapping puffs of uniform
+    /// density on a flat base at z = 0, about 300 wide (x), 200 deep (y) and 200 tall, Z up.
+    /// A few large puffs make the body (a wide foot and a tower leaning to +x), and each puff
+    /// buds smaller ones over its upper and outer surface, three generations down; every puff
+    /// is cut at the base (`Component::Puff`'s floor). Weights are the puffs' volumes: one
+    /// density everywhere, more where puffs overlap.
+    pub fn cumulus() -> Scene {
+        let mut rng = Rng::new(41, 0);
+        let floor = 0.0;
+        let mut puffs: Vec<(DVec3, f64)> = Vec::new();
+        // The foot: wide puffs along the base, their lower parts cut off.
+        for i in 0..6 {
+            let t = i as f64 / 5.0 - 0.5;
+            let r = 42.0 + 10.0 * rng.uniform();
+            puffs.push((DVec3::new(200.0 * t + 8.0 * rng.normal(), 25.0 * rng.normal(), 0.45 * r), r));
+        }
+        // The tower: rising and narrowing, leaning to +x.
+        let axis = |z: f64| DVec3::new(-10.0 + 30.0 * ((z - 30.0) / 120.0).clamp(0.0, 1.0), 0.0, z);
+        for i in 0..5 {
+            let t = (i + 1) as f64 / 5.0;
+            let r = 52.0 - 16.0 * t + 6.0 * rng.uniform();
+            let z = 30.0 + 120.0 * t;
+            puffs.push((axis(z) + DVec3::new(10.0 * rng.normal(), 8.0 * rng.normal(), 0.0), r));
+        }
+        // Buds: three generations, each on its parent's upper or outer surface.
+        let mut generation: Vec<(DVec3, f64)> = puffs.clone();
+        for count in [6, 4, 3] {
+            let mut next = Vec::new();
+            for &(centre, r) in &generation {
+                let outward = (centre - axis(centre.z)).normalize_or_zero();
+                for _ in 0..count {
+                    let dir = (rng.unit_vector() + 0.6 * outward + DVec3::new(0.0, 0.0, 0.5)).normalize();
+                    let child_r = r * (0.4 + 0.15 * rng.uniform());
+                    let child = centre + dir * r * (0.75 + 0.2 * rng.uniform());
+                    // Above the base by its own radius: the base stays flat.
+                    if child.z > floor + child_r {
+                        next.push((child, child_r));
+                    }
+                }
+            }
+            puffs.extend(next.iter().copied());
+            generation = next;
+        }
+        let components = puffs
+            .iter()
+            .map(|&(centre, r)| {
+                let c = Component::Puff { centre, radii: DVec3::new(r, r, 0.9 * r), floor };
+                (1.0 / c.pdf(centre.max(DVec3::new(f64::MIN, f64::MIN, floor))), c)
+            })
+            .collect();
+        Scene {
+            name: "cumulus",
+            density: Analytic { components },
+            total_mass: 1.0e6,
+            particles: 120_000,
+            voxel_size: 2.0,
+            bounds: None,
+        }
+    }
+
     pub fn by_name(name: &str) -> Option<Scene> {
         match name {
             "knots" => Some(Scene::knots()),
@@ -286,6 +372,7 @@ impl Scene {
             "cloud1" => Some(Scene::cloud1()),
             "plume" => Some(Scene::plume()),
             "smoke" => Some(Scene::smoke()),
+            "cumulus" => Some(Scene::cumulus()),
             _ => None,
         }
     }
@@ -380,6 +467,27 @@ mod tests {
             s += f(a + i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
         }
         assert!((s * h / 3.0 - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_cut_puff_integrates_to_one_and_its_samples_stay_above_the_floor() {
+        let c = Component::Puff { centre: DVec3::new(0.0, 0.0, 1.0), radii: DVec3::new(2.0, 3.0, 1.5), floor: 0.0 };
+        // Midpoint rule over the bounding box [-2, 2] x [-3, 3] x [0, 2.5].
+        let n = 160;
+        let h = DVec3::new(4.0, 6.0, 2.5) / n as f64;
+        let mut sum = 0.0;
+        for i in 0..n {
+            for j in 0..n {
+                for k in 0..n {
+                    let p = DVec3::new(-2.0, -3.0, 0.0) + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * h;
+                    sum += c.pdf(p);
+                }
+            }
+        }
+        assert!((sum * h.element_product() - 1.0).abs() < 0.01, "{}", sum * h.element_product());
+        assert_eq!(c.pdf(DVec3::new(0.0, 0.0, -0.01)), 0.0);
+        let mut rng = Rng::new(3, 0);
+        assert!((0..10_000).map(|_| c.sample(&mut rng)).all(|p| p.z >= 0.0 && c.pdf(p) > 0.0));
     }
 
     #[test]
