@@ -222,9 +222,14 @@ impl LatticeBias {
         self.squared.max(0.0).sqrt()
     }
 
-    /// Whether the bias exceeds `tolerance` by more than the estimate's standard error.
+    /// Whether the bias exceeds `tolerance`: the estimate itself, not the estimate less its
+    /// standard error. Held to a standard error's margin, a noisy estimate kept a lattice
+    /// that was far off: `nimbus-scene --random 20261207050` (a shell of 16 optical depths a
+    /// voxel, two grazing suns) estimated 1.81% with a standard error of its square of
+    /// 1.46%^2, stayed at 2 voxels and came out 4.5% off the reference (2.9% bright). A
+    /// wrong image costs the user more than a refinement the noise asked for.
     pub fn exceeds(&self, tolerance: f64) -> bool {
-        self.squared - self.standard_error > tolerance * tolerance
+        self.squared > tolerance * tolerance
     }
 }
 
@@ -530,10 +535,13 @@ mod tests {
     }
 
     #[test]
-    fn a_lattice_within_tolerance_or_within_its_estimates_error_stays() {
+    fn a_lattice_within_tolerance_stays_and_one_beyond_it_is_refined_however_noisy_the_estimate() {
         assert_eq!(refined_scale(2.0, 1.0, &bias(0.01, 0.0), 0.015), None);
-        // 1.6% against 1.5%, but 1.6^2 - 1.5^2 = 0.31 (%^2) is within the standard error.
-        assert_eq!(refined_scale(2.0, 1.0, &bias(0.016, 0.4e-4), 0.015), None);
+        assert_eq!(refined_scale(2.0, 1.0, &bias(0.014, 1e-4), 0.015), None);
+        // 1.6% against 1.5%: 1.6^2 - 1.5^2 = 0.31 (%^2) is within the standard error, and the
+        // estimate is still what the image most likely carries.
+        let finer = refined_scale(2.0, 1.0, &bias(0.016, 0.4e-4), 0.015);
+        assert!(finer.is_some_and(|s| (1.0..=1.25).contains(&s)), "{finer:?}");
         assert_eq!(refined_scale(2.0, 1.0, &bias(-0.03, 0.0), 0.015), None, "a negative estimate is noise");
     }
 
