@@ -132,7 +132,7 @@ pub struct RenderArgs {
     max_step_factor: Option<u32>,
     /// Samples per pixel, stratified; paths per pixel with --reference. [default: the
     /// --quality preset's, else enough for a pixel's samples to lie a quarter of a density
-    /// voxel apart at the volume, 1 to 16; 1 with --reference]
+    /// voxel apart at the volume, 1 to 64 (8 x 8); 1 with --reference]
     #[arg(long, help_heading = "Quality")]
     spp: Option<u32>,
     /// Preset: draft, preview or final (march step and spp; flags override).
