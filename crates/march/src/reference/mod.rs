@@ -8,9 +8,10 @@
 //!   majorant grid; at each real collision the throughput takes the albedo (sigma_s /
 //!   sigma_t), next-event estimation adds each light's `E p(w_light, w_out) T` with T by
 //!   ratio tracking, then HG picks the next direction. Russian roulette on the throughput
-//!   from the third bounce; `max_depth` bounds the collisions (a truncation the defaults make
-//!   negligible: every bounce costs at least the albedo, and roulette ends paths long before
-//!   512).
+//!   from the third bounce; `max_depth` bounds the collisions. Roulette keeps a path with
+//!   the albedo's probability, so at albedo 0.9999 most live past 512 collisions, and a cap
+//!   of 512 dropped 2.8% of the image of a dense lump (`nimbus-scene --random 20261207001`
+//!   at albedo 0.9999), 0.4% at its own 0.998; 4096 drops 0.01% there (2026-12-07).
 //!
 //! Lights are suns and points (delta lights), so next-event estimation is the only way light
 //! enters the path and needs no MIS. Paths that escape add nothing: the background is seen
@@ -88,8 +89,8 @@ impl ReferenceParams {
         self.environment.as_ref().filter(|_| self.environment_visible)
     }
 
-    /// vdbmarch's `--max-depth` default.
-    pub const DEFAULT_MAX_DEPTH: u32 = 512;
+    /// vdbmarch's `--max-depth` default (the module doc).
+    pub const DEFAULT_MAX_DEPTH: u32 = 4096;
 
     pub fn validate(&self) -> Result<(), MarchError> {
         self.medium.validate().map_err(|e| MarchError::Param(e.to_string()))?;
