@@ -50,8 +50,9 @@
 //! on it, 1.54%. The bias taken is the largest of the three estimates by their value less
 //! their standard error.
 //!
-//! Where the estimate exceeds [`MULTIPLE_LATTICE_TOLERANCE`] by more than its standard error
-//! (from the spread of 8 x 8 tiles of the image: neighbouring rays read the same voxels),
+//! Where the estimate exceeds [`MULTIPLE_LATTICE_TOLERANCE`] (the estimate itself: its
+//! standard error, from the spread of 8 x 8 tiles of the image, where neighbouring rays read
+//! the same voxels, only ranks the three; [`LatticeBias::exceeds`]),
 //! the bake traces Li_multiple again on a finer lattice: the bias goes about as the spacing
 //! (measured 6.9%, 3.2%, 1.8%, 1.0% at 4, 2, 1.5, 1 voxels), so the spacing is scaled to
 //! bring it to two thirds of the tolerance, at most halved per pass, and the new lattice's
@@ -64,7 +65,7 @@
 //! Cloud1-class scene (1.52% against 0.71%) and cost three times the paths. The settled
 //! lattice's estimate then takes its share, and the paths are topped up again to the rest.
 
-use glam::{DVec3, IVec3, Vec3};
+use glam::{DVec2, DVec3, IVec3, Vec3};
 use nimbus_volume::{MajorantGrid, Volume};
 use rayon::prelude::*;
 
@@ -146,7 +147,8 @@ pub struct LatticeBias {
 /// holds `sum h_v W_v c_v / sum h_v W_v` (W_v the fine node's read weight, c_v its mean):
 /// the average of Li over the reads in its own footprint, as a coarse bake would.
 struct CoarserLattice {
-    nodes: rustc_hash::FxHashMap<IVec3, [f64; 2]>,
+    /// Indexed by coarse node (fine index / 2); x and y the two halves.
+    nodes: Volume<DVec2>,
 }
 
 impl CoarserLattice {
@@ -179,40 +181,27 @@ impl CoarserLattice {
                 }
             }
         }
-        let nodes = sums
-            .into_iter()
-            .map(|(c, s)| {
-                let value = |s: [f64; 4]| {
-                    if s[1] > 0.0 {
-                        s[0] / s[1]
-                    } else if s[3] > 0.0 {
-                        s[2] / s[3]
-                    } else {
-                        0.0
-                    }
-                };
-                (c, [value(s[0]), value(s[1])])
-            })
-            .collect();
+        let value = |s: [f64; 4]| {
+            if s[1] > 0.0 {
+                s[0] / s[1]
+            } else if s[3] > 0.0 {
+                s[2] / s[3]
+            } else {
+                0.0
+            }
+        };
+        // Only index space is read: the transform is the identity.
+        let mut nodes = Volume::new(nimbus_volume::Transform::uniform(1.0, DVec3::ZERO), DVec2::ZERO);
+        for (c, s) in sums {
+            nodes.set(c, DVec2::new(value(s[0]), value(s[1])));
+        }
         CoarserLattice { nodes }
     }
 
     /// Its halves read trilinearly at fine lattice index `c`, as the march reads a lattice
     /// (nodes it lacks read 0, as the cache's inactive voxels do).
     fn read(&self, c: DVec3) -> [f64; 2] {
-        let Some((b, f)) = nimbus_volume::lattice_cell(0.5 * c) else { return [0.0; 2] };
-        let mut out = [0.0; 2];
-        for corner in 0..8 {
-            let o = IVec3::new(corner >> 2 & 1, corner >> 1 & 1, corner & 1);
-            let pick = |bit: i32, f: f64| if bit == 1 { f } else { 1.0 - f };
-            let t = pick(o.x, f.x) * pick(o.y, f.y) * pick(o.z, f.z);
-            if let Some(v) = self.nodes.get(&(b + o)) {
-                for h in 0..2 {
-                    out[h] += t * v[h];
-                }
-            }
-        }
-        out
+        self.nodes.sample_index(0.5 * c).to_array()
     }
 }
 

@@ -41,6 +41,16 @@ impl Voxel for f32 {
     }
 }
 
+/// Two f64 values a voxel: lattices read on the host only, where f32 would round away a
+/// difference of two nearly equal readings (nimbus-cache's coarser lattice, whose read less
+/// the baked lattice's is the bias estimate).
+impl Voxel for glam::DVec2 {
+    #[inline]
+    fn lerp(a: glam::DVec2, b: glam::DVec2, w: f64) -> glam::DVec2 {
+        a + (b - a) * w
+    }
+}
+
 impl Voxel for Vec3 {
     #[inline]
     fn lerp(a: Vec3, b: Vec3, w: f64) -> Vec3 {
