@@ -1,4 +1,4 @@
-// requires: trace_path, light_table_lookup, light_table_lookup_within, CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, CACHE_MAX_ORIGINS, BALL_SHELLS, BALL_DIRECTIONS, loop_guard_check
+// requires: trace_path, light_table_lookup, CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, CACHE_MAX_ORIGINS, BALL_SHELLS, BALL_DIRECTIONS, loop_guard_check
 //
 // vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
 //
@@ -180,8 +180,8 @@ fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
             continue;
         }
         // The light's table, and a shadow ray where it does not resolve x
-        // (LightDepths::transmittance_within, SINGLE_SPREAD).
-        let table = light_table_lookup_within(i, x, LIGHT_TABLE_SINGLE_SPREAD);
+        // (LightDepths::transmittance).
+        let table = light_table_lookup(i, x);
         var tr = table.x;
         if (table.y > 0.0) {
             let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;
@@ -408,18 +408,21 @@ fn li_multiple(x: vec3<f32>, w_out: vec3<f32>) -> CacheOut {
 // a zero sum.
 fn start_paths(v: u32) {
     var rng = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
-    // The first two words rotate the voxel's R2 sequence of first directions (path_offset).
-    _ = rng_next_u32(&rng);
-    _ = rng_next_u32(&rng);
+    // The first four words rotate the halves' R2 sequences of first directions (path_offset).
+    for (var k = 0u; k < 4u; k = k + 1u) {
+        _ = rng_next_u32(&rng);
+    }
     path_rngs[v] = rng;
 }
 
-// The rotation of voxel v's R2 sequence: the first two words of its stream, as the CPU's
-// li_multiple_paths draws them before its first path.
-fn path_offset(v: u32) -> vec2<u32> {
+// The rotations of voxel v's two R2 sequences (even paths, odd paths): the first four words
+// of its stream, as the CPU's li_multiple_paths draws them before its first path.
+fn path_offsets(v: u32) -> vec4<u32> {
     var rng = rng_new(params.seed, vec2<u32>(v, 0u), CACHE_PATHS_DOMAIN);
     let a = rng_next_u32(&rng);
-    return vec2<u32>(a, rng_next_u32(&rng));
+    let b = rng_next_u32(&rng);
+    let c = rng_next_u32(&rng);
+    return vec4<u32>(a, b, c, rng_next_u32(&rng));
 }
 
 // Paths first_path .. first_path + path_count of voxel v (those it has), path p from the
@@ -432,7 +435,7 @@ fn continue_paths(v: u32) {
         return;
     }
     var rng = path_rngs[v];
-    let offset = path_offset(v);
+    let offsets = path_offsets(v);
     var sum = out[v].li;
     var squares = out[v].square;
     var halves = path_halves[v].sums;
@@ -453,8 +456,9 @@ fn continue_paths(v: u32) {
             estimate = environment_nee(x, -axis, params.medium, params.grid, false, &rng);
         }
         // From the phase function about the camera ray's direction (the phase weight cancels),
-        // by the voxel's rotated R2 sequence (li_multiple_paths).
-        let first = hg_sample(params.medium.g, axis, r2_point(offset, p));
+        // by its half's rotated R2 sequence (li_multiple_paths).
+        let offset = select(offsets.xy, offsets.zw, (p & 1u) == 1u);
+        let first = hg_sample(params.medium.g, axis, r2_point(offset, p >> 1u));
         let dir = normalize(first.w_out);
         let path = trace_path(x, dir, params.medium, params.grid, params.max_depth, params.light_count, first.pdf, &rng);
         estimate = estimate + (path.single + path.multiple + path.emission);

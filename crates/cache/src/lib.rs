@@ -17,8 +17,9 @@
 //!   drawn by that point's weight in the image. So the voxel holds the average of what the
 //!   image reads through it, and a coarse lattice blurs but does not darken (values at the
 //!   voxels' centres did; docs/benchmarks.md). Voxels no camera ray reads, nor a neighbour, get no paths.
-//!   A voxel's paths take their first directions from its R2 sequence (rotated per voxel:
-//!   each direction still the phase function's), which spreads them evenly.
+//!   A voxel's paths take their first directions from R2 sequences (one per half of its
+//!   paths, even and odd, each rotated by the voxel's stream: each direction still the phase
+//!   function's), which spread them evenly and keep the halves independent.
 //!   Unbiased per point, so the error falls as 1/sqrt(N). Where
 //!   [`CacheParams::path_tolerance`] is given, that count is a first pass: the paths' spread
 //!   per voxel, weighted by the camera importance, predicts the relative noise they leave in

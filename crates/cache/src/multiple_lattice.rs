@@ -60,9 +60,10 @@
 //! Each bake's paths are spent, not kept: a refining scene pays for every pass, a scene that
 //! does not refine pays only for the estimate (a march of the importance rays). The estimate
 //! is made after the paths are topped up to the share of the image's tolerance that Li_single
-//! and the margin leave (budget.rs): made from the first pass alone, whose halves' directions
-//! share one rotation of the R2 sequence per voxel, it came out 2.2 times as large on the
-//! Cloud1-class scene (1.52% against 0.71%) and cost three times the paths. The settled
+//! and the margin leave (budget.rs): made from the first pass alone (whose halves then shared
+//! one rotation of the R2 sequence per voxel; each half now has its own, cpu.rs
+//! li_multiple_paths), it came out 2.2 times as large on the Cloud1-class scene (1.52%
+//! against 0.71%) and cost three times the paths. The settled
 //! lattice's estimate then takes its share, and the paths are topped up again to the rest.
 
 use glam::{DVec2, DVec3, IVec3, Vec3};
@@ -139,6 +140,10 @@ pub struct LatticeBias {
     pub octants: f64,
     pub taylor: f64,
     pub halving: f64,
+    /// The halving estimate one level up: what the lattice four times as coarse reads less
+    /// the one twice as coarse (squared, relative), from which the bias's order in the
+    /// spacing shows (module doc).
+    pub halving_above: f64,
 }
 
 /// Li_multiple on the lattice twice as coarse as a baked one, from the baked one's halves
@@ -149,6 +154,11 @@ pub struct LatticeBias {
 struct CoarserLattice {
     /// Indexed by coarse node (fine index / 2); x and y the two halves.
     nodes: Volume<DVec2>,
+    /// The same nodes with their read weights, to build the next coarser level from.
+    list: Vec<(IVec3, [f64; 2])>,
+    weights: Vec<f64>,
+    /// Fine lattice index to this lattice's index: 1/2, 1/4 for the level above it.
+    scale: f64,
 }
 
 impl CoarserLattice {
@@ -156,6 +166,16 @@ impl CoarserLattice {
     /// their read weights. A coarse node no read reaches takes its fine nodes' plain
     /// hat-weighted mean (a bake starts its paths at the node), and none where none has one.
     fn new(fine: &[(IVec3, [f64; 2])], read_weight: &[f64]) -> CoarserLattice {
+        Self::above(fine, read_weight, 0.5)
+    }
+
+    /// The lattice twice as coarse as this one, built from its nodes as this one was from
+    /// the fine lattice's.
+    fn coarser(&self) -> CoarserLattice {
+        Self::above(&self.list, &self.weights, 0.5 * self.scale)
+    }
+
+    fn above(fine: &[(IVec3, [f64; 2])], read_weight: &[f64], scale: f64) -> CoarserLattice {
         // Per coarse node and half: (sum h W c, sum h W, sum h c, sum h).
         let mut sums: rustc_hash::FxHashMap<IVec3, [[f64; 4]; 2]> = Default::default();
         for (v, &(node, mean)) in fine.iter().enumerate() {
@@ -192,16 +212,21 @@ impl CoarserLattice {
         };
         // Only index space is read: the transform is the identity.
         let mut nodes = Volume::new(nimbus_volume::Transform::uniform(1.0, DVec3::ZERO), DVec2::ZERO);
+        let (mut list, mut weights) = (Vec::with_capacity(sums.len()), Vec::with_capacity(sums.len()));
         for (c, s) in sums {
-            nodes.set(c, DVec2::new(value(s[0]), value(s[1])));
+            let halves = [value(s[0]), value(s[1])];
+            nodes.set(c, DVec2::from_array(halves));
+            list.push((c, halves));
+            // sum h W: the fine nodes' read weight its hat gathers (either half's, the same).
+            weights.push(s[0][1]);
         }
-        CoarserLattice { nodes }
+        CoarserLattice { nodes, list, weights, scale }
     }
 
     /// Its halves read trilinearly at fine lattice index `c`, as the march reads a lattice
     /// (nodes it lacks read 0, as the cache's inactive voxels do).
     fn read(&self, c: DVec3) -> [f64; 2] {
-        self.nodes.sample_index(0.5 * c).to_array()
+        self.nodes.sample_index(self.scale * c).to_array()
     }
 }
 
@@ -330,23 +355,25 @@ pub fn lattice_bias(
     }
     let finite = |v: DVec3| DVec3::select(v.is_finite_mask(), v, DVec3::ZERO);
     let coarser = CoarserLattice::new(&footprints.iter().map(|f| (f.node.round().as_ivec3(), f.mean)).collect::<Vec<_>>(), &paths.read_weight);
+    let coarsest = coarser.coarser();
     let rays = ImportanceRays::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
     // Per ray: D_A D_B, the ray's level, whether it reads any voxel; summed per tile of the
     // image, as neighbouring rays read the same voxels and their products are not
     // independent: the standard error comes from the tiles' spread (a ratio estimator).
     let tiles = (0..rays.pixels())
         .into_par_iter()
-        .fold_with((vec![[0.0f64; 5]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
+        .fold_with((vec![[0.0f64; 6]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
             // d: the octant misses per half; k: the Taylor estimate's per half; e: what the
             // lattice twice as coarse reads less what this one does, per half.
-            let (mut d, mut k, mut e, mut level) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2], 0.0f64);
+            let (mut d, mut k, mut e, mut e_above, mut level) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2], [0.0f64; 2], 0.0f64);
             rays.march_pixel(p, |x, w| {
                 reads.clear();
                 let c = plan.transform.to_index(x);
                 spread(&index, c, w, &mut reads);
-                let coarse = coarser.read(c);
+                let (coarse, above) = (coarser.read(c), coarsest.read(c));
                 for h in 0..2 {
                     e[h] += w * coarse[h];
+                    e_above[h] += w * (above[h] - coarse[h]);
                 }
                 // At x, interpolated as the march reads: the slope and bend of each half, the
                 // reads' centroid and their second moment about x, per axis.
@@ -387,10 +414,11 @@ pub fn lattice_bias(
             tile[2] += (level > 0.0) as u8 as f64;
             tile[3] += k[0] * k[1];
             tile[4] += e[0] * e[1];
+            tile[5] += e_above[0] * e_above[1];
             (tiles, reads)
         })
         .map(|(tiles, _)| tiles)
-        .reduce(|| vec![[0.0f64; 5]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
+        .reduce(|| vec![[0.0f64; 6]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
     let total = |k: usize| tiles.iter().map(|t| t[k]).sum::<f64>();
     let (n, level) = (total(2), total(1) / total(2).max(1.0));
     if !(n > 0.0 && level > 0.0) {
@@ -406,7 +434,7 @@ pub fn lattice_bias(
     // The largest of the three, each with its own standard error: each can see a bias the
     // others cannot (module doc).
     let (squared, standard_error) = [octants, taylor, halving].into_iter().max_by(|a, b| (a.0 - a.1).total_cmp(&(b.0 - b.1))).unwrap_or_default();
-    LatticeBias { squared, standard_error, rays: n as usize, octants: octants.0, taylor: taylor.0, halving: halving.0 }
+    LatticeBias { squared, standard_error, rays: n as usize, octants: octants.0, taylor: taylor.0, halving: halving.0, halving_above: estimate(5).0 }
 }
 
 /// Li_multiple by paths on `first` (Li_multiple's plan), and where
@@ -445,9 +473,8 @@ pub(crate) fn bake_paths<E>(
         stats.path_noise = None;
         let mut passes = trace_first(&paths, growth_cap, params, stats, &mut tracer)?;
         // Topped up first to what Li_single and the margin leave, as if the lattice had no
-        // bias: the bias estimate needs the paths (with the first pass's alone, its halves'
-        // directions share one rotation of the R2 sequence per voxel, and the estimate came
-        // out 2.2 times the topped-up one on the Cloud1-class scene).
+        // bias: the bias estimate needs the paths (from the first pass's alone it came out
+        // 2.2 times the topped-up one on the Cloud1-class scene).
         if let Some(t) = params.path_tolerance {
             passes.top_up(&paths, &levels, paths_share(t, &[single_bias]), params, stats, &mut tracer)?;
         }

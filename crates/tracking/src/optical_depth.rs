@@ -67,23 +67,23 @@ use crate::DensityMedium;
 /// blended. The measure is zero at a node, where the table is exact, and continuous across
 /// cell faces, so the GPU's f32 lattice coordinates (a point on a face lands in either cell)
 /// and its table, a few 1e-7 off the CPU's, give the CPU's answer to that order, not another
-/// branch. A shadow edge from 1 to 0 across a cell reaches 0.5 at its middle, so [0.1, 0.15]
-/// sends 80% of such a cell to rays. Where a medium is optically thick within a voxel its lit
-/// surface and its terminator lie inside one lattice cell, and interpolating across them lit
-/// the far side: a ball of optical depth 250 a voxel came out 26% bright in multiple
-/// scattering (0.95 with shadow rays). On the bundled scenes (optical depth up to 2 a voxel)
-/// few lookups reach it.
-pub const TABLED_SPREAD: [f32; 2] = [0.1, 0.15];
-
-/// [`TABLED_SPREAD`] for single scattering: the image's direct light, one lookup per cache
-/// node, where the table's bias shows undiluted. Under an oblique sun (a sheared lattice,
-/// transmittance interpolated across the rays) a ball optically thick within a voxel came out
-/// 0.94% (21 optical depths a voxel) and 2.15% (210) off the reference with [0.1, 0.15],
-/// 0.63% and 1.58% with this, as shadow rays give (0.60%, 1.57%); the bundled cloud's and
-/// plume's single scattering moved by 0.01-0.02% and its stage took 0.27 -> 0.65 s and 0.21 ->
-/// 0.24 s at 160 x 90. The paths' next-event estimates keep [`TABLED_SPREAD`]: there the
-/// lower spread cost 17-35% of the bundled scenes' paths for no change beyond their noise.
-pub const SINGLE_SPREAD: [f32; 2] = [0.02, 0.04];
+/// branch. Where a medium is optically thick within a voxel its lit surface and its
+/// terminator lie inside one lattice cell, and interpolating across them lit the far side: a
+/// ball of optical depth 250 a voxel came out 26% bright in multiple scattering with [0.1,
+/// 0.15] (0.95 with shadow rays).
+///
+/// Single scattering and the paths' next-event estimates take the same spread (issue #47,
+/// 2026-12-07). Single scattering, the image's direct light where the table's bias shows
+/// undiluted, went to [0.02, 0.04] first: under an oblique sun (a sheared lattice,
+/// transmittance interpolated across the rays) a ball optically thick within a voxel came
+/// out 0.94% (21 optical depths a voxel) and 2.15% (210) off the reference with [0.1, 0.15],
+/// 0.63% and 1.58% with this, as shadow rays give (0.60%, 1.57%). The paths had kept [0.1,
+/// 0.15], which on the bundled scenes changed nothing beyond their noise; on scenes drawn by
+/// `nimbus-scene --random`, dense shells and clumps of 2 to 16 optical depths a voxel, it made
+/// multiple scattering 1-2% bright in the mean (seed 20261207042: the image 2.1% bright and
+/// 2.6% off the reference, 0.65% and 1.2% with this spread, 0.39% and 0.7% with shadow rays
+/// for every lookup). It costs the bundled scenes' bakes 17-21% more CPU time.
+pub const TABLED_SPREAD: [f32; 2] = [0.02, 0.04];
 
 /// Values a stored lattice brick holds: each node's transmittance, then each node's depth
 /// rate (extinction x density x node step), both in [`brick_offset`] order. The GPU's node
@@ -281,15 +281,8 @@ impl LightDepths {
     /// and resolves `x`, the shadow ray `ray` otherwise.
     #[inline]
     pub fn transmittance(&self, index: usize, x: DVec3, ray: impl FnOnce() -> f64) -> f64 {
-        self.transmittance_within(index, x, TABLED_SPREAD, ray)
-    }
-
-    /// [`LightDepths::transmittance`], the shadow ray blended in across `spread`
-    /// ([`SINGLE_SPREAD`] for single scattering).
-    #[inline]
-    pub fn transmittance_within(&self, index: usize, x: DVec3, spread: [f32; 2], ray: impl FnOnce() -> f64) -> f64 {
         match self.get(index) {
-            Some(table) => table.lookup_within(x, spread).resolve(ray),
+            Some(table) => table.lookup(x).resolve(ray),
             None => ray(),
         }
     }

@@ -116,13 +116,13 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
     }
 }
 
-/// Single scattering hands the table's lookups to the shadow ray from a lower spread
-/// (SINGLE_SPREAD) than the paths' next-event estimates (TABLED_SPREAD): under an oblique sun
-/// into a medium optically thick within a voxel, interpolating across the sheared lattice
-/// misses where the depth changes across a cell, and the lower spread takes those points to
-/// the ray.
+/// The default spread hands a lookup to the shadow ray sooner than the wider one the paths
+/// had kept ([0.1, 0.15]): under an oblique sun into a medium optically thick within a voxel,
+/// interpolating across the sheared lattice misses where the depth changes across a cell, and
+/// the lower spread takes those points to the ray (single scattering and the paths' next-event
+/// estimates both look up with it: TABLED_SPREAD's doc).
 #[test]
-fn single_scattering_takes_the_shadow_ray_from_a_lower_spread() {
+fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
     let v = blob(Transform::uniform(0.05, DVec3::new(0.3, -1.2, 2.0)), 16);
     let majorant = MajorantGrid::build(&v);
     let medium = DensityMedium { motion: None, density: &v, majorant: &majorant, extinction: 3000.0 };
@@ -130,24 +130,24 @@ fn single_scattering_takes_the_shadow_ray_from_a_lower_spread() {
     let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
     assert!(!table.depth_across);
     let mut rng = Rng::new(3, 0);
-    let (mut lit, mut err_single, mut err_paths, mut asked_single, mut asked_paths) = (0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
+    let (mut lit, mut err_default, mut err_wide, mut asked_default, mut asked_wide) = (0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
     for _ in 0..20000 {
         let x = v.transform().to_world((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 16.0);
         if v.sample_world(x) <= 0.0 {
             continue;
         }
         let ray = (-shadow_ray(medium, x, sun, 0.005)).exp();
-        let (single, paths) = (table.lookup_within(x, nimbus_tracking::SINGLE_SPREAD), table.lookup(x));
+        let (default, wide) = (table.lookup(x), table.lookup_within(x, [0.1, 0.15]));
         lit += ray;
-        err_single += (single.resolve(|| ray) - ray).abs();
-        err_paths += (paths.resolve(|| ray) - ray).abs();
-        asked_single += (single.ray_weight > 0.0) as usize;
-        asked_paths += (paths.ray_weight > 0.0) as usize;
+        err_default += (default.resolve(|| ray) - ray).abs();
+        err_wide += (wide.resolve(|| ray) - ray).abs();
+        asked_default += (default.ray_weight > 0.0) as usize;
+        asked_wide += (wide.ray_weight > 0.0) as usize;
     }
-    eprintln!("lit {lit:.1}: mean |dT| / mean T {:.4} (single) against {:.4} (paths); rays asked {asked_single} against {asked_paths}", err_single / lit, err_paths / lit);
+    eprintln!("lit {lit:.1}: mean |dT| / mean T {:.4} (default) against {:.4} ([0.1, 0.15]); rays asked {asked_default} against {asked_wide}", err_default / lit, err_wide / lit);
     assert!(lit > 20.0, "enough lit points ({lit})");
-    assert!(asked_single > asked_paths, "the lower spread asks for more rays");
-    assert!(err_single < 0.5 * err_paths, "single scattering's lookups must follow the rays more closely: {err_single} against {err_paths}");
+    assert!(asked_default > asked_wide, "the lower spread asks for more rays");
+    assert!(err_default < 0.5 * err_wide, "the lookups must follow the rays more closely: {err_default} against {err_wide}");
 }
 
 #[test]
@@ -177,7 +177,7 @@ fn nodes_along_a_ray_hold_the_closed_form_depth_and_stop_past_the_opaque_depth()
 /// Where the medium is optically thick within a voxel the shadow edge is sharper than any
 /// lattice: the lookup hands those points to the shadow ray (blending across
 /// TABLED_SPREAD), so the transmittance it resolves stays with the ray's where the
-/// interpolation alone lights the far side; where the medium is smooth the ray is never asked
+/// interpolation alone lights the far side; where the medium is smooth the ray is seldom asked
 /// for; and the answer is continuous across cell faces.
 #[test]
 fn lookups_hand_shadow_edges_sharper_than_the_lattice_to_the_shadow_ray() {
@@ -223,7 +223,10 @@ fn lookups_hand_shadow_edges_sharper_than_the_lattice_to_the_shadow_ray() {
     let asked = (0..2000)
         .filter(|_| table.lookup((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 0.8).ray_weight > 0.0)
         .count();
-    assert_eq!(asked, 0, "a smooth medium needs no shadow rays");
+    eprintln!("smooth blob: {asked} of 2000 asked for a ray");
+    // With TABLED_SPREAD from 0.02 the blob's rim, where its density's kink crosses a cell,
+    // asks for a few (56 of 2000 measured; none from 0.1, which left dense media 1-2% bright).
+    assert!(asked < 100, "a smooth medium needs few shadow rays: {asked} of 2000");
 
     // Continuity: points a hair apart on either side of the thick block's lattice cell faces.
     let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
