@@ -302,13 +302,12 @@ fn multiple_lattice_summary(l: &MultipleLattice) -> String {
     let signed = |s: f64| 100.0 * s.signum() * s.abs().sqrt();
     let bias = |b: &LatticeBias| {
         format!(
-            "{:.2}% (standard error of its square {:.2}%^2; octants {:.2}%, Taylor {:.2}%, halving {:.2}%, one level up {:.2}%)",
+            "{:.2}% (standard error of its square {:.2}%^2; octants {:.2}%, Taylor {:.2}%, halving {:.2}%)",
             100.0 * b.relative(),
             1e4 * b.standard_error,
             signed(b.octants),
             signed(b.taylor),
-            signed(b.halving),
-            signed(b.halving_above)
+            signed(b.halving)
         )
     };
     if l.scale == l.first_scale {

@@ -107,11 +107,17 @@ const FINEST_BELOW_CACHE_SCALE: f64 = 0.5;
 const FINEST_BELOW_RAY_SPACING: f64 = 2.0 / 3.0;
 
 /// Least paths per voxel a refined lattice's first pass takes ([`refined_paths_per_voxel`]):
-/// two halves of eight octants, which the bias estimate is made from.
-const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 16;
+/// two for each half, which the halving and Taylor estimates read the voxel's means from (the
+/// octants' estimate skips an octant without paths). The bias estimate is made after the
+/// top-up to the noise share, so a small first pass does not make it noisier. 16 (two halves
+/// of eight octants) had traced 5.6M paths on 350k voxels, 142 s, where the coarse lattice's
+/// paths had left 0.50% of noise against 1.37% allowed (`nimbus-scene --random 20261207015`).
+const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 4;
 
 /// The first pass's paths per voxel on a lattice refined by `refinement` (the coarser
-/// spacing over the finer) from one that took `per_voxel`: `per_voxel / refinement^1.5`, at
+/// spacing over the finer) from one that took `per_voxel`, whose paths left `headroom` of the
+/// noise they were allowed (their predicted noise over their share, squared; 1 where they
+/// were topped up to it): `per_voxel headroom / refinement^1.5` (headroom at most 1), at
 /// least [`LEAST_REFINED_PATHS_PER_VOXEL`] (and at most `per_voxel`). A pixel's noise goes as
 /// one over the root of the paths among the nodes it reads; refining multiplies the nodes by
 /// `refinement^3`, and the nodes a pixel reads by between 1 (a thin lit skin read at one
@@ -120,9 +126,12 @@ const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 16;
 /// middle, and the top-ups (whose cap grows by the cut, [`crate::budget::Passes`]) the rest.
 /// Keeping the first lattice's paths per voxel had traced 65 a voxel on a lattice refined from
 /// 2 voxels to half of one, 22M paths for 0.27% of noise where 1.8% was asked
-/// (`nimbus-scene --random 20261207044`).
-pub fn refined_paths_per_voxel(per_voxel: u32, refinement: f64) -> u32 {
-    let cut = (per_voxel as f64 / refinement.max(1.0).powf(1.5)).round() as u32;
+/// (`nimbus-scene --random 20261207044`). A first pass that left less noise than its share
+/// had more paths than the coarse lattice needed; the refined one takes that much fewer (the
+/// top-ups add what the refined lattice's own noise asks for).
+pub fn refined_paths_per_voxel(per_voxel: u32, refinement: f64, headroom: f64) -> u32 {
+    let headroom = if headroom.is_finite() { headroom.clamp(0.0, 1.0) } else { 1.0 };
+    let cut = (per_voxel as f64 * headroom / refinement.max(1.0).powf(1.5)).round() as u32;
     cut.max(LEAST_REFINED_PATHS_PER_VOXEL).min(per_voxel)
 }
 
@@ -140,10 +149,6 @@ pub struct LatticeBias {
     pub octants: f64,
     pub taylor: f64,
     pub halving: f64,
-    /// The halving estimate one level up: what the lattice four times as coarse reads less
-    /// the one twice as coarse (squared, relative), from which the bias's order in the
-    /// spacing shows (module doc).
-    pub halving_above: f64,
 }
 
 /// Li_multiple on the lattice twice as coarse as a baked one, from the baked one's halves
@@ -154,11 +159,6 @@ pub struct LatticeBias {
 struct CoarserLattice {
     /// Indexed by coarse node (fine index / 2); x and y the two halves.
     nodes: Volume<DVec2>,
-    /// The same nodes with their read weights, to build the next coarser level from.
-    list: Vec<(IVec3, [f64; 2])>,
-    weights: Vec<f64>,
-    /// Fine lattice index to this lattice's index: 1/2, 1/4 for the level above it.
-    scale: f64,
 }
 
 impl CoarserLattice {
@@ -166,16 +166,6 @@ impl CoarserLattice {
     /// their read weights. A coarse node no read reaches takes its fine nodes' plain
     /// hat-weighted mean (a bake starts its paths at the node), and none where none has one.
     fn new(fine: &[(IVec3, [f64; 2])], read_weight: &[f64]) -> CoarserLattice {
-        Self::above(fine, read_weight, 0.5)
-    }
-
-    /// The lattice twice as coarse as this one, built from its nodes as this one was from
-    /// the fine lattice's.
-    fn coarser(&self) -> CoarserLattice {
-        Self::above(&self.list, &self.weights, 0.5 * self.scale)
-    }
-
-    fn above(fine: &[(IVec3, [f64; 2])], read_weight: &[f64], scale: f64) -> CoarserLattice {
         // Per coarse node and half: (sum h W c, sum h W, sum h c, sum h).
         let mut sums: rustc_hash::FxHashMap<IVec3, [[f64; 4]; 2]> = Default::default();
         for (v, &(node, mean)) in fine.iter().enumerate() {
@@ -212,21 +202,16 @@ impl CoarserLattice {
         };
         // Only index space is read: the transform is the identity.
         let mut nodes = Volume::new(nimbus_volume::Transform::uniform(1.0, DVec3::ZERO), DVec2::ZERO);
-        let (mut list, mut weights) = (Vec::with_capacity(sums.len()), Vec::with_capacity(sums.len()));
         for (c, s) in sums {
-            let halves = [value(s[0]), value(s[1])];
-            nodes.set(c, DVec2::from_array(halves));
-            list.push((c, halves));
-            // sum h W: the fine nodes' read weight its hat gathers (either half's, the same).
-            weights.push(s[0][1]);
+            nodes.set(c, DVec2::new(value(s[0]), value(s[1])));
         }
-        CoarserLattice { nodes, list, weights, scale }
+        CoarserLattice { nodes }
     }
 
     /// Its halves read trilinearly at fine lattice index `c`, as the march reads a lattice
     /// (nodes it lacks read 0, as the cache's inactive voxels do).
     fn read(&self, c: DVec3) -> [f64; 2] {
-        self.nodes.sample_index(self.scale * c).to_array()
+        self.nodes.sample_index(0.5 * c).to_array()
     }
 }
 
@@ -355,25 +340,23 @@ pub fn lattice_bias(
     }
     let finite = |v: DVec3| DVec3::select(v.is_finite_mask(), v, DVec3::ZERO);
     let coarser = CoarserLattice::new(&footprints.iter().map(|f| (f.node.round().as_ivec3(), f.mean)).collect::<Vec<_>>(), &paths.read_weight);
-    let coarsest = coarser.coarser();
     let rays = ImportanceRays::new(plan, density, majorant, params.medium.extinction, &params.camera, params.min_transmittance);
     // Per ray: D_A D_B, the ray's level, whether it reads any voxel; summed per tile of the
     // image, as neighbouring rays read the same voxels and their products are not
     // independent: the standard error comes from the tiles' spread (a ratio estimator).
     let tiles = (0..rays.pixels())
         .into_par_iter()
-        .fold_with((vec![[0.0f64; 6]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
+        .fold_with((vec![[0.0f64; 5]; ERROR_TILES * ERROR_TILES], Vec::new()), |(mut tiles, mut reads), p| {
             // d: the octant misses per half; k: the Taylor estimate's per half; e: what the
             // lattice twice as coarse reads less what this one does, per half.
-            let (mut d, mut k, mut e, mut e_above, mut level) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2], [0.0f64; 2], 0.0f64);
+            let (mut d, mut k, mut e, mut level) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2], 0.0f64);
             rays.march_pixel(p, |x, w| {
                 reads.clear();
                 let c = plan.transform.to_index(x);
                 spread(&index, c, w, &mut reads);
-                let (coarse, above) = (coarser.read(c), coarsest.read(c));
+                let coarse = coarser.read(c);
                 for h in 0..2 {
                     e[h] += w * coarse[h];
-                    e_above[h] += w * (above[h] - coarse[h]);
                 }
                 // At x, interpolated as the march reads: the slope and bend of each half, the
                 // reads' centroid and their second moment about x, per axis.
@@ -414,11 +397,10 @@ pub fn lattice_bias(
             tile[2] += (level > 0.0) as u8 as f64;
             tile[3] += k[0] * k[1];
             tile[4] += e[0] * e[1];
-            tile[5] += e_above[0] * e_above[1];
             (tiles, reads)
         })
         .map(|(tiles, _)| tiles)
-        .reduce(|| vec![[0.0f64; 6]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
+        .reduce(|| vec![[0.0f64; 5]; ERROR_TILES * ERROR_TILES], |a, b| a.iter().zip(&b).map(|(x, y)| std::array::from_fn(|k| x[k] + y[k])).collect());
     let total = |k: usize| tiles.iter().map(|t| t[k]).sum::<f64>();
     let (n, level) = (total(2), total(1) / total(2).max(1.0));
     if !(n > 0.0 && level > 0.0) {
@@ -434,7 +416,7 @@ pub fn lattice_bias(
     // The largest of the three, each with its own standard error: each can see a bias the
     // others cannot (module doc).
     let (squared, standard_error) = [octants, taylor, halving].into_iter().max_by(|a, b| (a.0 - a.1).total_cmp(&(b.0 - b.1))).unwrap_or_default();
-    LatticeBias { squared, standard_error, rays: n as usize, octants: octants.0, taylor: taylor.0, halving: halving.0, halving_above: estimate(5).0 }
+    LatticeBias { squared, standard_error, rays: n as usize, octants: octants.0, taylor: taylor.0, halving: halving.0 }
 }
 
 /// Li_multiple by paths on `first` (Li_multiple's plan), and where
@@ -485,7 +467,13 @@ pub(crate) fn bake_paths<E>(
                 let plan = stats.time("plan", || CachePlan::new(density, majorant, &params.camera, DVec3::splat(finer)));
                 stats.replace_counts(&counts, &plan.stats);
                 counts = plan.stats.clone();
-                pass_per_voxel = refined_paths_per_voxel(per_voxel, first_scale / finer);
+                // What the paths on this lattice left of their share: their noise was
+                // predicted against it at the last top-up.
+                let headroom = match (stats.path_noise, stats.path_noise_tolerance) {
+                    (Some((_, noise)), Some(share)) if share > 0.0 => (noise / share).powi(2),
+                    _ => 1.0,
+                };
+                pass_per_voxel = refined_paths_per_voxel(per_voxel, first_scale / finer, headroom);
                 growth_cap = MAX_PATH_GROWTH * per_voxel as f64 / pass_per_voxel as f64;
                 scale = finer;
                 finer_plan = Some(plan);
@@ -572,11 +560,17 @@ mod tests {
     }
 
     #[test]
-    fn a_refined_lattice_first_pass_is_cut_by_the_refinement_to_the_power_one_and_a_half() {
-        assert_eq!(refined_paths_per_voxel(64, 1.0), 64);
-        assert_eq!(refined_paths_per_voxel(64, 2.0), 23, "64 / 2^1.5");
-        assert_eq!(refined_paths_per_voxel(64, 4.0), 16, "8, held to the two halves' octants");
-        assert_eq!(refined_paths_per_voxel(8, 2.0), 8, "never more than the first lattice's");
+    fn a_refined_lattice_first_pass_is_cut_by_the_refinement_to_the_power_one_and_a_half_and_the_noise_headroom() {
+        assert_eq!(refined_paths_per_voxel(64, 1.0, 1.0), 64);
+        assert_eq!(refined_paths_per_voxel(64, 2.0, 1.0), 23, "64 / 2^1.5");
+        assert_eq!(refined_paths_per_voxel(64, 4.0, 1.0), 8, "64 / 8");
+        assert_eq!(refined_paths_per_voxel(64, 8.0, 1.0), 4, "2.8, held to two paths a half");
+        assert_eq!(refined_paths_per_voxel(2, 2.0, 1.0), 2, "never more than the first lattice's");
+        // 0.50% of noise against 1.37% allowed: the coarse lattice needed 0.13 of its paths.
+        assert_eq!(refined_paths_per_voxel(64, 2.0, (0.50f64 / 1.37).powi(2)), 4);
+        assert_eq!(refined_paths_per_voxel(64, 2.0, 0.5), 11, "64 x 0.5 / 2^1.5");
+        assert_eq!(refined_paths_per_voxel(64, 2.0, 3.0), 23, "a pass over its share is not grown");
+        assert_eq!(refined_paths_per_voxel(64, 2.0, f64::NAN), 23);
     }
 
     #[test]
