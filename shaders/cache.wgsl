@@ -1,4 +1,4 @@
-// requires: trace_path, light_table_lookup, CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, CACHE_MAX_ORIGINS, BALL_SHELLS, BALL_DIRECTIONS, loop_guard_check
+// requires: trace_path, light_table_lookup, light_table_lookup_within, CACHE_MAX_NEIGHBOURS, CACHE_PATHS_DOMAIN, CACHE_MAX_ORIGINS, BALL_SHELLS, BALL_DIRECTIONS, loop_guard_check
 //
 // vdbcache's GPU backend: one invocation per planned cache voxel (nimbus_cache::bake_gpu).
 //
@@ -180,8 +180,8 @@ fn li_single(x: vec3<f32>, w_out: vec3<f32>) -> vec3<f32> {
             continue;
         }
         // The light's table, and a shadow ray where it does not resolve x
-        // (LightDepths::transmittance).
-        let table = light_table_lookup(i, x);
+        // (LightDepths::transmittance_within, SINGLE_SPREAD).
+        let table = light_table_lookup_within(i, x, LIGHT_TABLE_SINGLE_SPREAD);
         var tr = table.x;
         if (table.y > 0.0) {
             let d = (volume_info.world_to_index * vec4<f32>(inc.to_light, 0.0)).xyz;

@@ -1,12 +1,13 @@
-// requires: volume_lerp, LIGHT_TABLE_BRICK_LOG2, LIGHT_TABLE_SPREAD, LIGHT_TABLE_ALONG_FLOOR
+// requires: volume_lerp, LIGHT_TABLE_BRICK_LOG2, LIGHT_TABLE_SPREAD, LIGHT_TABLE_SINGLE_SPREAD, LIGHT_TABLE_ALONG_FLOOR
 //
 // The lights' tabled transmittance on the GPU (nimbus_tracking::GpuLightTables): the twin of
 // nimbus_tracking::LightDepths::get (which lights have a table) and of
 // OpticalDepthVolume::transmittance (a trilinear lookup on the light's sheared lattice).
 //
 // Composed after volume.wgsl (its volume_lerp) and the host-generated brick layout
-// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2, and LIGHT_TABLE_SPREAD and
-// LIGHT_TABLE_ALONG_FLOOR, nimbus_tracking's TABLED_SPREAD and ALONG_RAY_FLOOR:
+// (LIGHT_TABLE_BRICK_LOG2, nimbus_volume::BRICK_LOG2, and LIGHT_TABLE_SPREAD,
+// LIGHT_TABLE_SINGLE_SPREAD and LIGHT_TABLE_ALONG_FLOOR, nimbus_tracking's TABLED_SPREAD,
+// SINGLE_SPREAD and ALONG_RAY_FLOOR:
 // light_tables_wgsl prepends them).
 // Binds group 2, whatever the number of lights:
 // - light_tables: one LightTable per light of the scene, `tabled` 0 where the light has none
@@ -99,7 +100,7 @@ fn light_table_lookup(light: u32, x: vec3<f32>) -> vec2<f32> {
 }
 
 // light_table_lookup, the shadow ray blended in across `spread` instead
-// (OpticalDepthVolume::lookup_within).
+// (OpticalDepthVolume::lookup_within; LIGHT_TABLE_SINGLE_SPREAD for single scattering).
 fn light_table_lookup_within(light: u32, x: vec3<f32>, spread: vec2<f32>) -> vec2<f32> {
     let t = light_tables[light];
     if (t.tabled == 0u) {

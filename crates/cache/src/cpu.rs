@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use glam::{DVec3, Vec3};
 use nimbus_optics::{r2_point, Camera, Light, Medium, Rng};
 use nimbus_photon::PhotonMap;
-use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing};
+use nimbus_tracking::{environment_nee, trace_path, DensityMedium, EmissionField, LightDepths, MediumRay, PathSources, PathStart, Shadowing, SINGLE_SPREAD};
 use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
@@ -37,7 +37,7 @@ pub fn li_single(medium: DensityMedium, optics: &Medium, lights: &[Light], depth
                 return Vec3::ZERO;
             }
             let ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance(step, cutoff);
-            let tr = depths.transmittance(index, x, ray);
+            let tr = depths.transmittance_within(index, x, SINGLE_SPREAD, ray);
             let tr = if tr >= cutoff { tr } else { 0.0 } as f32;
             incident.irradiance * tr * phase.eval_dirs(-incident.to_light, w_out)
         })

@@ -107,12 +107,11 @@ const FINEST_BELOW_CACHE_SCALE: f64 = 0.5;
 const FINEST_BELOW_RAY_SPACING: f64 = 2.0 / 3.0;
 
 /// Least paths per voxel a refined lattice's first pass takes ([`refined_paths_per_voxel`]):
-/// two for each half, which the halving and Taylor estimates read the voxel's means from (the
-/// octants' estimate skips an octant without paths). The bias estimate is made after the
-/// top-up to the noise share, so a small first pass does not make it noisier. 16 (two halves
-/// of eight octants) had traced 5.6M paths on 350k voxels, 142 s, where the coarse lattice's
-/// paths had left 0.50% of noise against 1.37% allowed (`nimbus-scene --random 20261207015`).
-const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 4;
+/// two halves of eight octants, which the bias estimate is made from. 4 (two a half) cut
+/// `nimbus-scene --random 20261207015`'s refined pass from 142 to 73 s, but on 050 the octants'
+/// estimate, with most octants empty, read the 1-voxel lattice at 1.25% and kept it: 2.59% off
+/// the reference, against 1.71% at 0.5 voxels with 16 (2026-12-07).
+const LEAST_REFINED_PATHS_PER_VOXEL: u32 = 16;
 
 /// The first pass's paths per voxel on a lattice refined by `refinement` (the coarser
 /// spacing over the finer) from one that took `per_voxel`, whose paths left `headroom` of the
@@ -563,12 +562,12 @@ mod tests {
     fn a_refined_lattice_first_pass_is_cut_by_the_refinement_to_the_power_one_and_a_half_and_the_noise_headroom() {
         assert_eq!(refined_paths_per_voxel(64, 1.0, 1.0), 64);
         assert_eq!(refined_paths_per_voxel(64, 2.0, 1.0), 23, "64 / 2^1.5");
-        assert_eq!(refined_paths_per_voxel(64, 4.0, 1.0), 8, "64 / 8");
-        assert_eq!(refined_paths_per_voxel(64, 8.0, 1.0), 4, "2.8, held to two paths a half");
-        assert_eq!(refined_paths_per_voxel(2, 2.0, 1.0), 2, "never more than the first lattice's");
-        // 0.50% of noise against 1.37% allowed: the coarse lattice needed 0.13 of its paths.
-        assert_eq!(refined_paths_per_voxel(64, 2.0, (0.50f64 / 1.37).powi(2)), 4);
-        assert_eq!(refined_paths_per_voxel(64, 2.0, 0.5), 11, "64 x 0.5 / 2^1.5");
+        assert_eq!(refined_paths_per_voxel(64, 4.0, 1.0), 16, "8, held to the two halves' octants");
+        assert_eq!(refined_paths_per_voxel(8, 2.0, 1.0), 8, "never more than the first lattice's");
+        // 0.50% of noise against 1.37% allowed: the coarse lattice needed 0.13 of its paths;
+        // the octants' floor holds.
+        assert_eq!(refined_paths_per_voxel(64, 2.0, (0.50f64 / 1.37).powi(2)), 16);
+        assert_eq!(refined_paths_per_voxel(256, 2.0, 0.5), 45, "256 x 0.5 / 2^1.5");
         assert_eq!(refined_paths_per_voxel(64, 2.0, 3.0), 23, "a pass over its share is not grown");
         assert_eq!(refined_paths_per_voxel(64, 2.0, f64::NAN), 23);
     }

@@ -34,9 +34,10 @@ const LIGHT_TABLES_WGSL: &str = include_str!("../../../shaders/light_tables.wgsl
 /// after the volume.
 pub fn light_tables_wgsl() -> String {
     let [from, to] = crate::TABLED_SPREAD;
+    let [single_from, single_to] = crate::SINGLE_SPREAD;
     let floor = crate::ALONG_RAY_FLOOR;
     format!(
-        "const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\nconst LIGHT_TABLE_SPREAD: vec2<f32> = vec2<f32>({from:?}, {to:?});\nconst LIGHT_TABLE_ALONG_FLOOR: f32 = {floor:?};\n{LIGHT_TABLES_WGSL}"
+        "const LIGHT_TABLE_BRICK_LOG2: u32 = {BRICK_LOG2}u;\nconst LIGHT_TABLE_SPREAD: vec2<f32> = vec2<f32>({from:?}, {to:?});\nconst LIGHT_TABLE_SINGLE_SPREAD: vec2<f32> = vec2<f32>({single_from:?}, {single_to:?});\nconst LIGHT_TABLE_ALONG_FLOOR: f32 = {floor:?};\n{LIGHT_TABLES_WGSL}"
     )
 }
 

@@ -41,7 +41,7 @@ mod optical_depth;
 mod path;
 
 pub use gpu::{emission_wgsl, light_tables_wgsl, majorant_buffer, medium_stage, tracking_wgsl_moving, wgsl_mirror, wgsl_mirrors, GpuEmission, GpuLightTables, GpuMajorantInfo, GpuMotion, GpuMotionInfo, NO_LIGHT_TABLES_WGSL, OPTICAL_DEPTH_WGSL, PATH_WGSL, TRACKING_WGSL};
-pub use optical_depth::{along_ray, ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing, TabledTransmittance, TABLED_SPREAD, TABLE_BRICK_VALUES, ALONG_RAY_FLOOR};
+pub use optical_depth::{along_ray, ray_optical_depths, LightDepths, LightLattice, LightTablePlan, OpticalDepthVolume, Shadowing, TabledTransmittance, SINGLE_SPREAD, TABLED_SPREAD, TABLE_BRICK_VALUES, ALONG_RAY_FLOOR};
 pub use path::{environment_nee, long_path_loop_iterations, trace_path, PathLight, PathSources, PathStart, PROBE_FROM_G, RATIO_ROULETTE, ROULETTE_FROM_DEPTH};
 
 use glam::DVec3;

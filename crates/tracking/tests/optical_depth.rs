@@ -120,7 +120,7 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
 /// had kept ([0.1, 0.15]): under an oblique sun into a medium optically thick within a voxel,
 /// interpolating across the sheared lattice misses where the depth changes across a cell, and
 /// the lower spread takes those points to the ray (single scattering and the paths' next-event
-/// estimates both look up with it: TABLED_SPREAD's doc).
+/// estimates look up with it, single scattering with SINGLE_SPREAD, lower still).
 #[test]
 fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
     let v = blob(Transform::uniform(0.05, DVec3::new(0.3, -1.2, 2.0)), 16);
@@ -130,14 +130,15 @@ fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
     let table = OpticalDepthVolume::build(medium, sun, LightLattice::default(), f64::INFINITY);
     assert!(!table.depth_across);
     let mut rng = Rng::new(3, 0);
-    let (mut lit, mut err_default, mut err_wide, mut asked_default, mut asked_wide) = (0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
+    let (mut lit, mut err_default, mut err_wide, mut err_single, mut asked_default, mut asked_wide) = (0.0f64, 0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
     for _ in 0..20000 {
         let x = v.transform().to_world((DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0) * 16.0);
         if v.sample_world(x) <= 0.0 {
             continue;
         }
         let ray = (-shadow_ray(medium, x, sun, 0.005)).exp();
-        let (default, wide) = (table.lookup(x), table.lookup_within(x, [0.1, 0.15]));
+        let (default, wide, single) = (table.lookup(x), table.lookup_within(x, [0.1, 0.15]), table.lookup_within(x, nimbus_tracking::SINGLE_SPREAD));
+        err_single += (single.resolve(|| ray) - ray).abs();
         lit += ray;
         err_default += (default.resolve(|| ray) - ray).abs();
         err_wide += (wide.resolve(|| ray) - ray).abs();
@@ -148,6 +149,7 @@ fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
     assert!(lit > 20.0, "enough lit points ({lit})");
     assert!(asked_default > asked_wide, "the lower spread asks for more rays");
     assert!(err_default < 0.5 * err_wide, "the lookups must follow the rays more closely: {err_default} against {err_wide}");
+    assert!(err_single <= err_default, "single scattering's lower spread follows them closer still: {err_single} against {err_default}");
 }
 
 #[test]
