@@ -47,7 +47,7 @@ else
 fi
 echo "regression seeds ($regression): $(echo $old)"
 echo "new seeds: $(echo $new)"
-echo "$pixels pixels at most, reference $ref_spp paths a pixel (and $((ref_spp / 4)) for its noise), $bin"
+echo "$pixels pixels at most, reference $ref_spp paths a pixel (and a quarter of them for its noise; more, up to $ref_spp_max, while its noise exceeds $ref_noise), $bin"
 echo
 echo "| seed | scene | chain CPU s | against the reference | less the reference's noise | reference's noise (paths a pixel) | mean ratio | single scattering (CPU s) |"
 echo "|---|---|---|---|---|---|---|---|"

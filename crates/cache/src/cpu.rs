@@ -226,9 +226,9 @@ pub fn li_multiple_paths(
     // The first directions of a voxel's paths: per half (the parity of the path's index), the
     // R2 sequence rotated by two words of the stream (each direction is the phase function's,
     // each half's spread evenly). One sequence over both halves made them correlated, points
-    // j and j + 1 lying a fixed step apart: the lattice-bias estimate, a product of the
-    // halves, then kept their noise, and read 3.57% on a lattice whose refinement showed
-    // 1.4% (`nimbus-scene --random 20261207015`).
+    // j and j + 1 lying a fixed step apart, where the lattice-bias estimate, a product of the
+    // halves, assumes them independent (its estimates moved within their noise when they
+    // became so: multiple_lattice.rs).
     let offsets = [[rng.next_u32(), rng.next_u32()], [rng.next_u32(), rng.next_u32()]];
     for j in 0..paths as usize {
         let x = origins[j % origins.len()];

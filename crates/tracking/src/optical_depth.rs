@@ -72,25 +72,26 @@ use crate::DensityMedium;
 /// ball of optical depth 250 a voxel came out 26% bright in multiple scattering with [0.1,
 /// 0.15] (0.95 with shadow rays).
 ///
-/// The paths' next-event estimates take it (issue #47, 2026-12-07), single scattering a lower
-/// one still ([`SINGLE_SPREAD`]). Single scattering, the image's direct light where the
-/// table's bias shows undiluted, went to [0.02, 0.04] first (issue #30): under an oblique sun (a sheared lattice,
-/// transmittance interpolated across the rays) a ball optically thick within a voxel came
-/// out 0.94% (21 optical depths a voxel) and 2.15% (210) off the reference with [0.1, 0.15],
-/// 0.63% and 1.58% with this, as shadow rays give (0.60%, 1.57%). The paths had kept [0.1,
-/// 0.15], which on the bundled scenes changed nothing beyond their noise; on scenes drawn by
-/// `nimbus-scene --random`, dense shells and clumps of 2 to 16 optical depths a voxel, it made
-/// multiple scattering 1-2% bright in the mean (seed 20261207042: the image 2.1% bright and
+/// This is the paths' next-event estimates' spread (issue #47, 2026-12-07). They had kept
+/// [0.1, 0.15], which on the bundled scenes changed nothing beyond their noise, but on scenes
+/// drawn by `nimbus-scene --random` (dense shells and clumps of 2 to 16 optical depths a
+/// voxel) made multiple scattering 1-2% bright in the mean: seed 20261207042 2.1% bright and
 /// 2.6% off the reference, 0.65% and 1.2% with this spread, 0.39% and 0.7% with shadow rays
-/// for every lookup). It costs the bundled scenes' bakes 17-21% more CPU time.
+/// at every lookup. It costs the bundled scenes' bakes 17-21% more CPU time and the
+/// Cloud1-class bake 38% (docs/benchmarks.md). Single scattering takes a lower one
+/// ([`SINGLE_SPREAD`]).
 pub const TABLED_SPREAD: [f32; 2] = [0.02, 0.04];
 
 /// [`TABLED_SPREAD`] for single scattering: one lookup per cache node, the image's direct
 /// light, where what the interpolation misses shows undiluted, and a shadow ray costs little
-/// beside the paths. `nimbus-scene --random 20261207039` (lumps on sheared voxels 1:1.87, a
-/// sun overhead), Li_single on a lattice of a quarter voxel against a brute-force march: 0.62%
-/// off (mean 1.0034) at [0.02, 0.04], 0.34% (1.0019) at this, 0.28% with shadow rays at every
-/// node; its single stage 3.3 -> 5.2 s.
+/// beside the paths. At [0.02, 0.04] (issue #30), under an oblique sun (a sheared lattice,
+/// transmittance interpolated across the rays), a ball optically thick within a voxel came out
+/// 0.63% (21 optical depths a voxel) and 1.58% (210) off the reference, as shadow rays give
+/// (0.60%, 1.57%), against 0.94% and 2.15% at [0.1, 0.15]. Lower still (2026-12-07):
+/// `nimbus-scene --random 20261207039` (lumps on sheared voxels 1:1.87, a sun overhead),
+/// Li_single on a lattice of a quarter voxel against a brute-force march: 0.62% off (mean
+/// 1.0034) at [0.02, 0.04], 0.34% (1.0019) at this, 0.28% with shadow rays at every node;
+/// its single stage 3.3 -> 5.2 s.
 pub const SINGLE_SPREAD: [f32; 2] = [0.005, 0.01];
 
 /// Values a stored lattice brick holds: each node's transmittance, then each node's depth

@@ -116,11 +116,11 @@ fn oblique_suns_stay_within_the_interpolation_bound_on_sheared_anisotropic_latti
     }
 }
 
-/// The default spread hands a lookup to the shadow ray sooner than the wider one the paths
-/// had kept ([0.1, 0.15]): under an oblique sun into a medium optically thick within a voxel,
-/// interpolating across the sheared lattice misses where the depth changes across a cell, and
-/// the lower spread takes those points to the ray (single scattering and the paths' next-event
-/// estimates look up with it, single scattering with SINGLE_SPREAD, lower still).
+/// The paths' spread (TABLED_SPREAD) hands a lookup to the shadow ray sooner than the wider
+/// one they had kept ([0.1, 0.15]), and single scattering's (SINGLE_SPREAD) sooner still:
+/// under an oblique sun into a medium optically thick within a voxel, interpolating across
+/// the sheared lattice misses where the depth changes across a cell, and a lower spread takes
+/// those points to the ray.
 #[test]
 fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
     let v = blob(Transform::uniform(0.05, DVec3::new(0.3, -1.2, 2.0)), 16);
@@ -138,14 +138,19 @@ fn lookups_take_the_shadow_ray_from_a_lower_spread_than_the_old_paths_spread() {
         }
         let ray = (-shadow_ray(medium, x, sun, 0.005)).exp();
         let (default, wide, single) = (table.lookup(x), table.lookup_within(x, [0.1, 0.15]), table.lookup_within(x, nimbus_tracking::SINGLE_SPREAD));
-        err_single += (single.resolve(|| ray) - ray).abs();
         lit += ray;
+        err_single += (single.resolve(|| ray) - ray).abs();
         err_default += (default.resolve(|| ray) - ray).abs();
         err_wide += (wide.resolve(|| ray) - ray).abs();
         asked_default += (default.ray_weight > 0.0) as usize;
         asked_wide += (wide.ray_weight > 0.0) as usize;
     }
-    eprintln!("lit {lit:.1}: mean |dT| / mean T {:.4} (default) against {:.4} ([0.1, 0.15]); rays asked {asked_default} against {asked_wide}", err_default / lit, err_wide / lit);
+    eprintln!(
+        "lit {lit:.1}: mean |dT| / mean T {:.4} (paths) against {:.4} ([0.1, 0.15]), {:.4} (single); rays asked {asked_default} against {asked_wide}",
+        err_default / lit,
+        err_wide / lit,
+        err_single / lit
+    );
     assert!(lit > 20.0, "enough lit points ({lit})");
     assert!(asked_default > asked_wide, "the lower spread asks for more rays");
     assert!(err_default < 0.5 * err_wide, "the lookups must follow the rays more closely: {err_default} against {err_wide}");
