@@ -36,8 +36,9 @@ pub const PATH_TOLERANCE: f64 = 0.02;
 
 /// The margin for what the bake does not estimate, as a fraction of the tolerance: a quarter
 /// (0.5% of 2%). The march at its default samples and step measured 0.2-0.4% against
-/// brute-force marches of the same cache (design.md section 5), and the lattice estimates
-/// ran 0.5-1x the bias measured against the reference (docs/benchmarks.md).
+/// brute-force marches of the same cache (design.md section 5). What Li_multiple's lattice
+/// estimates miss is not in it: the budget takes them at
+/// [`crate::LATTICE_BIAS_UNDER_READ`] times their value.
 pub const UNESTIMATED_SHARE: f64 = 0.25;
 
 /// Least share of the tolerance the paths get, however large the lattices' estimates: the
