@@ -101,11 +101,13 @@ fn lights_nee(x: vec3<f32>, w_out: vec3<f32>, m: Medium, grid: MajorantGridInfo,
         if (add_lobes) {
             light_lobes_add(lobes, inc.to_light, luminance(inc.irradiance));
         }
+        // The shadow ray with probability table.y in place of the blend: the same
+        // expectation (TabledTransmittance::sample), a ray at that fraction of the lookups.
         let table = light_table_lookup(i, x);
         var tr = table.x;
-        if (table.y > 0.0) {
-            tr = mix(table.x, track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
-                                                        min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng), table.y);
+        if (table.y >= 1.0 || (table.y > 0.0 && rng_next_f64_as_f32(rng) < table.y)) {
+            tr = track_transmittance_ratio(path_track_ray(x, inc.to_light, m.extinction), grid,
+                                           min(inc.distance, TRACK_FAR), RATIO_ROULETTE, rng);
         }
         if (tr > 0.0) {
             direct = direct + inc.irradiance * (tr * hg_eval(m.g, dot(-inc.to_light, w_out)));

@@ -54,7 +54,7 @@
 //! transmittance below their cut-off).
 
 use glam::{DAffine3, DMat3, DVec3, IVec3, Vec3};
-use nimbus_optics::Light;
+use nimbus_optics::{Light, Rng};
 use nimbus_volume::{lattice_cell, brick_offset, brick_origin, Transform, Volume, BRICK_DIM, BRICK_VOXELS};
 use rayon::prelude::*;
 
@@ -78,8 +78,9 @@ use crate::DensityMedium;
 /// voxel) made multiple scattering 1-2% bright in the mean: seed 20261207042 2.1% bright and
 /// 2.6% off the reference, 0.65% and 1.2% with this spread, 0.39% and 0.7% with shadow rays
 /// at every lookup. It costs the bundled scenes' bakes 17-21% more CPU time and the
-/// Cloud1-class bake 38% (docs/benchmarks.md). Single scattering takes a lower one
-/// ([`SINGLE_SPREAD`]).
+/// Cloud1-class bake 38% (docs/benchmarks.md). Between the two the paths trace the ray with
+/// the blend's weight as its probability ([`TabledTransmittance::sample`]): 3-13% of that
+/// back. Single scattering takes a lower one ([`SINGLE_SPREAD`]).
 pub const TABLED_SPREAD: [f32; 2] = [0.02, 0.04];
 
 /// [`TABLED_SPREAD`] for single scattering: one lookup per cache node, the image's direct
@@ -140,6 +141,22 @@ impl TabledTransmittance {
             ray()
         } else {
             self.table + self.ray_weight * (ray() - self.table)
+        }
+    }
+
+    /// The transmittance with the same expectation as [`TabledTransmittance::resolve`], the
+    /// shadow ray traced with probability `ray_weight` in place of the blend (one draw from
+    /// `rng` where the weight is strictly between 0 and 1): a path's next-event estimates are
+    /// averaged over many paths, and a ray traced at a fraction of the lookups that would
+    /// blend it costs that fraction.
+    #[inline]
+    pub fn sample(self, rng: &mut Rng, ray: impl FnOnce(&mut Rng) -> f64) -> f64 {
+        if self.ray_weight <= 0.0 {
+            self.table
+        } else if self.ray_weight >= 1.0 || rng.next_f64() < self.ray_weight {
+            ray(rng)
+        } else {
+            self.table
         }
     }
 }
@@ -317,6 +334,16 @@ pub enum Shadowing<'a> {
     /// The light's tabled optical depth where it has one, ratio tracking otherwise: no
     /// tracked ray per collision, and no noise from it.
     Tabled(&'a LightDepths),
+}
+
+impl Shadowing<'_> {
+    /// Light `index`'s table where this shadowing reads one.
+    pub fn table(&self, index: usize) -> Option<&OpticalDepthVolume> {
+        match self {
+            Shadowing::Tabled(depths) => depths.get(index),
+            Shadowing::RatioTracked => None,
+        }
+    }
 }
 
 /// How one sun's table is laid out, decided on the host once for both backends: the
@@ -604,6 +631,26 @@ fn integral(a: &[f64; 4], s: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sampled_lookup_has_the_blends_expectation_and_traces_the_ray_at_its_weight() {
+        let ray_value = 0.2;
+        for (table, ray_weight) in [(0.6, 0.0), (0.6, 0.3), (0.6, 0.75), (0.6, 1.0)] {
+            let lookup = TabledTransmittance { table, ray_weight };
+            let blend = lookup.resolve(|| ray_value);
+            let (mut rng, mut sum, mut rays, n) = (Rng::new(7, 0), 0.0, 0u32, 200_000);
+            for _ in 0..n {
+                sum += lookup.sample(&mut rng, |_| {
+                    rays += 1;
+                    ray_value
+                });
+            }
+            let (mean, share) = (sum / n as f64, rays as f64 / n as f64);
+            // The binomial's standard error at n = 200k: at most 0.0011 in the share.
+            assert!((share - ray_weight).abs() < 0.005, "weight {ray_weight}: rays at {share}");
+            assert!((mean - blend).abs() < 0.4 * 0.005, "weight {ray_weight}: {mean} against the blend's {blend}");
+        }
+    }
 
     #[test]
     fn the_cubic_is_the_trilinear_interpolant_along_the_line() {

@@ -257,10 +257,10 @@ fn lights_nee(medium: DensityMedium, phase: HenyeyGreenstein, lights: &[Light], 
         if let Some(lobes) = lobes.as_deref_mut() {
             lobes.add(incident.to_light, luminance(incident.irradiance));
         }
-        let mut ray = || MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
-        let tr = match shadowing {
-            Shadowing::Tabled(depths) => depths.transmittance(index, x, ray),
-            Shadowing::RatioTracked => ray(),
+        let ray = |rng: &mut Rng| MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
+        let tr = match shadowing.table(index) {
+            Some(table) => table.lookup(x).sample(rng, ray),
+            None => ray(rng),
         } as f32;
         if tr > 0.0 {
             direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
