@@ -236,14 +236,15 @@ impl LatticeBias {
         LATTICE_BIAS_UNDER_READ * self.relative()
     }
 
-    /// Whether the bias exceeds `tolerance`: the estimate itself, not the estimate less its
+    /// Whether the bias as the budget takes it ([`LatticeBias::budgeted`]) exceeds
+    /// `tolerance`: the estimate itself, not the estimate less its
     /// standard error. Held to a standard error's margin, a noisy estimate kept a lattice
     /// that was far off: `nimbus-scene --random 20261207050` (a shell of 16 optical depths a
     /// voxel, two grazing suns) estimated 1.81% with a standard error of its square of
     /// 1.46%^2, stayed at 2 voxels and came out 4.5% off the reference (2.9% bright). A
     /// wrong image costs the user more than a refinement the noise asked for.
     pub fn exceeds(&self, tolerance: f64) -> bool {
-        self.squared * LATTICE_BIAS_UNDER_READ * LATTICE_BIAS_UNDER_READ > tolerance * tolerance
+        self.budgeted() > tolerance
     }
 }
 

@@ -303,15 +303,21 @@ impl LightDepths {
         self.per_light.get(index).and_then(Option::as_ref)
     }
 
-    /// Transmittance toward light `index` from world point `x`: its table where it has one
-    /// and resolves `x`, the shadow ray `ray` otherwise.
+    /// Transmittance toward light `index` from world point `x` for a path's next-event
+    /// estimate: its table where it has one and resolves `x`, the shadow ray `ray` otherwise,
+    /// and in between (across [`TABLED_SPREAD`]) the ray drawn with the blend's weight
+    /// ([`TabledTransmittance::sample`]).
     #[inline]
-    pub fn transmittance(&self, index: usize, x: DVec3, ray: impl FnOnce() -> f64) -> f64 {
-        self.transmittance_within(index, x, TABLED_SPREAD, ray)
+    pub fn transmittance(&self, index: usize, x: DVec3, rng: &mut Rng, ray: impl FnOnce(&mut Rng) -> f64) -> f64 {
+        match self.get(index) {
+            Some(table) => table.lookup(x).sample(rng, ray),
+            None => ray(rng),
+        }
     }
 
-    /// [`LightDepths::transmittance`], the shadow ray blended in across `spread`
-    /// ([`SINGLE_SPREAD`] for single scattering).
+    /// Transmittance toward light `index` from world point `x`, the shadow ray blended in
+    /// across `spread` ([`SINGLE_SPREAD`] for single scattering, whose one lookup per node
+    /// shows undiluted in the image).
     #[inline]
     pub fn transmittance_within(&self, index: usize, x: DVec3, spread: [f32; 2], ray: impl FnOnce() -> f64) -> f64 {
         match self.get(index) {
@@ -334,16 +340,6 @@ pub enum Shadowing<'a> {
     /// The light's tabled optical depth where it has one, ratio tracking otherwise: no
     /// tracked ray per collision, and no noise from it.
     Tabled(&'a LightDepths),
-}
-
-impl Shadowing<'_> {
-    /// Light `index`'s table where this shadowing reads one.
-    pub fn table(&self, index: usize) -> Option<&OpticalDepthVolume> {
-        match self {
-            Shadowing::Tabled(depths) => depths.get(index),
-            Shadowing::RatioTracked => None,
-        }
-    }
 }
 
 /// How one sun's table is laid out, decided on the host once for both backends: the

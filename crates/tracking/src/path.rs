@@ -258,9 +258,9 @@ fn lights_nee(medium: DensityMedium, phase: HenyeyGreenstein, lights: &[Light], 
             lobes.add(incident.to_light, luminance(incident.irradiance));
         }
         let ray = |rng: &mut Rng| MediumRay::new(medium, x, incident.to_light.as_dvec3(), 0.0, incident.distance).transmittance_ratio(rng, RATIO_ROULETTE);
-        let tr = match shadowing.table(index) {
-            Some(table) => table.lookup(x).sample(rng, ray),
-            None => ray(rng),
+        let tr = match shadowing {
+            Shadowing::Tabled(depths) => depths.transmittance(index, x, rng, ray),
+            Shadowing::RatioTracked => ray(rng),
         } as f32;
         if tr > 0.0 {
             direct += incident.irradiance * (tr * phase.eval_dirs(-incident.to_light, w_out));
