@@ -246,12 +246,13 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
     // A refined lattice costs up to eight times the bake: say why, rather than only under -v.
     if let Some(l) = stats.multiple_lattice.as_ref().filter(|l| l.scale != l.first_scale) {
         log.note(format!(
-            "Li_multiple's lattice refined from {} to {} density voxels: the bias the coarser one leaves in the image was estimated at {:.1}% (taken as {:.1}%, as the estimates under-read), above --multiple-tolerance {:.1}%",
+            "Li_multiple's lattice refined from {} to {} density voxels: the bias the coarser one leaves in the image was estimated at {:.1}% (taken as {:.1}%, as the estimates under-read), above --multiple-tolerance {:.1}%{}",
             l.first_scale,
             l.scale,
             100.0 * l.first_bias.relative(),
             100.0 * l.first_bias.budgeted(),
-            100.0 * params.multiple_tolerance.unwrap_or(0.0)
+            100.0 * params.multiple_tolerance.unwrap_or(0.0),
+            l.bias.measured.map_or(String::new(), |[fine, _]| format!("; the last lattice's, measured against the one before it, {:.1}%", 100.0 * fine))
         ));
     }
     if let Some(l) = stats.single_lattice.as_ref().filter(|l| l.direct) {
@@ -303,13 +304,14 @@ fn multiple_lattice_summary(l: &MultipleLattice) -> String {
     let signed = |s: f64| 100.0 * s.signum() * s.abs().sqrt();
     let bias = |b: &LatticeBias| {
         format!(
-            "{:.2}%, taken as {:.2}% (standard error of its square {:.2}%^2; octants {:.2}%, Taylor {:.2}%, halving {:.2}%)",
+            "{:.2}%, taken as {:.2}% (standard error of its square {:.2}%^2; octants {:.2}%, Taylor {:.2}%, halving {:.2}%{})",
             100.0 * b.relative(),
             100.0 * b.budgeted(),
             1e4 * b.standard_error,
             signed(b.octants),
             signed(b.taylor),
-            signed(b.halving)
+            signed(b.halving),
+            b.measured.map_or(String::new(), |[fine, coarser]| format!("; measured against the bake before it {:.2}%, that bake's {:.2}%", 100.0 * fine, 100.0 * coarser))
         )
     };
     if l.scale == l.first_scale {

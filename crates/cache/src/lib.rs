@@ -29,7 +29,8 @@
 //!   origins' octants in two independent halves, estimate the bias the lattice leaves in
 //!   the image, and a lattice biased beyond it is traced again finer (multiple_lattice.rs:
 //!   [`lattice_bias`], [`refined_scale`]; the estimate taken at [`LATTICE_BIAS_UNDER_READ`]
-//!   times its value, as it under-read the bias measured against the reference). With the medium's emission
+//!   times its value, as it under-read the bias measured against the reference; a refined
+//!   lattice's bias measured against the bake before it, [`BakedLattice`]). With the medium's emission
 //!   ([`bake_cpu_emitting`], [`bake_gpu_emitting`]) the paths gather it too, so Li_multiple holds emitted light
 //!   the medium scatters (a fire lights its smoke; vdbmarch adds the unscattered emission
 //!   along camera rays itself), with or without lights.
@@ -76,7 +77,7 @@ pub use cpu::{bake_cpu, bake_cpu_emitting, gather_cell, li_multiple, li_multiple
 pub use gpu::{bake_gpu, bake_gpu_emitting, CACHE_WGSL, GPU_MAX_NEIGHBOURS};
 pub use importance::{pixel_samples_per_side, CameraImportance, PathPlan, IMPORTANCE_RAYS, MAX_ORIGINS_PER_VOXEL, MAX_SAMPLES_PER_PIXEL_SIDE};
 pub use lattice::{choose_single_lattice, SingleLattice, LATTICE_SAMPLES, MAX_REFINEMENT, SINGLE_LATTICE_TOLERANCE};
-pub use multiple_lattice::{lattice_bias, refined_scale, LatticeBias, MultipleLattice, LATTICE_BIAS_UNDER_READ, MULTIPLE_LATTICE_TOLERANCE};
+pub use multiple_lattice::{lattice_bias, refined_scale, BakedLattice, LatticeBias, MultipleLattice, LATTICE_BIAS_UNDER_READ, MULTIPLE_LATTICE_TOLERANCE};
 pub use plan::{cache_transform, CachePlan};
 pub use nimbus_tracking::LightLattice;
 

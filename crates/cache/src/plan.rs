@@ -44,6 +44,7 @@ impl<'a, 'e> Prologue<'a, 'e> {
 }
 
 /// The cache bricks to bake and, in each, the voxels to bake.
+#[derive(Clone)]
 pub struct CachePlan {
     pub transform: Transform,
     /// Sorted by origin.

@@ -408,6 +408,9 @@ fn the_lattice_bias_is_estimated_and_acted_on_as_on_the_cpu() {
     let (c, g) = (cpu.multiple_lattice.unwrap(), gpu.multiple_lattice.unwrap());
     eprintln!("refined: CPU {c:?}\nGPU {g:?}");
     assert!(c.first_scale == 2.5 && (0.75..=1.25).contains(&c.scale), "{c:?}");
+    // The refined lattice's bias measured against the bake before it, from both backends.
+    let ([cf, cc], [gf, gc]) = (c.bias.measured.unwrap(), g.bias.measured.unwrap());
+    assert!(cf.is_finite() && gf.is_finite() && cc >= cf && gc >= gf, "{c:?} {g:?}");
     assert_eq!((g.first_scale, g.scale), (c.first_scale, c.scale), "{g:?}");
     let (cpu_li, gpu_li) = (cpu_cache.li_multiple.unwrap(), gpu_cache.li_multiple.unwrap());
     assert!((cpu_li.transform().voxel_size().x - 0.1 * c.scale).abs() < 1e-12, "the finer lattice is what is stored");
