@@ -104,6 +104,7 @@ fn params(v: &Volume<f32>, extinction: f32) -> CacheParams {
         seed: 0,
         min_transmittance: 1e-4,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     }
 }
 
@@ -220,7 +221,7 @@ fn paths_rows() {
         // Its own stream per voxel, from the position: independent of the bakes' (seed 1).
         let index = x.x.to_bits() ^ x.y.to_bits().rotate_left(21) ^ x.z.to_bits().rotate_left(42);
         let _ = w_out;
-        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), Default::default(), &[x], &[], 256, p.camera.eye(), &mut Rng::new(99, index)).mean
+        li_multiple_paths(medium, &p.medium, &p.lights, &LightDepths::default(), Default::default(), &[x], &[], 256, nimbus_cache::PATH_MAX_DEPTH, p.camera.eye(), &mut Rng::new(99, index)).mean
     });
 }
 

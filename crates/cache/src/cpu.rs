@@ -13,7 +13,7 @@ use nimbus_volume::{MajorantGrid, Volume};
 
 use crate::plan::Prologue;
 use crate::multiple_lattice::bake_paths;
-use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins, PATH_MAX_DEPTH};
+use crate::{BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins};
 
 /// Random-number domain of the path-traced multiple scattering ("CAPT").
 pub(crate) const CACHE_PATHS_DOMAIN: u32 = 0x4341_5054;
@@ -214,6 +214,7 @@ pub fn li_multiple_paths(
     origins: &[DVec3],
     octants: &[u8],
     paths: u32,
+    max_depth: u32,
     eye: DVec3,
     rng: &mut Rng,
 ) -> PathMoments {
@@ -241,7 +242,7 @@ pub fn li_multiple_paths(
         }
         let dir = phase.sample(axis, r2_point(offsets[j & 1], (j >> 1) as u32)).as_dvec3().normalize();
         let start = PathStart::Scattered { w_in: axis };
-        estimate += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, PATH_MAX_DEPTH, rng, sources).total();
+        estimate += trace_path(medium, optics, lights, Shadowing::Tabled(depths), x, dir, start, max_depth, rng, sources).total();
         sum += estimate;
         squares += estimate.length_squared() / 3.0;
         halves[8 * (j & 1) + octants.get(j % origins.len()).map_or(0, |&o| o as usize)] += estimate.element_sum() / 3.0;
@@ -328,7 +329,7 @@ pub fn bake_cpu_emitting(
                         let paths = plan.counts[i];
                         let mut rng = Rng::with_domain(seed, i as u64, CACHE_PATHS_DOMAIN);
                         let sources = PathSources { environment: params.environment.as_ref(), emission };
-                        let m = li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), plan.octants_of(i), paths, camera.eye(), &mut rng);
+                        let m = li_multiple_paths(paths_medium, &params.medium, &params.lights, &depths, sources, plan.origins_of(i), plan.octants_of(i), paths, params.path_max_depth, camera.eye(), &mut rng);
                         task.advance(paths as u64);
                         m
                     })

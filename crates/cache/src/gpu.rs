@@ -18,8 +18,23 @@ use crate::multiple_lattice::bake_paths;
 use crate::importance::MAX_ORIGINS_PER_VOXEL;
 use crate::{
     transmittance_grids, BakeStats, CacheError, CacheParams, CachePlan, Gather, IlluminationCache, MultipleEstimator, PathMoments, PathPlan, PhotonBins,
-    PATH_MAX_DEPTH,
+    SOFTWARE_PATH_MAX_DEPTH,
 };
+
+/// The most collisions a path takes on `ctx`'s adapter: `params.path_max_depth`, cut to
+/// [`SOFTWARE_PATH_MAX_DEPTH`] where the adapter has a loop cap.
+fn path_max_depth(ctx: &GpuContext, params: &CacheParams) -> u32 {
+    if ctx.loop_cap().is_some() {
+        params.path_max_depth.min(SOFTWARE_PATH_MAX_DEPTH)
+    } else {
+        params.path_max_depth
+    }
+}
+
+/// Albedo above which paths reach [`SOFTWARE_PATH_MAX_DEPTH`] often enough to matter: roulette
+/// keeps one past it with probability albedo^509, 0.6% at 0.99 (the light it carries is more,
+/// as in a dense medium those are the paths that stay lit).
+const CUT_MATTERS_FROM_ALBEDO: f32 = 0.99;
 
 /// The cache kernels, `shaders/cache.wgsl`.
 pub const CACHE_WGSL: &str = include_str!("../../../shaders/cache.wgsl");
@@ -209,6 +224,10 @@ pub fn bake_gpu_emitting(
         // The paths, their counts and origins, and the lattice, are decided on the host by
         // the CPU's very rule (multiple_lattice.rs).
         MultipleEstimator::Paths { per_voxel } => {
+            let cut = path_max_depth(ctx, params);
+            if cut < params.path_max_depth && params.medium.albedo.max_element() >= CUT_MATTERS_FROM_ALBEDO {
+                stats.paths_cut_at = Some(cut);
+            }
             let trace = |_: &str, voxels: &CachePlan, p: &PathPlan, seed: u64| -> Result<Vec<PathMoments>, CacheError> {
                 let Some(b) = &baker else { return Ok(Vec::new()) };
                 let (out, halves) = b.run(Kernel::Paths(p, seed), &voxels.voxel_positions())?;
@@ -359,7 +378,7 @@ impl<'a> GpuBaker<'a> {
             max_shell: (radius / cell).ceil() as i32 + 1,
             empty_below: empty_ball_density(majorant) as f32,
             seed: split_u64(params.seed),
-            max_depth: PATH_MAX_DEPTH,
+            max_depth: path_max_depth(ctx, params),
             first_path: 0,
             path_count: 0,
             _pad: [0; 5],
@@ -368,7 +387,7 @@ impl<'a> GpuBaker<'a> {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, emission.is_some()) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
                 let edge = density.transform().voxel_size().max_element();
-                let longest = long_path_loop_iterations(&grid, edge, &params.medium, params.lights.len(), params.environment.is_some(), PATH_MAX_DEPTH);
+                let longest = long_path_loop_iterations(&grid, edge, &params.medium, params.lights.len(), params.environment.is_some(), path_max_depth(ctx, params));
                 Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background()), longest))
             }
             _ => None,

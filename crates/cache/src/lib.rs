@@ -151,14 +151,21 @@ impl ShadowMode {
     }
 }
 
-/// Most collisions of a path-traced multiple-scattering estimate. A truncation: roulette
-/// keeps a path with the albedo's probability, and at albedo 0.9999 (a cloud's) 512
-/// collisions drop 2.8% of a dense lump's image (`nimbus-scene --random 20261207001` at that
-/// albedo; 0.4% at its own 0.998), which the reference's 4096 no longer does. Raised to
-/// 4096 here, the paths outran lavapipe's loop cap at albedo 0.998 (the software dispatch
-/// bounds a path by roulette's mean length, and the tail past it had been cut at 512), so
-/// it stays until the GPU's path loop can resume a path across dispatches (issue #47's note).
-pub const PATH_MAX_DEPTH: u32 = 512;
+/// Most collisions of a path-traced multiple-scattering estimate ([`CacheParams::path_max_depth`]
+/// by default), as the reference's (`vdbmarch --reference --max-depth`). A truncation:
+/// roulette keeps a path with the albedo's probability, so at albedo 0.999 most paths outlive
+/// 512 collisions in a dense medium. At 512 (before 2026-12-07, night) the cut left
+/// `nimbus-scene --random 20261207015` (15 optical depths a voxel, albedo 0.984-0.999) 1%
+/// dark where the image is lit, 1.88% off the 4096-collision reference against 0.45% off one
+/// cut at 512 as well; 2.8% of a dense lump's image at albedo 0.9999
+/// (`--random 20261207001`). Below albedo 0.98 no path comes near either cap.
+pub const PATH_MAX_DEPTH: u32 = 4096;
+
+/// The cap on an adapter with a loop cap (lavapipe): a path of 4096 collisions outruns
+/// llvmpipe's loop cap on its own, whatever the dispatch holds, and the shader cannot yet
+/// resume a path across dispatches. A bake on such an adapter says so where the medium's
+/// albedo lets paths reach it ([`BakeStats::paths_cut_at`]).
+pub const SOFTWARE_PATH_MAX_DEPTH: u32 = 512;
 
 /// Everything a bake depends on; the CPU and GPU backends read the same struct.
 #[derive(Clone, Debug)]
@@ -202,6 +209,9 @@ pub struct CacheParams {
     pub min_transmittance: f64,
     /// Where transmittance toward the lights comes from.
     pub shadows: ShadowMode,
+    /// Most collisions of a path ([`PATH_MAX_DEPTH`]; a GPU with a loop cap cuts it to
+    /// [`SOFTWARE_PATH_MAX_DEPTH`]).
+    pub path_max_depth: u32,
 }
 
 /// The baked grids; `None` where that part was not asked for or had nothing to gather.
@@ -242,6 +252,10 @@ pub struct BakeStats {
     pub light_table_nodes: u64,
     /// Voxels whose estimate came out non-finite (stored as zero); should stay 0.
     pub nonfinite: u64,
+    /// Where the paths were cut short of [`CacheParams::path_max_depth`] (a GPU's loop cap,
+    /// [`SOFTWARE_PATH_MAX_DEPTH`]) in a medium whose albedo lets them reach the cut: the
+    /// collisions they stopped at.
+    pub paths_cut_at: Option<u32>,
     /// Li_single's lattice as chosen ([`choose_single_lattice`]), where it was measured.
     pub single_lattice: Option<SingleLattice>,
     /// Li_multiple's lattice as settled by its estimated bias, where it was estimated.

@@ -47,6 +47,7 @@ fn params(camera: Camera, medium: Medium) -> CacheParams {
         seed: 0,
         min_transmittance: 1e-4,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     }
 }
 
@@ -68,7 +69,7 @@ fn deep_inside_a_uniform_emitting_medium_li_is_emission_over_absorption() {
     // The optical depth to the nearest face is 29: no path gets out.
     let paths = 20_000;
     let mut rng = Rng::new(3, 0);
-    let li = li_multiple_paths(medium, &optics, &[], &LightDepths::default(), nimbus_tracking::PathSources { environment: None, emission: Some(&field) }, &[centre], &[], paths, centre + DVec3::X, &mut rng).mean;
+    let li = li_multiple_paths(medium, &optics, &[], &LightDepths::default(), nimbus_tracking::PathSources { environment: None, emission: Some(&field) }, &[centre], &[], paths, nimbus_cache::PATH_MAX_DEPTH, centre + DVec3::X, &mut rng).mean;
     let expected = E / (optics.extinction * 0.5);
     for k in 0..3 {
         let rel = (li[k] / expected[k] - 1.0).abs();

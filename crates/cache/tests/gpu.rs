@@ -529,6 +529,8 @@ fn paths_longer_than_a_software_adapter_runs_are_refused() {
         multiple_scale: None,
         multiple_tolerance: None,
         estimator: MultipleEstimator::Paths { per_voxel: 4 },
+        // Where a software adapter cuts them, on both backends.
+        path_max_depth: nimbus_cache::SOFTWARE_PATH_MAX_DEPTH,
         ..params(&v)
     };
     let none = PhotonMap::default();
@@ -590,4 +592,21 @@ fn emission_in_the_paths_agrees_with_the_cpu_in_distribution() {
     let p = CacheParams { single: false, estimator: MultipleEstimator::Paths { per_voxel: 8 }, lights: vec![], ..params(&v) };
     let (dark, _) = nimbus_cache::bake_gpu_emitting(ctx, &v, &PhotonMap::default(), &p, None).unwrap();
     assert!(dark.li_multiple.is_none());
+}
+
+/// A software adapter cuts the paths at its 512 collisions, and says so where the medium's
+/// albedo lets paths get that far (a cloud's 0.999), not where it does not (0.9).
+#[test]
+fn a_software_adapter_says_where_it_cuts_the_paths() {
+    let Some(ctx) = nimbus_gpu::test_context() else { return };
+    let v = lumpy_ball();
+    let none = PhotonMap::default();
+    let bright = CacheParams { medium: Medium { extinction: 3.0, albedo: Vec3::splat(0.999), g: 0.3 }, ..paths_only(&v, 3) };
+    let (_, stats) = bake_gpu(ctx, &v, &none, &bright).unwrap();
+    let expected = ctx.loop_cap().map(|_| nimbus_cache::SOFTWARE_PATH_MAX_DEPTH);
+    assert_eq!(stats.paths_cut_at, expected, "albedo 0.999 on {:?}", ctx.loop_cap());
+    let (_, stats) = bake_gpu(ctx, &v, &none, &paths_only(&v, 3)).unwrap();
+    assert_eq!(stats.paths_cut_at, None, "albedo 0.9 loses nothing at 512 collisions");
+    let (_, stats) = bake_cpu(&v, &none, &bright).unwrap();
+    assert_eq!(stats.paths_cut_at, None, "the CPU traces them to {}", nimbus_cache::PATH_MAX_DEPTH);
 }

@@ -64,3 +64,45 @@ fn baked_paths_agree_with_the_reference_where_the_eye_sees() {
     let other = THICK.baked_paths(1.0 / 8.0, 1.0, 256, 4, &points);
     assert_ne!(baked, other, "the seed reaches the paths");
 }
+
+/// The furnace deep inside: a cube of albedo 1, 20 mean free paths from its centre to each
+/// face, under a uniform sky. Every order of scattering counts, so Li at the centre is the
+/// sky's radiance, and a path that never escapes carries its light out only after hundreds
+/// of collisions (a random walk's exit takes about 1.5 x 20^2 = 600 on average). Paths cut at
+/// the software adapter's 512 collisions leave it dark; the default cap, as the reference's,
+/// does not.
+#[test]
+fn the_furnace_holds_deep_inside_a_cube_only_for_paths_as_long_as_the_reference_s() {
+    use glam::{IVec3, Vec3};
+    use nimbus_optics::{Environment, Medium, Rng};
+    use nimbus_tracking::{DensityMedium, LightDepths, PathSources};
+    use nimbus_volume::{MajorantGrid, Transform, Volume};
+    let (n, voxel) = (32, 1.0 / 32.0);
+    let mut density = Volume::new(Transform::uniform(voxel, DVec3::ZERO), 0.0f32);
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                density.set(IVec3::new(x, y, z), 1.0);
+            }
+        }
+    }
+    // 40 optical depths across the cube's 31 voxels (its faces ramp over half a voxel).
+    let optics = Medium { extinction: 40.0 * 32.0 / 31.0, albedo: Vec3::ONE, g: 0.0 };
+    let majorant = MajorantGrid::for_tracking(&density, optics.extinction);
+    let medium = DensityMedium { motion: None, density: &density, majorant: &majorant, extinction: optics.extinction };
+    let sky = Environment::uniform(Vec3::ONE).unwrap();
+    let centre = DVec3::splat(0.5 * (n - 1) as f64 * voxel);
+    let li = |max_depth: u32| {
+        let paths = 4000;
+        let sources = PathSources { environment: Some(&sky), emission: None };
+        let m = nimbus_cache::li_multiple_paths(medium, &optics, &[], &LightDepths::default(), sources, &[centre], &[], paths, max_depth, centre + DVec3::X, &mut Rng::new(7, 0));
+        let mean = m.mean.element_sum() as f64 / 3.0;
+        let standard_error = ((m.mean_square as f64 - mean * mean).max(0.0) / paths as f64).sqrt();
+        (mean, standard_error)
+    };
+    let (whole, e) = li(nimbus_cache::PATH_MAX_DEPTH);
+    let (cut, ce) = li(nimbus_cache::SOFTWARE_PATH_MAX_DEPTH);
+    eprintln!("Li at the centre: {whole:.4} +- {e:.4} with paths to {} collisions, {cut:.4} +- {ce:.4} cut at {}", nimbus_cache::PATH_MAX_DEPTH, nimbus_cache::SOFTWARE_PATH_MAX_DEPTH);
+    assert!((whole - 1.0).abs() < (4.0 * e).max(0.02), "the furnace at the default cap: {whole} +- {e}");
+    assert!(cut < 1.0 - 4.0 * ce && cut < whole - 4.0 * e.hypot(ce), "paths cut at 512 collisions should lose light here: {cut} +- {ce}");
+}

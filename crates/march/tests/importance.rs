@@ -118,6 +118,7 @@ fn voxels_averaged_over_their_path_origins_keep_the_image_total() {
         seed: 3,
         min_transmittance: 0.0,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     };
     // Bright at the side facing the camera (-Y), falling over a tenth of the cloud's width.
     let f = |x: DVec3| (-(x.y + 1.2).max(0.0) / 0.12).exp();

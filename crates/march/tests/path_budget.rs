@@ -43,6 +43,7 @@ fn render(density: &Volume<f32>, seed: u64, tolerance: f64) -> (Vec<f64>, BakeSt
         seed,
         min_transmittance: 0.0,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     };
     let (cache, stats) = bake_cpu(density, &PhotonMap::default(), &cache_params).unwrap();
     let march = MarchParams { medium: medium(), background: Vec3::ZERO, aovs: false, ..params(cam) };

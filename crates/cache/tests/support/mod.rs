@@ -31,6 +31,7 @@ pub fn params(medium: Medium, lights: Vec<Light>, camera: Camera) -> CacheParams
         seed: 0,
         min_transmittance: 0.0,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     }
 }
 

@@ -51,6 +51,7 @@ impl Sphere {
             seed,
             min_transmittance: 1e-4,
             shadows: ShadowMode::Table(LightLattice::default()),
+            path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
         }
     }
 
@@ -162,7 +163,7 @@ impl Sphere {
                     .map(|b| {
                         let mut rng = Rng::new(seed, i as u64 * 8 + b);
                         // w_out = +X: the eye lies along +X from p.
-                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), Default::default(), &[p], &[], paths / 8, p + DVec3::X, &mut rng).mean.x as f64
+                        nimbus_cache::li_multiple_paths(medium, &optics, &lights, &nimbus_tracking::LightDepths::default(), Default::default(), &[p], &[], paths / 8, nimbus_cache::PATH_MAX_DEPTH, p + DVec3::X, &mut rng).mean.x as f64
                     })
                     .collect();
                 let mean = batches.iter().sum::<f64>() / 8.0;

@@ -148,6 +148,7 @@ pub fn single_scattering_chain(density: &Volume<f32>, medium: Medium, sun: Light
         seed: 0,
         min_transmittance: 0.0,
         shadows: ShadowMode::Table(LightLattice::default()),
+        path_max_depth: nimbus_cache::PATH_MAX_DEPTH,
     };
     let (cache, _) = bake_cpu(density, &nimbus_photon::PhotonMap::default(), &cache_params).unwrap();
     let march = MarchParams { step, max_step_factor: 1, noise_scale: 1.0, noise_octaves: 1, min_transmittance: 0.0, seed: 3, ..MarchParams::new(medium, camera.clone(), density.transform()) };
