@@ -71,7 +71,8 @@
 //! and along the same importance rays `mean((A_c - A_f)(B_c - B_f))` is the square of the
 //! coarser lattice's bias less the finer one's where the image reads them, with no path
 //! noise in it. That is what the halving estimate approximates from one lattice; on dense
-//! media it over-read three to four times (`nimbus-scene --random 20261207015`: 3.5% at 2 voxels, where the chain was 0.88% off the reference), and each false refinement costs
+//! media it over-read three to four times (`nimbus-scene --random 20261207015`: 3.5% at 2
+//! voxels, where the chain was 0.88% off the reference), and each false refinement costs
 //! eight times the paths. The refined lattice is taken at that measurement, or at its own
 //! estimate where larger, neither scaled by [`LATTICE_BIAS_UNDER_READ`]: on
 //! `--random 20261207000` it read the 2-voxel lattice's bias at 1.59% where the reference
@@ -178,8 +179,10 @@ pub struct LatticeBias {
 /// A baked lattice's halves, kept when it is refined: the two bakes read along the importance
 /// rays give `mean((A_c - A_f)(B_c - B_f))`, the square of the coarser lattice's bias less the
 /// finer one's where the image reads them, with no path noise in it (each factor's halves
-/// are independent paths). With the bias going as the spacing (it falls faster where
-/// measured: 3.2% at 2 voxels, 1.0% at 1), a refinement by r leaves `(b_c - b_f) / (r - 1)`.
+/// are independent paths). With the bias going as the spacing, a refinement by r leaves
+/// `(b_c - b_f) / (r - 1)`: an over-read where the bias falls faster (3.2% at 2 voxels, 1.0%
+/// at 1 on the forward scene), an under-read where slower (`--random 20261207037`), which is
+/// why the refined lattice's own estimate is its floor ([`LatticeBias::budgeted`]).
 /// This is what the halving estimate approximates from one lattice, measured on two real
 /// bakes: on `nimbus-scene --random 20261207015` the halving estimate read 3.5% at 2 voxels
 /// where the chain was 0.88% off the reference, and 1.5 times the estimate at 1 voxel refined
