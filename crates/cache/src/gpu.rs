@@ -360,6 +360,8 @@ impl<'a> GpuBaker<'a> {
             Gather::Neighbours { k, max_radius } => (k, max_radius, 0),
             Gather::Radius(r) => (0, r, 1),
         };
+        // The same cap in the kernel and in the dispatch's bound on a long path.
+        let max_depth = path_max_depth(ctx, params);
         let uniforms = GpuCacheParams {
             medium: GpuMedium::from(&params.medium),
             grid: GpuMajorantInfo::new(majorant, density.background()),
@@ -378,7 +380,7 @@ impl<'a> GpuBaker<'a> {
             max_shell: (radius / cell).ceil() as i32 + 1,
             empty_below: empty_ball_density(majorant) as f32,
             seed: split_u64(params.seed),
-            max_depth: path_max_depth(ctx, params),
+            max_depth,
             first_path: 0,
             path_count: 0,
             _pad: [0; 5],
@@ -387,7 +389,7 @@ impl<'a> GpuBaker<'a> {
             MultipleEstimator::Paths { .. } if params.bakes_multiple(photons, emission.is_some()) => {
                 let grid = MajorantGrid::for_tracking(density, params.medium.extinction);
                 let edge = density.transform().voxel_size().max_element();
-                let longest = long_path_loop_iterations(&grid, edge, &params.medium, params.lights.len(), params.environment.is_some(), path_max_depth(ctx, params));
+                let longest = long_path_loop_iterations(&grid, edge, &params.medium, params.lights.len(), params.environment.is_some(), max_depth);
                 Some((majorant_buffer(ctx, &grid)?, GpuMajorantInfo::new(&grid, density.background()), longest))
             }
             _ => None,
