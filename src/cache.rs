@@ -263,6 +263,19 @@ pub fn bake(stage: &Stage, device: &ComputeDevice, photons: &PhotonMap, params: 
             l.bias.measured.map_or(String::new(), |[fine, _]| format!("; the last lattice's, measured against the one before it, {:.1}%", 100.0 * fine))
         ));
     }
+    // The finest lattice the bake takes can still leave more than the tolerance (a medium
+    // optically thick within a voxel: its lit skin is thinner than the lattice): the image
+    // is then off by about that much, which the user should hear without -v.
+    if let (Some(l), Some(tolerance)) = (stats.multiple_lattice.as_ref(), params.multiple_tolerance) {
+        if l.bias.exceeds(tolerance) {
+            log.note(format!(
+                "Li_multiple's lattice stops at {} density voxels, the finest the bake takes here, with its bias in the image still estimated at {:.1}%, above --multiple-tolerance {:.1}%: the image may be off by about that much (vdbmarch --verify measures it)",
+                l.scale,
+                100.0 * l.bias.budgeted(),
+                100.0 * tolerance
+            ));
+        }
+    }
     if let Some(l) = stats.single_lattice.as_ref().filter(|l| l.direct) {
         log.note(format!(
             "Li_single's interpolation would miss by {:.1}% even on a lattice {MAX_REFINEMENT} times finer (the light's transmittance bends within it): vdbmarch will trace single scattering's shadow rays at its samples instead",

@@ -296,17 +296,36 @@ fn paths_replace_photons_in_the_chain() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// vdbcache's messages baking the ball `d` under a sun at 16 x 12 with `paths` a voxel and
+/// `extra`, into `dir`/c.vdb.
+fn ball_bake_log(dir: &Path, d: &Path, paths: &str, extra: &[&str]) -> String {
+    let args = [&["--extinction", "6", "--sun", "dir=0.3,0.4,-0.8,irradiance=2", "--width", "16", "--height", "12", "--paths", paths][..], extra].concat();
+    let out = run(Command::new(bin("vdbcache")).arg(d).args(args).arg("-o").arg(dir.join("c.vdb")));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A lattice bias the finest lattice cannot bring under --multiple-tolerance is said without
+/// `-v` (and not with `-q`); one it meets is not.
+#[test]
+fn a_lattice_bias_out_of_reach_is_said() {
+    let dir = scratch("lattice-reach");
+    let (d, _) = ball_density(&dir, &[]);
+    let bake = |extra: &[&str]| ball_bake_log(&dir, &d, "4", extra);
+    let said = bake(&["--multiple-tolerance", "0.0001"]);
+    assert!(said.contains("the finest the bake takes here") && said.contains("above --multiple-tolerance 0.0%"), "{said}");
+    assert!(!bake(&["--multiple-tolerance", "0.0001", "-q"]).contains("finest"), "-q keeps it quiet");
+    let met = bake(&["--multiple-tolerance", "1"]);
+    assert!(!met.contains("finest"), "{met}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// A path tolerance the top-up cannot reach within its cap is said without `-v` (and not
 /// with `-q`); one it reaches is not.
 #[test]
 fn a_path_tolerance_out_of_reach_is_said() {
     let dir = scratch("tolerance");
     let (d, _) = ball_density(&dir, &[]);
-    let bake = |extra: &[&str]| {
-        let args = [&["--extinction", "6", "--sun", "dir=0.3,0.4,-0.8,irradiance=2", "--width", "16", "--height", "12", "--paths", "2"][..], extra].concat();
-        let out = run(Command::new(bin("vdbcache")).arg(&d).args(args).arg("-o").arg(dir.join("c.vdb")));
-        String::from_utf8_lossy(&out.stderr).into_owned()
-    };
+    let bake = |extra: &[&str]| ball_bake_log(&dir, &d, "2", extra);
     let said = bake(&["--path-tolerance", "0.0001"]);
     assert!(said.contains("of --path-tolerance 0.01%") && said.contains("16 times the first pass"), "{said}");
     assert!(!bake(&["--path-tolerance", "0.0001", "-q"]).contains("path-tolerance"), "-q keeps it quiet");
